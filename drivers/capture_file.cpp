@@ -1,0 +1,325 @@
+#include "capture_file.hpp"
+
+#include <bit>
+#include <charconv>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+
+namespace fringe {
+
+using nlohmann::json;
+
+namespace {
+constexpr char kMagic[8] = {'F', 'R', 'N', 'G', 'C', 'A', 'P', '1'};
+enum Field { kT = 0, kSin, kCos, kTheta, kOmega, kIndex, kFieldCount };
+const char* const kNames[kFieldCount] = {"t", "sin", "cos", "theta_true", "omega_true", "index"};
+const char* const kUnits[kFieldCount] = {"s", "V", "V", "rad", "rad/s", "V"};
+
+std::vector<double>& field_vec(CaptureData& d, int f) {
+    switch (f) {
+    case kT: return d.t_s;
+    case kSin: return d.sin_v;
+    case kCos: return d.cos_v;
+    case kTheta: return d.theta_true_rad;
+    case kOmega: return d.omega_true_rad_s;
+    default: return d.index_v;
+    }
+}
+
+static_assert(std::endian::native == std::endian::little, "capture I/O assumes a little-endian host");
+
+void append_number(std::string& s, double v) {
+    char tmp[32];
+    auto r = std::to_chars(tmp, tmp + sizeof tmp, v);
+    s.append(tmp, r.ptr);
+}
+}  // namespace
+
+void CaptureData::clear() {
+    for (auto* v : {&t_s, &sin_v, &cos_v, &theta_true_rad, &omega_true_rad_s, &index_v}) v->clear();
+}
+
+CaptureFormat capture_format_for(const std::string& path) {
+    auto ext = std::filesystem::path(path).extension().string();
+    if (ext == ".csv") return CaptureFormat::Csv;
+    if (ext == ".fcap") return CaptureFormat::Binary;
+    throw CaptureError(path + ": unknown capture format '" + ext + "' (use .csv or .fcap)");
+}
+
+std::string sidecar_path(const std::string& csv_path) {
+    return std::filesystem::path(csv_path).replace_extension(".json").string();
+}
+
+// ---------------------------------------------------------------- writer
+
+CaptureWriter::CaptureWriter(const std::string& path, CaptureColumns cols, json meta)
+    : path_(path), fmt_(capture_format_for(path)), cols_(cols) {
+    if (meta.is_null()) meta = json::object();
+    fs_ = meta.value("sample_rate_hz", 0.0);
+    t0_ = meta.value("t0_s", 0.0);
+    json units = {{"t", "s"}, {"sin", "V"}, {"cos", "V"}};
+    if (cols_.theta_true) units["theta_true"] = "rad";
+    if (cols_.omega_true) units["omega_true"] = "rad/s";
+    if (cols_.index) units["index"] = "V";
+    meta["units"] = units;
+    meta["format"] = "fringe-capture";
+    meta["version"] = 1;
+    out_.open(path, std::ios::binary | std::ios::trunc);
+    if (!out_) throw CaptureError(path + ": cannot open for writing: " + std::strerror(errno));
+    if (fmt_ == CaptureFormat::Csv) {
+        std::ofstream side(sidecar_path(path), std::ios::trunc);
+        if (!side) throw CaptureError(sidecar_path(path) + ": cannot open for writing");
+        side << meta.dump(2) << "\n";
+        std::string header = "t,sin,cos";
+        if (cols_.theta_true) header += ",theta_true";
+        if (cols_.omega_true) header += ",omega_true";
+        if (cols_.index) header += ",index";
+        out_ << header << "\n";
+    } else {
+        if (!(fs_ > 0)) throw CaptureError(path + ": binary captures need sample_rate_hz in the metadata");
+        json cols_json = json::array({{{"name", "sin"}, {"type", "f64"}, {"unit", "V"}}, {{"name", "cos"}, {"type", "f64"}, {"unit", "V"}}});
+        if (cols_.theta_true) cols_json.push_back({{"name", "theta_true"}, {"type", "f64"}, {"unit", "rad"}});
+        if (cols_.omega_true) cols_json.push_back({{"name", "omega_true"}, {"type", "f64"}, {"unit", "rad/s"}});
+        if (cols_.index) cols_json.push_back({{"name", "index"}, {"type", "f64"}, {"unit", "V"}});
+        meta["columns"] = cols_json;
+        const std::string h = meta.dump();
+        const std::uint32_t len = static_cast<std::uint32_t>(h.size());
+        out_.write(kMagic, 8);
+        out_.write(reinterpret_cast<const char*>(&len), 4);
+        out_.write(h.data(), static_cast<std::streamsize>(h.size()));
+    }
+    if (!out_) throw CaptureError(path + ": write failed");
+}
+
+CaptureWriter::~CaptureWriter() {
+    try { close(); } catch (...) {}
+}
+
+void CaptureWriter::close() {
+    if (out_.is_open()) {
+        out_.flush();
+        out_.close();
+    }
+}
+
+void CaptureWriter::write(const Block& b) {
+    write_rows(b.size(), b.t_s.data(), b.sin_v.data(), b.cos_v.data(),
+               cols_.theta_true ? b.theta_rad.data() : nullptr,
+               cols_.omega_true ? b.omega_rad_s.data() : nullptr,
+               cols_.index ? b.index_v.data() : nullptr);
+}
+
+void CaptureWriter::write(const CaptureData& d) {
+    auto need = [&](bool on, const std::vector<double>& v, const char* name) -> const double* {
+        if (!on) return nullptr;
+        if (v.size() != d.size()) throw CaptureError(path_ + ": column " + name + " missing in data");
+        return v.data();
+    };
+    write_rows(d.size(), d.t_s.data(), d.sin_v.data(), d.cos_v.data(),
+               need(cols_.theta_true, d.theta_true_rad, "theta_true"),
+               need(cols_.omega_true, d.omega_true_rad_s, "omega_true"),
+               need(cols_.index, d.index_v, "index"));
+}
+
+void CaptureWriter::write_rows(std::size_t n, const double* t, const double* s, const double* c,
+                               const double* th, const double* om, const double* ix) {
+    if (!out_.is_open()) throw CaptureError(path_ + ": writer is closed");
+    buf_.clear();
+    if (fmt_ == CaptureFormat::Csv) {
+        for (std::size_t i = 0; i < n; ++i) {
+            append_number(buf_, t[i]); buf_ += ',';
+            append_number(buf_, s[i]); buf_ += ',';
+            append_number(buf_, c[i]);
+            if (th) { buf_ += ','; append_number(buf_, th[i]); }
+            if (om) { buf_ += ','; append_number(buf_, om[i]); }
+            if (ix) { buf_ += ','; append_number(buf_, ix[i]); }
+            buf_ += '\n';
+        }
+    } else {
+        for (std::size_t i = 0; i < n; ++i) {
+            auto put = [&](double v) { buf_.append(reinterpret_cast<const char*>(&v), 8); };
+            put(s[i]); put(c[i]);
+            if (th) put(th[i]);
+            if (om) put(om[i]);
+            if (ix) put(ix[i]);
+        }
+    }
+    out_.write(buf_.data(), static_cast<std::streamsize>(buf_.size()));
+    out_.flush();  // a killed run leaves every completed block on disk
+    if (!out_) throw CaptureError(path_ + ": write failed after " + std::to_string(frames_) + " frames");
+    frames_ += n;
+}
+
+// ---------------------------------------------------------------- reader
+
+CaptureReader::CaptureReader(const std::string& path) : path_(path), fmt_(capture_format_for(path)) {
+    in_.open(path, std::ios::binary);
+    if (!in_) throw CaptureError(path + ": cannot open: " + std::strerror(errno));
+    if (fmt_ == CaptureFormat::Csv) {
+        const std::string side = sidecar_path(path);
+        if (std::filesystem::exists(side)) {
+            std::ifstream s(side);
+            meta_ = json::parse(s, nullptr, false);
+            if (meta_.is_discarded() || !meta_.is_object())
+                throw CaptureError(side + ": sidecar is not a JSON object");
+        }
+        std::string header;
+        if (!std::getline(in_, header)) throw CaptureError(path + ":1: empty file (expected header 't,sin,cos[,theta_true]')");
+        line_ = 1;
+        if (!header.empty() && header.back() == '\r') header.pop_back();
+        std::size_t pos = 0;
+        bool seen[kFieldCount] = {};
+        while (pos <= header.size()) {
+            auto comma = header.find(',', pos);
+            std::string name = header.substr(pos, comma == std::string::npos ? std::string::npos : comma - pos);
+            int f = -1;
+            for (int k = 0; k < kFieldCount; ++k)
+                if (name == kNames[k]) f = k;
+            if (f < 0)
+                throw CaptureError(path + ":1: unknown column '" + name + "' (expected t, sin, cos and optionally theta_true, omega_true, index)");
+            if (seen[f]) throw CaptureError(path + ":1: duplicate column '" + name + "'");
+            seen[f] = true;
+            col_map_.push_back(f);
+            if (comma == std::string::npos) break;
+            pos = comma + 1;
+        }
+        for (int f : {kT, kSin, kCos})
+            if (!seen[f]) throw CaptureError(path + ":1: missing column '" + std::string(kNames[f]) + "'");
+        cols_.theta_true = seen[kTheta];
+        cols_.omega_true = seen[kOmega];
+        cols_.index = seen[kIndex];
+        if (meta_.contains("sample_rate_hz")) {
+            if (!meta_["sample_rate_hz"].is_number() || !(meta_["sample_rate_hz"].get<double>() > 0))
+                throw CaptureError(sidecar_path(path) + ": sample_rate_hz must be a positive number");
+            fs_ = meta_["sample_rate_hz"].get<double>();
+        }
+    } else {
+        char magic[8];
+        std::uint32_t len = 0;
+        if (!in_.read(magic, 8) || std::memcmp(magic, kMagic, 8) != 0)
+            throw CaptureError(path + ": not a fringe binary capture (bad magic)");
+        if (!in_.read(reinterpret_cast<char*>(&len), 4) || len > (64u << 20))
+            throw CaptureError(path + ": bad header length");
+        std::string h(len, '\0');
+        if (!in_.read(h.data(), len)) throw CaptureError(path + ": truncated header");
+        meta_ = json::parse(h, nullptr, false);
+        if (meta_.is_discarded() || !meta_.is_object()) throw CaptureError(path + ": header is not a JSON object");
+        if (!meta_.contains("sample_rate_hz") || !meta_["sample_rate_hz"].is_number() || !(meta_["sample_rate_hz"].get<double>() > 0))
+            throw CaptureError(path + ": header.sample_rate_hz must be a positive number");
+        fs_ = meta_["sample_rate_hz"].get<double>();
+        t0_ = meta_.value("t0_s", 0.0);
+        if (!meta_.contains("columns") || !meta_["columns"].is_array())
+            throw CaptureError(path + ": header.columns missing");
+        bool seen[kFieldCount] = {};
+        for (const auto& c : meta_["columns"]) {
+            std::string name = c.value("name", ""), type = c.value("type", "");
+            int f = -1;
+            for (int k = 1; k < kFieldCount; ++k)
+                if (name == kNames[k]) f = k;
+            if (f < 0) throw CaptureError(path + ": header: unknown column '" + name + "'");
+            if (type != "f64" && type != "f32") throw CaptureError(path + ": header: column '" + name + "' has unsupported type '" + type + "' (f32, f64)");
+            seen[f] = true;
+            bin_fields_.push_back(f);
+            bin_sizes_.push_back(type == "f64" ? 8 : 4);
+            frame_bytes_ += static_cast<std::size_t>(bin_sizes_.back());
+        }
+        if (!seen[kSin] || !seen[kCos]) throw CaptureError(path + ": header: columns sin and cos are required");
+        cols_.theta_true = seen[kTheta];
+        cols_.omega_true = seen[kOmega];
+        cols_.index = seen[kIndex];
+        const auto data_off = static_cast<std::uintmax_t>(12 + len);
+        const auto size = std::filesystem::file_size(path);
+        const auto data_bytes = size - data_off;
+        if (data_bytes % frame_bytes_ != 0)
+            throw CaptureError(path + ": truncated: " + std::to_string(data_bytes % frame_bytes_) +
+                               " stray bytes after frame " + std::to_string(data_bytes / frame_bytes_) +
+                               " (a capture cut short; the whole frames before it are intact)");
+        total_frames_ = data_bytes / frame_bytes_;
+    }
+}
+
+bool CaptureReader::read(std::size_t max_frames, CaptureData& out) {
+    out.clear();
+    return fmt_ == CaptureFormat::Csv ? read_csv(max_frames, out) : read_bin(max_frames, out);
+}
+
+bool CaptureReader::read_csv(std::size_t max_frames, CaptureData& out) {
+    std::string line;
+    std::vector<std::vector<double>*> dst;
+    for (int f : col_map_) dst.push_back(&field_vec(out, f));
+    while (out.size() < max_frames && std::getline(in_, line)) {
+        ++line_;
+        if (!line.empty() && line.back() == '\r') line.pop_back();
+        if (line.empty()) continue;
+        const char* p = line.data();
+        const char* end = p + line.size();
+        for (std::size_t c = 0; c < col_map_.size(); ++c) {
+            const char* cell_end = static_cast<const char*>(std::memchr(p, ',', static_cast<std::size_t>(end - p)));
+            if (!cell_end) cell_end = end;
+            const bool last = c + 1 == col_map_.size();
+            if (!last && cell_end == end)
+                throw CaptureError(path_ + ":" + std::to_string(line_) + ": expected " + std::to_string(col_map_.size()) + " cells, got " + std::to_string(c + 1));
+            if (last && cell_end != end)
+                throw CaptureError(path_ + ":" + std::to_string(line_) + ": more cells than columns in the header");
+            double v;
+            auto r = std::from_chars(p, cell_end, v);
+            const std::string col = kNames[col_map_[c]];
+            if (r.ec != std::errc() || r.ptr != cell_end)
+                throw CaptureError(path_ + ":" + std::to_string(line_) + ": column " + col + ": not a number: '" + std::string(p, cell_end) + "'");
+            if (!std::isfinite(v))
+                throw CaptureError(path_ + ":" + std::to_string(line_) + ": column " + col + ": " + (std::isnan(v) ? "NaN" : "infinite value"));
+            if (col_map_[c] == kT) {
+                if (have_last_ && !(v > last_t_))
+                    throw CaptureError(path_ + ":" + std::to_string(line_) + ": column t: time does not increase (" + std::string(p, cell_end) + " after previous row)");
+                if (have_last_ && fs_ == 0) fs_ = 1.0 / (v - last_t_);
+                last_t_ = v;
+                have_last_ = true;
+            }
+            dst[c]->push_back(v);
+            p = cell_end + 1;
+        }
+    }
+    return out.size() > 0;
+}
+
+bool CaptureReader::read_bin(std::size_t max_frames, CaptureData& out) {
+    const std::uint64_t n = std::min<std::uint64_t>(max_frames, total_frames_ - frame_);
+    if (n == 0) return false;
+    std::vector<char> raw(n * frame_bytes_);
+    if (!in_.read(raw.data(), static_cast<std::streamsize>(raw.size())))
+        throw CaptureError(path_ + ": read failed at frame " + std::to_string(frame_));
+    const char* p = raw.data();
+    for (std::uint64_t i = 0; i < n; ++i) {
+        out.t_s.push_back(t0_ + static_cast<double>(frame_ + i) / fs_);
+        for (std::size_t c = 0; c < bin_fields_.size(); ++c) {
+            double v;
+            if (bin_sizes_[c] == 8) { std::memcpy(&v, p, 8); }
+            else { float f; std::memcpy(&f, p, 4); v = f; }
+            p += bin_sizes_[c];
+            if (!std::isfinite(v))
+                throw CaptureError(path_ + ": frame " + std::to_string(frame_ + i) + ": column " + kNames[bin_fields_[c]] + ": " + (std::isnan(v) ? "NaN" : "infinite value"));
+            field_vec(out, bin_fields_[c]).push_back(v);
+        }
+    }
+    frame_ += n;
+    return true;
+}
+
+CaptureData read_capture(const std::string& path, json* meta, double* fs) {
+    CaptureReader r(path);
+    CaptureData all, chunk;
+    while (r.read(1 << 16, chunk)) {
+        for (int f = 0; f < kFieldCount; ++f) {
+            auto& src = field_vec(chunk, f);
+            auto& d = field_vec(all, f);
+            d.insert(d.end(), src.begin(), src.end());
+        }
+    }
+    if (all.size() == 0) throw CaptureError(path + ": no samples");
+    if (meta) *meta = r.meta();
+    if (fs) *fs = r.sample_rate_hz();
+    return all;
+}
+
+}  // namespace fringe

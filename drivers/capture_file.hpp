@@ -1,0 +1,102 @@
+// Capture files (DESIGN.md "Capture CSV"; docs/capture-format.md):
+//  - CSV: header row, columns t (s), sin, cos (V), optional theta_true (rad, unwrapped
+//    electrical phase), omega_true (rad/s), index (V); a JSON sidecar <stem>.json beside it.
+//  - Binary .fcap: magic "FRNGCAP1", u32 LE header length, JSON header, then fixed-size
+//    little-endian frames; time is implicit (t0_s + k/sample_rate_hz).
+// Malformed input throws CaptureError naming file and line (or frame).
+#pragma once
+
+#include "signal_gen/generator.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <cstdint>
+#include <fstream>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace fringe {
+
+class CaptureError : public std::runtime_error {
+public:
+    using std::runtime_error::runtime_error;
+};
+
+struct CaptureColumns {
+    bool theta_true = false;
+    bool omega_true = false;
+    bool index = false;
+};
+
+// A chunk (or all) of a capture, structure of arrays. Optional columns are empty when absent.
+struct CaptureData {
+    std::vector<double> t_s, sin_v, cos_v, theta_true_rad, omega_true_rad_s, index_v;
+    std::size_t size() const { return t_s.size(); }
+    void clear();
+};
+
+enum class CaptureFormat { Csv, Binary };
+CaptureFormat capture_format_for(const std::string& path);  // by extension: .csv, .fcap
+std::string sidecar_path(const std::string& csv_path);      // x.csv -> x.json
+
+class CaptureWriter {
+public:
+    // meta is written as the sidecar (CSV) or header (binary); sample_rate_hz and t0_s are
+    // required for binary, recommended for CSV.
+    CaptureWriter(const std::string& path, CaptureColumns cols, nlohmann::json meta);
+    ~CaptureWriter();
+    void write(const Block& b);  // uses b.theta_rad / omega_rad_s / index_v as truth columns
+    void write(const CaptureData& d);
+    void close();                // flush; the destructor closes too
+    std::uint64_t frames() const { return frames_; }
+
+private:
+    void write_rows(std::size_t n, const double* t, const double* s, const double* c,
+                    const double* th, const double* om, const double* ix);
+    std::string path_;
+    CaptureFormat fmt_;
+    CaptureColumns cols_;
+    std::ofstream out_;
+    std::uint64_t frames_ = 0;
+    double fs_ = 0, t0_ = 0;
+    std::string buf_;
+};
+
+class CaptureReader {
+public:
+    explicit CaptureReader(const std::string& path);
+    // Reads up to max_frames into out (replacing its contents); false at end of file.
+    bool read(std::size_t max_frames, CaptureData& out);
+    const CaptureColumns& columns() const { return cols_; }
+    const nlohmann::json& meta() const { return meta_; }  // sidecar/header (may be empty object)
+    // From the metadata, or estimated from the first two time stamps (CSV); 0 if unknown.
+    double sample_rate_hz() const { return fs_; }
+    const std::string& path() const { return path_; }
+
+private:
+    bool read_csv(std::size_t max_frames, CaptureData& out);
+    bool read_bin(std::size_t max_frames, CaptureData& out);
+    std::string path_;
+    CaptureFormat fmt_;
+    CaptureColumns cols_;
+    nlohmann::json meta_ = nlohmann::json::object();
+    std::ifstream in_;
+    double fs_ = 0, t0_ = 0;
+    // CSV state
+    std::vector<int> col_map_;  // file column -> field id
+    std::size_t line_ = 0;
+    double last_t_ = 0;
+    bool have_last_ = false;
+    // binary state
+    std::vector<int> bin_fields_;
+    std::vector<int> bin_sizes_;
+    std::size_t frame_bytes_ = 0;
+    std::uint64_t frame_ = 0, total_frames_ = 0;
+};
+
+// Whole capture in memory.
+CaptureData read_capture(const std::string& path, nlohmann::json* meta = nullptr, double* sample_rate_hz = nullptr);
+
+}  // namespace fringe

@@ -1,0 +1,121 @@
+#include "config.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <sstream>
+
+namespace fringe {
+
+using nlohmann::json;
+
+namespace {
+std::string type_name(const json& v) { return v.type_name(); }
+
+std::string fmt(double x) {
+    std::ostringstream os;
+    os << x;
+    return os.str();
+}
+}  // namespace
+
+JsonReader::JsonReader(const json& object, std::string path) : obj_(&object), path_(std::move(path)) {
+    if (!object.is_object())
+        throw ConfigError(path_, "expected a JSON object, got " + type_name(object));
+}
+
+std::string JsonReader::path_of(const std::string& key) const {
+    return path_.empty() ? key : path_ + "." + key;
+}
+
+bool JsonReader::has(const std::string& key) const { return obj_->contains(key); }
+
+bool JsonReader::has_object(const std::string& key) const {
+    return obj_->contains(key) && (*obj_)[key].is_object();
+}
+
+const json& JsonReader::raw(const std::string& key) {
+    auto it = obj_->find(key);
+    if (it == obj_->end()) throw ConfigError(path_of(key), "required key is missing");
+    used_.insert(key);
+    return *it;
+}
+
+double JsonReader::number(const std::string& key, double lo, double hi) {
+    const json& v = raw(key);
+    if (!v.is_number())
+        throw ConfigError(path_of(key), "expected a number, got " + type_name(v));
+    double x = v.get<double>();
+    if (!std::isfinite(x)) throw ConfigError(path_of(key), "must be finite");
+    if (x < lo || x > hi)
+        throw ConfigError(path_of(key), "value " + fmt(x) + " out of range [" + fmt(lo) + ", " + fmt(hi) + "]");
+    return x;
+}
+
+double JsonReader::number(const std::string& key, double def, double lo, double hi) {
+    if (!has(key)) return def;
+    return number(key, lo, hi);
+}
+
+std::optional<double> JsonReader::optional_number(const std::string& key, double lo, double hi) {
+    if (!has(key) || (*obj_)[key].is_null()) {
+        if (has(key)) used_.insert(key);
+        return std::nullopt;
+    }
+    return number(key, lo, hi);
+}
+
+long long JsonReader::integer(const std::string& key, long long lo, long long hi) {
+    const json& v = raw(key);
+    if (!v.is_number_integer() && !(v.is_number_float() && std::floor(v.get<double>()) == v.get<double>()))
+        throw ConfigError(path_of(key), "expected an integer, got " + (v.is_number() ? fmt(v.get<double>()) : type_name(v)));
+    double d = v.get<double>();
+    if (d < static_cast<double>(lo) || d > static_cast<double>(hi))
+        throw ConfigError(path_of(key), "value " + fmt(d) + " out of range [" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
+    return v.is_number_integer() ? v.get<long long>() : static_cast<long long>(d);
+}
+
+long long JsonReader::integer(const std::string& key, long long def, long long lo, long long hi) {
+    if (!has(key)) return def;
+    return integer(key, lo, hi);
+}
+
+bool JsonReader::boolean(const std::string& key, bool def) {
+    if (!has(key)) return def;
+    const json& v = raw(key);
+    if (!v.is_boolean()) throw ConfigError(path_of(key), "expected true or false, got " + type_name(v));
+    return v.get<bool>();
+}
+
+std::string JsonReader::string(const std::string& key) {
+    const json& v = raw(key);
+    if (!v.is_string()) throw ConfigError(path_of(key), "expected a string, got " + type_name(v));
+    return v.get<std::string>();
+}
+
+std::string JsonReader::string(const std::string& key, const std::string& def) {
+    if (!has(key)) return def;
+    return string(key);
+}
+
+std::string JsonReader::choice(const std::string& key, const std::string& def,
+                               const std::vector<std::string>& allowed) {
+    std::string s = string(key, def);
+    for (const auto& a : allowed)
+        if (a == s) return s;
+    std::string list;
+    for (const auto& a : allowed) list += (list.empty() ? "" : ", ") + a;
+    throw ConfigError(path_of(key), "'" + s + "' is not one of: " + list);
+}
+
+JsonReader JsonReader::object(const std::string& key) {
+    const json& v = raw(key);
+    return JsonReader(v, path_of(key));
+}
+
+void JsonReader::finish() const {
+    for (auto it = obj_->begin(); it != obj_->end(); ++it)
+        if (!used_.count(it.key())) throw ConfigError(path_of(it.key()), "unknown key");
+}
+
+}  // namespace fringe

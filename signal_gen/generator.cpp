@@ -1,0 +1,229 @@
+#include "generator.hpp"
+
+#include "fastmath.hpp"
+#include "optics.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+namespace fringe {
+
+void Block::resize(std::size_t n, bool with_index) {
+    for (auto* v : {&t_s, &sin_v, &cos_v, &phi_rad, &theta_rad, &omega_rad_s}) v->resize(n);
+    index_v.resize(with_index ? n : 0);
+}
+
+Generator::Generator(EncoderProfile encoder, MotionProfile motion, double sample_rate_hz,
+                     std::uint64_t seed, double t0_s)
+    : enc_(std::move(encoder)), motion_(std::move(motion)), fs_(sample_rate_hz), t0_(t0_s),
+      noise_(seed, 1, 3) {
+    if (!(fs_ > 0)) throw std::invalid_argument("sample rate must be positive");
+    const double delta = enc_.lissajous.quadrature_error_rad;
+    if (enc_.model == ModelKind::Diffraction) {
+        // V_s = Vmax[w/2 + sum B_m cos(m(theta - pi/2))], V_c = Vmax[w/2 + sum B_m cos(m(theta + delta))]
+        M_ = optics::harmonic_count(enc_.kappa_max());
+        dc_v_ = enc_.vmax_v * enc_.aperture_w_rad / 2.0;
+        for (int m = 1; m <= M_; ++m) {
+            p_s_.push_back(std::cos(m * kPi / 2));
+            q_s_.push_back(std::sin(m * kPi / 2));
+            p_c_.push_back(std::cos(m * delta));
+            q_c_.push_back(-std::sin(m * delta));
+        }
+    } else {
+        // shape(x) = sin x + sum h_m sin(m x + psi_m); V_s = A shape(theta),
+        // V_c = A shape(theta + pi/2 + delta). sin(m(theta + s) + psi) = S_m cos(ms + psi) + C_m sin(ms + psi)
+        M_ = 1;
+        for (const auto& h : enc_.harmonics) M_ = std::max(M_, h.order);
+        dc_v_ = 0.0;
+        p_s_.assign(M_, 0.0); q_s_.assign(M_, 0.0); p_c_.assign(M_, 0.0); q_c_.assign(M_, 0.0);
+        amp_nominal_.assign(M_, 0.0);
+        auto add = [&](int m, double h, double psi) {
+            const double shift_c = m * (kPi / 2 + delta) + psi;
+            p_s_[m - 1] += h * std::sin(psi);
+            q_s_[m - 1] += h * std::cos(psi);
+            p_c_[m - 1] += h * std::sin(shift_c);
+            q_c_[m - 1] += h * std::cos(shift_c);
+        };
+        add(1, 1.0, 0.0);
+        for (const auto& h : enc_.harmonics) add(h.order, h.amplitude_rel, h.phase_rad);
+    }
+    amp_nominal_.resize(M_);
+    set_amplitudes(enc_.kappa_nominal(), amp_nominal_.data());
+}
+
+void Generator::set_amplitudes(double kappa, double* amp) const {
+    if (enc_.model == ModelKind::Diffraction) {
+        for (int m = 1; m <= M_; ++m)
+            amp[m - 1] = enc_.vmax_v * optics::aperture_coefficient(m, kappa, enc_.aperture_w_rad);
+    } else {
+        for (int m = 1; m <= M_; ++m) amp[m - 1] = enc_.vmax_v;
+    }
+}
+
+void Generator::raw_channels(double theta, double kappa, double& vs, double& vc) const {
+    std::vector<double> amp(M_);
+    set_amplitudes(kappa, amp.data());
+    vs = vc = dc_v_;
+    for (int m = 1; m <= M_; ++m) {
+        const double C = std::cos(m * theta), S = std::sin(m * theta);
+        vs += amp[m - 1] * (p_s_[m - 1] * C + q_s_[m - 1] * S);
+        vc += amp[m - 1] * (p_c_[m - 1] * C + q_c_[m - 1] * S);
+    }
+}
+
+void Generator::clean_channels(double theta, double kappa, double& vs, double& vc) const {
+    raw_channels(theta, kappa, vs, vc);
+    const auto& l = enc_.lissajous;
+    const double vref = enc_.reference_v();
+    vs = (1.0 + l.gain_mismatch / 2) * (vs - vref) + l.offset_sin_v;
+    vc = (1.0 - l.gain_mismatch / 2) * (vc - vref) + l.offset_cos_v;
+}
+
+void Generator::generate(std::uint64_t first, Block& out) {
+    const std::size_t n = out.size();
+    if (out.sin_v.size() != n || out.theta_rad.size() != n) throw std::invalid_argument("Block not sized");
+    for (auto* v : {&alpha_, &s1_, &c1_, &noise_s_, &noise_c_, &noise_g_}) v->resize(n);
+
+    double* t = out.t_s.data();
+    for (std::size_t i = 0; i < n; ++i) t[i] = t0_ + static_cast<double>(first + i) / fs_;
+    motion_.evaluate(t, n, out.phi_rad.data(), out.omega_rad_s.data(), alpha_.data());
+
+    // Geometry (MODEL.md 2.4): theta = n*(phi + (e1/r) sin(phi + psi1)),
+    // rho = r - e1 cos(phi + psi1), D = (d1+d2)/2 + (d1-d2)/2 cos(phi + psiD).
+    const double lines = enc_.lines_per_rev;
+    const double* phi = out.phi_rad.data();
+    double* theta = out.theta_rad.data();
+    double* omega = out.omega_rad_s.data();
+    const bool geo = enc_.geometry_varies();
+    const bool kappa_varies = geo && enc_.model == ModelKind::Diffraction;
+    if (kappa_varies) kappa_.resize(n);
+    if (geo) {
+        const double er = enc_.e1_cm / enc_.radius_cm;
+        const double cp1 = std::cos(enc_.e1_phase_rad), sp1 = std::sin(enc_.e1_phase_rad);
+        const double cpd = std::cos(enc_.gap_phase_rad), spd = std::sin(enc_.gap_phase_rad);
+        const double dmean = 0.5 * (enc_.gap_d1_cm + enc_.gap_d2_cm), dhalf = 0.5 * (enc_.gap_d1_cm - enc_.gap_d2_cm);
+        for (std::size_t i = 0; i < n; ++i) {
+            double sp, cp;
+            fast_sincos(phi[i], sp, cp);
+            const double s_e = sp * cp1 + cp * sp1;   // sin(phi + psi1)
+            const double c_e = cp * cp1 - sp * sp1;   // cos(phi + psi1)
+            const double c_d = cp * cpd - sp * spd;   // cos(phi + psiD)
+            theta[i] = lines * (phi[i] + er * s_e);
+            omega[i] = lines * (1.0 + er * c_e) * omega[i];
+            if (kappa_varies)
+                kappa_[i] = enc_.kappa_at(dmean + dhalf * c_d, enc_.radius_cm - enc_.e1_cm * c_e);
+        }
+    } else {
+        for (std::size_t i = 0; i < n; ++i) {
+            theta[i] = lines * phi[i];
+            omega[i] = lines * omega[i];
+        }
+    }
+
+    // sin/cos of the electrical phase: vectorised polynomial unless |theta| is huge.
+    double max_abs = 0.0;
+    for (std::size_t i = 0; i < n; ++i) max_abs = std::max(max_abs, std::fabs(theta[i]));
+    double* s1 = s1_.data();
+    double* c1 = c1_.data();
+    if (max_abs < kFastSinCosMaxArg) {
+        for (std::size_t i = 0; i < n; ++i) fast_sincos(theta[i], s1[i], c1[i]);
+    } else {
+        for (std::size_t i = 0; i < n; ++i) { s1[i] = std::sin(theta[i]); c1[i] = std::cos(theta[i]); }
+    }
+
+    // Noise: streams 0, 1 additive (sin, cos), 2 gain.
+    double* nz[3] = {noise_s_.data(), noise_c_.data(), noise_g_.data()};
+    const NoiseConfig& nc = enc_.noise;
+    const bool any_noise = nc.sigma_add_v > 0 || nc.sigma_gain > 0;
+    if (any_noise) noise_.fill(first, n, nz);
+
+    const auto& l = enc_.lissajous;
+    const double g_s = 1.0 + l.gain_mismatch / 2, g_c = 1.0 - l.gain_mismatch / 2;
+    const double vref = enc_.reference_v();
+    const double sig_a = nc.sigma_add_v, sig_g = nc.sigma_gain;
+    const double dc = dc_v_;
+    double* vs = out.sin_v.data();
+    double* vc = out.cos_v.data();
+    const int M = M_;
+    const double* ps = p_s_.data(); const double* qs = q_s_.data();
+    const double* pc = p_c_.data(); const double* qc = q_c_.data();
+    double amp_local[64];
+    std::vector<double> amp_heap;
+    double* amp = amp_local;
+    if (M > 64) { amp_heap.resize(M); amp = amp_heap.data(); }
+    std::copy(amp_nominal_.begin(), amp_nominal_.end(), amp);
+
+    if (enc_.model == ModelKind::Diffraction && M == 2 && !kappa_varies) {
+        // The common case (1 < kappa <= 1.5), unrolled so that it vectorises.
+        const double a1 = amp[0], a2 = amp[1];
+        for (std::size_t i = 0; i < n; ++i) {
+            const double C = c1[i], S = s1[i];
+            const double C2 = 2 * C * C - 1, S2 = 2 * S * C;
+            const double rs = dc + a1 * (ps[0] * C + qs[0] * S) + a2 * (ps[1] * C2 + qs[1] * S2);
+            const double rc = dc + a1 * (pc[0] * C + qc[0] * S) + a2 * (pc[1] * C2 + qc[1] * S2);
+            vs[i] = rs;
+            vc[i] = rc;
+        }
+    } else {
+        for (std::size_t i = 0; i < n; ++i) {
+            if (kappa_varies) set_amplitudes(kappa_[i], amp);
+            const double C = c1[i], S = s1[i];
+            double Cm = C, Sm = S, Cp = 1.0, Sp = 0.0;  // cos/sin of m*theta and (m-1)*theta
+            double rs = dc, rc = dc;
+            for (int m = 0; m < M; ++m) {
+                rs += amp[m] * (ps[m] * Cm + qs[m] * Sm);
+                rc += amp[m] * (pc[m] * Cm + qc[m] * Sm);
+                const double Cn = 2 * C * Cm - Cp, Sn = 2 * C * Sm - Sp;
+                Cp = Cm; Sp = Sm; Cm = Cn; Sm = Sn;
+            }
+            vs[i] = rs;
+            vc[i] = rc;
+        }
+    }
+
+    // Gain noise and drift (eta1) on the raw signal, front end, channel gains and offsets,
+    // additive noise (eta2), ADC.
+    const bool drift = nc.drift_amplitude != 0.0;
+    const double wd = kTwoPi * nc.drift_freq_hz;
+    const double* ns = nz[0]; const double* nco = nz[1]; const double* ng = nz[2];
+    if (!any_noise)
+        for (auto* v : {&noise_s_, &noise_c_, &noise_g_}) std::fill(v->begin(), v->end(), 0.0);
+    if (drift) {
+        for (std::size_t i = 0; i < n; ++i) {
+            double sd, cd;
+            fast_sincos(wd * t[i] + nc.drift_phase_rad, sd, cd);
+            noise_g_[i] = sig_g * ng[i] + nc.drift_amplitude * sd;
+        }
+    } else {
+        for (std::size_t i = 0; i < n; ++i) noise_g_[i] = sig_g * ng[i];
+    }
+    const double* gn = noise_g_.data();
+    const Quantizer adc = enc_.adc;
+    const double os = l.offset_sin_v, oc = l.offset_cos_v;
+    if (adc.ideal()) {
+        for (std::size_t i = 0; i < n; ++i) {
+            const double g = 1.0 + gn[i];
+            vs[i] = g_s * (g * vs[i] - vref) + os + sig_a * ns[i];
+            vc[i] = g_c * (g * vc[i] - vref) + oc + sig_a * nco[i];
+        }
+    } else {
+        for (std::size_t i = 0; i < n; ++i) {
+            const double g = 1.0 + gn[i];
+            vs[i] = adc.apply(g_s * (g * vs[i] - vref) + os + sig_a * ns[i]);
+            vc[i] = adc.apply(g_c * (g * vc[i] - vref) + oc + sig_a * nco[i]);
+        }
+    }
+
+    if (!out.index_v.empty()) {
+        const IndexConfig& ix = enc_.index;
+        const double width_mech = ix.width_elec_rad / lines;
+        for (std::size_t i = 0; i < n; ++i) {
+            double d = phi[i] - ix.position_rad;
+            d -= kTwoPi * std::floor(d / kTwoPi);
+            out.index_v[i] = d < width_mech ? ix.high_v : 0.0;
+        }
+    }
+}
+
+}  // namespace fringe

@@ -1,0 +1,92 @@
+#include "noise.hpp"
+
+#include <cmath>
+
+namespace fringe {
+
+Xoshiro256pp::Xoshiro256pp(std::uint64_t seed) {
+    std::uint64_t z = seed;
+    for (auto& s : s_) {
+        z += 0x9e3779b97f4a7c15ULL;
+        s = mix64(z);
+    }
+}
+
+namespace {
+constexpr int kLayers = 128;
+constexpr double kR = 3.442619855899;          // start of the tail
+constexpr double kV = 9.91256303526217e-3;     // area of each layer
+
+struct ZigguratTables {
+    double x[kLayers + 1];
+    double ratio[kLayers];
+    ZigguratTables() {
+        double f = std::exp(-0.5 * kR * kR);
+        x[0] = kV / f;  // the base layer includes the tail: width V/f(R)
+        x[1] = kR;
+        x[kLayers] = 0.0;
+        for (int i = 2; i < kLayers; ++i) {
+            x[i] = std::sqrt(-2.0 * std::log(kV / x[i - 1] + f));
+            f = std::exp(-0.5 * x[i] * x[i]);
+        }
+        for (int i = 0; i < kLayers; ++i) ratio[i] = x[i + 1] / x[i];
+    }
+};
+const ZigguratTables& tables() {
+    static const ZigguratTables t;
+    return t;
+}
+
+double normal_tail(Xoshiro256pp& rng, bool negative) {
+    double x, y;
+    do {
+        x = std::log(rng.uniform()) / kR;
+        y = std::log(rng.uniform());
+    } while (-2.0 * y < x * x);
+    return negative ? x - kR : kR - x;
+}
+}  // namespace
+
+double standard_normal(Xoshiro256pp& rng) {
+    const ZigguratTables& t = tables();
+    for (;;) {
+        const std::uint64_t bits = rng.next();
+        const int i = static_cast<int>(bits & (kLayers - 1));
+        const double u = static_cast<double>(bits >> 11) * 0x1p-52 - 1.0;  // [-1, 1)
+        if (std::fabs(u) < t.ratio[i]) return u * t.x[i];
+        if (i == 0) return normal_tail(rng, u < 0);
+        const double x = u * t.x[i];
+        const double f0 = std::exp(-0.5 * (t.x[i] * t.x[i] - x * x));
+        const double f1 = std::exp(-0.5 * (t.x[i + 1] * t.x[i + 1] - x * x));
+        if (f1 + rng.uniform() * (f0 - f1) < 1.0) return x;
+    }
+}
+
+NoiseField::NoiseField(std::uint64_t seed, std::uint64_t stream_id, int streams)
+    : seed_(mix64(seed ^ mix64(stream_id + 0x51ed270b2a1e6f1dULL))), streams_(streams),
+      buf_(kNoiseChunk * static_cast<std::size_t>(streams)) {}
+
+void NoiseField::load_chunk(std::uint64_t chunk) {
+    Xoshiro256pp rng(mix64(seed_ + mix64(chunk)));
+    for (double& v : buf_) v = standard_normal(rng);
+    cached_ = chunk;
+}
+
+void NoiseField::fill(std::uint64_t first, std::size_t n, double* const* out) {
+    std::size_t i = 0;
+    while (i < n) {
+        const std::uint64_t k = first + i;
+        const std::uint64_t chunk = k / kNoiseChunk;
+        if (chunk != cached_) load_chunk(chunk);
+        const std::size_t off = k % kNoiseChunk;
+        const std::size_t take = std::min(n - i, kNoiseChunk - off);
+        for (int s = 0; s < streams_; ++s) {
+            const double* src = buf_.data() + static_cast<std::size_t>(s) * kNoiseChunk + off;
+            double* dst = out[s] + i;
+            for (std::size_t j = 0; j < take; ++j) dst[j] = src[j];
+        }
+        i += take;
+    }
+}
+
+}  // namespace fringe

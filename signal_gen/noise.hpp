@@ -1,0 +1,63 @@
+// Deterministic noise. The noise of sample k is a function of (seed, stream, k) only, so
+// blocks of any size give the same output as one big block: samples are grouped in
+// chunks of kNoiseChunk, each chunk's generator is seeded from a hash of (seed, stream,
+// chunk index), and normals inside a chunk come from xoshiro256++ with a ziggurat.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+namespace fringe {
+
+// splitmix64 finaliser: a bijective 64-bit mixer.
+constexpr std::uint64_t mix64(std::uint64_t z) {
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+    return z ^ (z >> 31);
+}
+
+class Xoshiro256pp {
+public:
+    explicit Xoshiro256pp(std::uint64_t seed);
+    std::uint64_t next() {
+        const std::uint64_t result = rotl(s_[0] + s_[3], 23) + s_[0];
+        const std::uint64_t t = s_[1] << 17;
+        s_[2] ^= s_[0];
+        s_[3] ^= s_[1];
+        s_[1] ^= s_[2];
+        s_[0] ^= s_[3];
+        s_[2] ^= t;
+        s_[3] = rotl(s_[3], 45);
+        return result;
+    }
+    // Uniform in (0, 1].
+    double uniform() { return (static_cast<double>(next() >> 11) + 1.0) * 0x1p-53; }
+
+private:
+    static std::uint64_t rotl(std::uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
+    std::array<std::uint64_t, 4> s_{};
+};
+
+// Standard normal by the 128-layer ziggurat (Marsaglia & Tsang; Doornik's ZIGNOR layout):
+// one 64-bit draw on the fast path (~99 % of calls).
+double standard_normal(Xoshiro256pp& rng);
+
+constexpr std::size_t kNoiseChunk = 4096;
+
+// `streams` independent standard normals per sample.
+class NoiseField {
+public:
+    NoiseField(std::uint64_t seed, std::uint64_t stream_id, int streams);
+    // out[s][i] = normal number s of sample first + i, for i < n.
+    void fill(std::uint64_t first, std::size_t n, double* const* out);
+
+private:
+    void load_chunk(std::uint64_t chunk);
+    std::uint64_t seed_;
+    int streams_;
+    std::uint64_t cached_ = ~0ULL;
+    std::vector<double> buf_;  // kNoiseChunk * streams_, sample-major
+};
+
+}  // namespace fringe

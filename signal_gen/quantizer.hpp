@@ -1,0 +1,39 @@
+// ADC/DAC quantiser (MODEL.md 2.5): B bits over [min_v, max_v), mid-tread, clipping.
+//   q = (max_v - min_v)/2^B, code = clip(floor((v - min_v)/q + 1/2), 0, 2^B - 1),
+//   output = min_v + code*q.
+// bits == 0 means an ideal converter (no quantisation, no clipping).
+#pragma once
+
+#include <nlohmann/json_fwd.hpp>
+
+#include <cmath>
+#include <cstdint>
+
+namespace fringe {
+
+class JsonReader;
+
+struct Quantizer {
+    int bits = 0;
+    double min_v = -1.25;
+    double max_v = 1.25;
+
+    bool ideal() const { return bits == 0; }
+    double step_v() const { return (max_v - min_v) / std::ldexp(1.0, bits); }
+    double max_code() const { return std::ldexp(1.0, bits) - 1.0; }
+    double code(double v) const {
+        double c = std::floor((v - min_v) / step_v() + 0.5);
+        return std::fmin(std::fmax(c, 0.0), max_code());
+    }
+    double apply(double v) const { return ideal() ? v : min_v + code(v) * step_v(); }
+    bool clips(double v) const {
+        if (ideal()) return false;
+        double c = std::floor((v - min_v) / step_v() + 0.5);
+        return c < 0.0 || c > max_code();
+    }
+};
+
+Quantizer quantizer_from_json(JsonReader& r);
+void to_json(nlohmann::json& j, const Quantizer& q);
+
+}  // namespace fringe
