@@ -82,22 +82,35 @@ void Generator::clean_channels(double theta, double kappa, double& vs, double& v
 
 void Generator::generate(std::uint64_t first, Block& out) {
     const std::size_t n = out.size();
-    if (out.sin_v.size() != n || out.theta_rad.size() != n) throw std::invalid_argument("Block not sized");
-    for (auto* v : {&alpha_, &s1_, &c1_, &noise_s_, &noise_c_, &noise_g_}) v->resize(n);
+    for (auto* v : {&out.sin_v, &out.cos_v, &out.phi_rad, &out.theta_rad, &out.omega_rad_s})
+        if (v->size() != n) throw std::invalid_argument("Generator::generate: Block not sized");
+    if (enc_.index.enabled && out.index_v.size() != n)
+        throw std::invalid_argument("Generator::generate: Block has no index channel");
+    // Tiles small enough that the passes below stay in L1/L2.
+    constexpr std::size_t kTile = 1024;
+    for (auto* v : {&alpha_, &s1_, &c1_, &noise_s_, &noise_c_, &noise_g_, &kappa_}) v->resize(kTile);
+    for (std::size_t off = 0; off < n; off += kTile) {
+        const std::size_t m = std::min(kTile, n - off);
+        Tile tile{out.t_s.data() + off, out.sin_v.data() + off, out.cos_v.data() + off,
+                  out.index_v.empty() ? nullptr : out.index_v.data() + off, out.phi_rad.data() + off,
+                  out.theta_rad.data() + off, out.omega_rad_s.data() + off};
+        generate_tile(first + off, m, tile);
+    }
+}
 
-    double* t = out.t_s.data();
+void Generator::generate_tile(std::uint64_t first, std::size_t n, const Tile& out) {
+    double* t = out.t_s;
     for (std::size_t i = 0; i < n; ++i) t[i] = t0_ + static_cast<double>(first + i) / fs_;
-    motion_.evaluate(t, n, out.phi_rad.data(), out.omega_rad_s.data(), alpha_.data());
+    motion_.evaluate(t, n, out.phi_rad, out.omega_rad_s, alpha_.data());
 
     // Geometry (MODEL.md 2.4): theta = n*(phi + (e1/r) sin(phi + psi1)),
     // rho = r - e1 cos(phi + psi1), D = (d1+d2)/2 + (d1-d2)/2 cos(phi + psiD).
     const double lines = enc_.lines_per_rev;
-    const double* phi = out.phi_rad.data();
-    double* theta = out.theta_rad.data();
-    double* omega = out.omega_rad_s.data();
+    const double* phi = out.phi_rad;
+    double* theta = out.theta_rad;
+    double* omega = out.omega_rad_s;
     const bool geo = enc_.geometry_varies();
     const bool kappa_varies = geo && enc_.model == ModelKind::Diffraction;
-    if (kappa_varies) kappa_.resize(n);
     if (geo) {
         const double er = enc_.e1_cm / enc_.radius_cm;
         const double cp1 = std::cos(enc_.e1_phase_rad), sp1 = std::sin(enc_.e1_phase_rad);
@@ -122,11 +135,11 @@ void Generator::generate(std::uint64_t first, Block& out) {
     }
 
     // sin/cos of the electrical phase: vectorised polynomial unless |theta| is huge.
-    double max_abs = 0.0;
-    for (std::size_t i = 0; i < n; ++i) max_abs = std::max(max_abs, std::fabs(theta[i]));
+    int in_range = 1;  // an integer AND vectorises; a floating max reduction does not
+    for (std::size_t i = 0; i < n; ++i) in_range &= std::fabs(theta[i]) < kFastSinCosMaxArg;
     double* s1 = s1_.data();
     double* c1 = c1_.data();
-    if (max_abs < kFastSinCosMaxArg) {
+    if (in_range) {
         for (std::size_t i = 0; i < n; ++i) fast_sincos(theta[i], s1[i], c1[i]);
     } else {
         for (std::size_t i = 0; i < n; ++i) { s1[i] = std::sin(theta[i]); c1[i] = std::cos(theta[i]); }
@@ -143,8 +156,8 @@ void Generator::generate(std::uint64_t first, Block& out) {
     const double vref = enc_.reference_v();
     const double sig_a = nc.sigma_add_v, sig_g = nc.sigma_gain;
     const double dc = dc_v_;
-    double* vs = out.sin_v.data();
-    double* vc = out.cos_v.data();
+    double* vs = out.sin_v;
+    double* vc = out.cos_v;
     const int M = M_;
     const double* ps = p_s_.data(); const double* qs = q_s_.data();
     const double* pc = p_c_.data(); const double* qc = q_c_.data();
@@ -156,12 +169,15 @@ void Generator::generate(std::uint64_t first, Block& out) {
 
     if (enc_.model == ModelKind::Diffraction && M == 2 && !kappa_varies) {
         // The common case (1 < kappa <= 1.5), unrolled so that it vectorises.
+        // Coefficients in locals: loads through ps/qs could alias vs/vc and block vectorising.
         const double a1 = amp[0], a2 = amp[1];
+        const double ps0 = ps[0], ps1 = ps[1], qs0 = qs[0], qs1 = qs[1];
+        const double pc0 = pc[0], pc1 = pc[1], qc0 = qc[0], qc1 = qc[1];
         for (std::size_t i = 0; i < n; ++i) {
             const double C = c1[i], S = s1[i];
             const double C2 = 2 * C * C - 1, S2 = 2 * S * C;
-            const double rs = dc + a1 * (ps[0] * C + qs[0] * S) + a2 * (ps[1] * C2 + qs[1] * S2);
-            const double rc = dc + a1 * (pc[0] * C + qc[0] * S) + a2 * (pc[1] * C2 + qc[1] * S2);
+            const double rs = dc + a1 * (ps0 * C + qs0 * S) + a2 * (ps1 * C2 + qs1 * S2);
+            const double rc = dc + a1 * (pc0 * C + qc0 * S) + a2 * (pc1 * C2 + qc1 * S2);
             vs[i] = rs;
             vc[i] = rc;
         }
@@ -188,7 +204,7 @@ void Generator::generate(std::uint64_t first, Block& out) {
     const double wd = kTwoPi * nc.drift_freq_hz;
     const double* ns = nz[0]; const double* nco = nz[1]; const double* ng = nz[2];
     if (!any_noise)
-        for (auto* v : {&noise_s_, &noise_c_, &noise_g_}) std::fill(v->begin(), v->end(), 0.0);
+        for (auto* v : {&noise_s_, &noise_c_, &noise_g_}) std::fill(v->begin(), v->begin() + static_cast<std::ptrdiff_t>(n), 0.0);
     if (drift) {
         for (std::size_t i = 0; i < n; ++i) {
             double sd, cd;
@@ -208,14 +224,18 @@ void Generator::generate(std::uint64_t first, Block& out) {
             vc[i] = g_c * (g * vc[i] - vref) + oc + sig_a * nco[i];
         }
     } else {
+        // Quantizer::apply with its constants hoisted (same arithmetic, so same results).
+        const double q = adc.step_v(), lo = adc.min_v, top = adc.max_code();
         for (std::size_t i = 0; i < n; ++i) {
             const double g = 1.0 + gn[i];
-            vs[i] = adc.apply(g_s * (g * vs[i] - vref) + os + sig_a * ns[i]);
-            vc[i] = adc.apply(g_c * (g * vc[i] - vref) + oc + sig_a * nco[i]);
+            const double as = g_s * (g * vs[i] - vref) + os + sig_a * ns[i];
+            const double ac = g_c * (g * vc[i] - vref) + oc + sig_a * nco[i];
+            vs[i] = lo + Quantizer::clamp_code(std::floor((as - lo) / q + 0.5), top) * q;
+            vc[i] = lo + Quantizer::clamp_code(std::floor((ac - lo) / q + 0.5), top) * q;
         }
     }
 
-    if (!out.index_v.empty()) {
+    if (out.index_v) {
         const IndexConfig& ix = enc_.index;
         const double width_mech = ix.width_elec_rad / lines;
         for (std::size_t i = 0; i < n; ++i) {

@@ -46,6 +46,10 @@ public:
     int harmonic_count() const { return M_; }
 
 private:
+    struct Tile {  // views into a Block at an offset
+        double *t_s, *sin_v, *cos_v, *index_v, *phi_rad, *theta_rad, *omega_rad_s;
+    };
+    void generate_tile(std::uint64_t first, std::size_t n, const Tile& out);
     void set_amplitudes(double kappa, double* amp) const;
 
     EncoderProfile enc_;

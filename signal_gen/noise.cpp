@@ -2,6 +2,7 @@
 
 #include <cmath>
 
+
 namespace fringe {
 
 Xoshiro256pp::Xoshiro256pp(std::uint64_t seed) {
@@ -47,10 +48,12 @@ double normal_tail(Xoshiro256pp& rng, bool negative) {
 }
 }  // namespace
 
-double standard_normal(Xoshiro256pp& rng) {
+double standard_normal(Xoshiro256pp& rng) { return standard_normal_from(rng.next(), rng); }
+
+double standard_normal_from(std::uint64_t bits, Xoshiro256pp& rng) {
     const ZigguratTables& t = tables();
-    for (;;) {
-        const std::uint64_t bits = rng.next();
+    for (bool first = true;; first = false) {
+        if (!first) bits = rng.next();
         const int i = static_cast<int>(bits & (kLayers - 1));
         const double u = static_cast<double>(bits >> 11) * 0x1p-52 - 1.0;  // [-1, 1)
         if (std::fabs(u) < t.ratio[i]) return u * t.x[i];
@@ -66,9 +69,32 @@ NoiseField::NoiseField(std::uint64_t seed, std::uint64_t stream_id, int streams)
     : seed_(mix64(seed ^ mix64(stream_id + 0x51ed270b2a1e6f1dULL))), streams_(streams),
       buf_(kNoiseChunk * static_cast<std::size_t>(streams)) {}
 
+void fill_normals(std::uint64_t key, std::size_t n, double* out, std::uint64_t* bits) {
+    const ZigguratTables& t = tables();
+    constexpr std::uint64_t kGamma = 0x9e3779b97f4a7c15ULL;
+    for (std::size_t i = 0; i < n; ++i) bits[i] = mix64(key + (i + 1) * kGamma);  // vectorises
+    const double* x = t.x;
+    const double* ratio = t.ratio;
+    std::int64_t rejected = 0;
+    for (std::size_t i = 0; i < n; ++i) {  // the fast path, branch-free
+        const std::uint64_t layer = bits[i] & (kLayers - 1);
+        const double u = static_cast<double>(static_cast<std::int64_t>(bits[i] >> 11)) * 0x1p-52 - 1.0;
+        out[i] = u * x[layer];
+        rejected += std::fabs(u) < ratio[layer] ? 0 : 1;
+    }
+    if (!rejected) return;
+    for (std::size_t i = 0; i < n; ++i) {  // ~1 % of draws: finish the ziggurat
+        const std::uint64_t layer = bits[i] & (kLayers - 1);
+        const double u = static_cast<double>(static_cast<std::int64_t>(bits[i] >> 11)) * 0x1p-52 - 1.0;
+        if (std::fabs(u) < ratio[layer]) continue;
+        Xoshiro256pp rng(mix64(key ^ mix64(i + 0x632be59bd9b4e019ULL)));
+        out[i] = standard_normal_from(bits[i], rng);
+    }
+}
+
 void NoiseField::load_chunk(std::uint64_t chunk) {
-    Xoshiro256pp rng(mix64(seed_ + mix64(chunk)));
-    for (double& v : buf_) v = standard_normal(rng);
+    bits_.resize(buf_.size() + 1);
+    fill_normals(mix64(seed_ + mix64(chunk)), buf_.size(), buf_.data(), bits_.data());
     cached_ = chunk;
 }
 

@@ -43,6 +43,15 @@ private:
 // one 64-bit draw on the fast path (~99 % of calls).
 double standard_normal(Xoshiro256pp& rng);
 
+// The ziggurat continued from a first draw `bits` that missed the fast path; further draws
+// come from rng.
+double standard_normal_from(std::uint64_t bits, Xoshiro256pp& rng);
+
+// n standard normals that depend only on (key, i): counter-based bits (splitmix64 of
+// key + i), the ziggurat's fast path over the whole array, then the ~1 % of rejected draws
+// finished from a generator seeded by (key, i). `scratch` needs n entries.
+void fill_normals(std::uint64_t key, std::size_t n, double* out, std::uint64_t* scratch);
+
 constexpr std::size_t kNoiseChunk = 4096;
 
 // `streams` independent standard normals per sample.
@@ -57,7 +66,8 @@ private:
     std::uint64_t seed_;
     int streams_;
     std::uint64_t cached_ = ~0ULL;
-    std::vector<double> buf_;  // kNoiseChunk * streams_, sample-major
+    std::vector<double> buf_;  // kNoiseChunk * streams_, stream-major
+    std::vector<std::uint64_t> bits_;
 };
 
 }  // namespace fringe

@@ -19,12 +19,12 @@ struct Quantizer {
     double max_v = 1.25;
 
     bool ideal() const { return bits == 0; }
-    double step_v() const { return (max_v - min_v) / std::ldexp(1.0, bits); }
-    double max_code() const { return std::ldexp(1.0, bits) - 1.0; }
-    double code(double v) const {
-        double c = std::floor((v - min_v) / step_v() + 0.5);
-        return std::fmin(std::fmax(c, 0.0), max_code());
-    }
+    double levels() const { return static_cast<double>(std::uint64_t{1} << bits); }  // exact 2^B
+    double step_v() const { return (max_v - min_v) / levels(); }
+    double max_code() const { return levels() - 1.0; }
+    double code(double v) const { return clamp_code(std::floor((v - min_v) / step_v() + 0.5), max_code()); }
+    // Comparisons rather than std::fmin/fmax: those are libm calls that block vectorising.
+    static double clamp_code(double c, double top) { return c < 0.0 ? 0.0 : (c > top ? top : c); }
     double apply(double v) const { return ideal() ? v : min_v + code(v) * step_v(); }
     bool clips(double v) const {
         if (ideal()) return false;

@@ -1,0 +1,66 @@
+#pragma once
+
+#include "signal_gen/encoder.hpp"
+#include "signal_gen/generator.hpp"
+#include "signal_gen/motion.hpp"
+
+#include <cmath>
+#include <vector>
+
+namespace fringe::test {
+
+inline EncoderProfile clean_ideal(int lines = 1024) {
+    EncoderProfile e;
+    e.name = "test-ideal";
+    e.model = ModelKind::Ideal;
+    e.lines_per_rev = lines;
+    e.vmax_v = 1.0;
+    e.gap_d1_cm = e.gap_d2_cm = e.gap_ref_cm;
+    return e;
+}
+
+inline EncoderProfile clean_diffraction(double kappa, double w_rad) {
+    EncoderProfile e;
+    e.name = "test-diffraction";
+    e.model = ModelKind::Diffraction;
+    e.aperture_w_rad = w_rad;
+    e.kappa_ref = kappa;
+    e.gap_d1_cm = e.gap_d2_cm = e.gap_ref_cm;
+    return e;
+}
+
+inline MotionProfile constant_electrical(double electrical_hz, int lines) {
+    MotionProfile m;
+    m.kind = MotionKind::Constant;
+    m.velocity_rad_s = 2 * 3.14159265358979323846 * electrical_hz / lines;
+    return m;
+}
+
+inline Block generate(const EncoderProfile& e, const MotionProfile& m, double fs, std::size_t n,
+                      std::uint64_t seed = 1) {
+    Generator g(e, m, fs, seed);
+    Block b;
+    b.resize(n, e.index.enabled);
+    g.generate(0, b);
+    return b;
+}
+
+// Independent demodulation: atan2 of the channels, unwrapped (MODEL.md 4.1 with no correction).
+inline std::vector<double> atan2_phase(const Block& b) {
+    std::vector<double> out(b.size());
+    double prev = 0, acc = 0;
+    for (std::size_t i = 0; i < b.size(); ++i) {
+        double a = std::atan2(b.sin_v[i], b.cos_v[i]);
+        if (i == 0) acc = a;
+        else {
+            double d = a - prev;
+            d -= 2 * 3.14159265358979323846 * std::round(d / (2 * 3.14159265358979323846));
+            acc += d;
+        }
+        prev = a;
+        out[i] = acc;
+    }
+    return out;
+}
+
+}  // namespace fringe::test
