@@ -22,13 +22,16 @@ struct Quantizer {
     double levels() const { return static_cast<double>(std::uint64_t{1} << bits); }  // exact 2^B
     double step_v() const { return (max_v - min_v) / levels(); }
     double max_code() const { return levels() - 1.0; }
-    double code(double v) const { return clamp_code(std::floor((v - min_v) / step_v() + 0.5), max_code()); }
+    // 1/q: multiplying by it is the documented (v - min_v)/q up to rounding at exact ties,
+    // and much cheaper than a division per sample.
+    double inv_step() const { return levels() / (max_v - min_v); }
+    double code(double v) const { return clamp_code(std::floor((v - min_v) * inv_step() + 0.5), max_code()); }
     // Comparisons rather than std::fmin/fmax: those are libm calls that block vectorising.
     static double clamp_code(double c, double top) { return c < 0.0 ? 0.0 : (c > top ? top : c); }
     double apply(double v) const { return ideal() ? v : min_v + code(v) * step_v(); }
     bool clips(double v) const {
         if (ideal()) return false;
-        double c = std::floor((v - min_v) / step_v() + 0.5);
+        double c = std::floor((v - min_v) * inv_step() + 0.5);
         return c < 0.0 || c > max_code();
     }
 };
