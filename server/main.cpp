@@ -3,6 +3,7 @@
 #include "server/scenario.hpp"
 #include "signal_gen/analysis.hpp"
 #include "signal_gen/config.hpp"
+#include "signal_gen/fastmath.hpp"
 #include "signal_gen/generator.hpp"
 
 #include <CLI/CLI.hpp>
@@ -38,11 +39,11 @@ json summarise(const std::vector<double>& sin_v, const std::vector<double>& thet
     if (sin_v.size() < 16) return s;
     // Whole electrical cycles only, so the duty cycle is not biased by a partial cycle.
     const double span = std::fabs(theta.back() - theta.front());
-    const double cycles = std::floor(span / (2 * 3.141592653589793));
+    const double cycles = std::floor(span / kTwoPi);
     s["cycles"] = cycles;
     if (cycles < 1) return s;
     std::size_t n = sin_v.size();
-    const double end_theta = theta.front() + std::copysign(cycles * 2 * 3.141592653589793, theta.back() - theta.front());
+    const double end_theta = theta.front() + std::copysign(cycles * kTwoPi, theta.back() - theta.front());
     while (n > 1 && std::fabs(theta[n - 1] - theta.front()) > std::fabs(end_theta - theta.front())) --n;
     const double duty = duty_cycle(sin_v.data(), n);
     HarmonicFit f = fit_harmonics(sin_v.data(), theta.data(), n, 4);

@@ -1,6 +1,7 @@
 #include "encoder.hpp"
 
 #include "config.hpp"
+#include "fastmath.hpp"
 #include "optics.hpp"
 
 #include <nlohmann/json.hpp>
@@ -58,7 +59,7 @@ EncoderProfile encoder_from_json(const json& j, const std::string& path) {
     if (r.has("optics")) {
         JsonReader o = r.object("optics");
         if (e.model == ModelKind::Ideal) throw ConfigError(r.path_of("optics"), "only for model 'diffraction'");
-        e.aperture_w_rad = o.number("aperture_w_rad", e.aperture_w_rad, 1e-6, 2 * 3.14159265358979);
+        e.aperture_w_rad = o.number("aperture_w_rad", e.aperture_w_rad, 1e-6, kTwoPi);
         e.kappa_ref = o.number("kappa_ref", e.kappa_ref, 1e-3, 50.0);
         e.gap_ref_cm = o.number("gap_ref_cm", e.gap_ref_cm, 1e-6, 1e3);
         o.finish();

@@ -224,14 +224,11 @@ void Generator::generate_tile(std::uint64_t first, std::size_t n, const Tile& ou
             vc[i] = g_c * (g * vc[i] - vref) + oc + sig_a * nco[i];
         }
     } else {
-        // Quantizer::apply with its constants hoisted (same arithmetic, so same results).
         const double q = adc.step_v(), inv_q = adc.inv_step(), lo = adc.min_v, top = adc.max_code();
         for (std::size_t i = 0; i < n; ++i) {
             const double g = 1.0 + gn[i];
-            const double as = g_s * (g * vs[i] - vref) + os + sig_a * ns[i];
-            const double ac = g_c * (g * vc[i] - vref) + oc + sig_a * nco[i];
-            vs[i] = lo + Quantizer::clamp_code(std::floor((as - lo) * inv_q + 0.5), top) * q;
-            vc[i] = lo + Quantizer::clamp_code(std::floor((ac - lo) * inv_q + 0.5), top) * q;
+            vs[i] = Quantizer::quantize(g_s * (g * vs[i] - vref) + os + sig_a * ns[i], lo, inv_q, q, top);
+            vc[i] = Quantizer::quantize(g_c * (g * vc[i] - vref) + oc + sig_a * nco[i], lo, inv_q, q, top);
         }
     }
 

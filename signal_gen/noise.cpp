@@ -38,6 +38,12 @@ const ZigguratTables& tables() {
     return t;
 }
 
+// A 64-bit draw: layer from the low 7 bits, u in [-1, 1) from the top 53.
+inline std::uint64_t draw_layer(std::uint64_t bits) { return bits & (kLayers - 1); }
+inline double draw_u(std::uint64_t bits) {
+    return static_cast<double>(static_cast<std::int64_t>(bits >> 11)) * 0x1p-52 - 1.0;
+}
+
 double normal_tail(Xoshiro256pp& rng, bool negative) {
     double x, y;
     do {
@@ -54,8 +60,8 @@ double standard_normal_from(std::uint64_t bits, Xoshiro256pp& rng) {
     const ZigguratTables& t = tables();
     for (bool first = true;; first = false) {
         if (!first) bits = rng.next();
-        const int i = static_cast<int>(bits & (kLayers - 1));
-        const double u = static_cast<double>(bits >> 11) * 0x1p-52 - 1.0;  // [-1, 1)
+        const auto i = draw_layer(bits);
+        const double u = draw_u(bits);
         if (std::fabs(u) < t.ratio[i]) return u * t.x[i];
         if (i == 0) return normal_tail(rng, u < 0);
         const double x = u * t.x[i];
@@ -77,15 +83,15 @@ void fill_normals(std::uint64_t key, std::size_t n, double* out, std::uint64_t* 
     const double* ratio = t.ratio;
     std::int64_t rejected = 0;
     for (std::size_t i = 0; i < n; ++i) {  // the fast path, branch-free
-        const std::uint64_t layer = bits[i] & (kLayers - 1);
-        const double u = static_cast<double>(static_cast<std::int64_t>(bits[i] >> 11)) * 0x1p-52 - 1.0;
+        const std::uint64_t layer = draw_layer(bits[i]);
+        const double u = draw_u(bits[i]);
         out[i] = u * x[layer];
         rejected += std::fabs(u) < ratio[layer] ? 0 : 1;
     }
     if (!rejected) return;
     for (std::size_t i = 0; i < n; ++i) {  // ~1 % of draws: finish the ziggurat
-        const std::uint64_t layer = bits[i] & (kLayers - 1);
-        const double u = static_cast<double>(static_cast<std::int64_t>(bits[i] >> 11)) * 0x1p-52 - 1.0;
+        const std::uint64_t layer = draw_layer(bits[i]);
+        const double u = draw_u(bits[i]);
         if (std::fabs(u) < ratio[layer]) continue;
         Xoshiro256pp rng(mix64(key ^ mix64(i + 0x632be59bd9b4e019ULL)));
         out[i] = standard_normal_from(bits[i], rng);

@@ -25,13 +25,20 @@ struct Quantizer {
     // 1/q: multiplying by it is the documented (v - min_v)/q up to rounding at exact ties,
     // and much cheaper than a division per sample.
     double inv_step() const { return levels() / (max_v - min_v); }
-    double code(double v) const { return clamp_code(std::floor((v - min_v) * inv_step() + 0.5), max_code()); }
+    // Nearest level index before clipping: floor((v - min_v)/q + 1/2).
+    double raw_code(double v) const { return std::floor((v - min_v) * inv_step() + 0.5); }
+    double code(double v) const { return clamp_code(raw_code(v), max_code()); }
     // Comparisons rather than std::fmin/fmax: those are libm calls that block vectorising.
     static double clamp_code(double c, double top) { return c < 0.0 ? 0.0 : (c > top ? top : c); }
-    double apply(double v) const { return ideal() ? v : min_v + code(v) * step_v(); }
+    double apply(double v) const { return ideal() ? v : quantize(v, min_v, inv_step(), step_v(), max_code()); }
+    // The quantiser with its constants passed in, so a per-sample loop can hoist them and
+    // still vectorise (a call to apply() per sample does not).
+    static double quantize(double v, double lo, double inv_q, double q, double top) {
+        return lo + clamp_code(std::floor((v - lo) * inv_q + 0.5), top) * q;
+    }
     bool clips(double v) const {
         if (ideal()) return false;
-        double c = std::floor((v - min_v) * inv_step() + 0.5);
+        const double c = raw_code(v);
         return c < 0.0 || c > max_code();
     }
 };
