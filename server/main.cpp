@@ -1,5 +1,7 @@
 // The fringe command line. Exit codes: 0 success/pass, 1 fail, 2 error.
 #include "drivers/capture_file.hpp"
+#include "estimator/estimator.hpp"
+#include "server/evaluate.hpp"
 #include "server/scenario.hpp"
 #include "signal_gen/analysis.hpp"
 #include "signal_gen/config.hpp"
@@ -116,6 +118,101 @@ int run_gen(const GenOptions& o) {
     return kExitOk;
 }
 
+struct EstimateOptions {
+    std::string capture, estimator, encoder, output, report;
+    std::vector<std::string> params;
+    double settle_s = 0.1;
+    bool list = false, json_list = false, quiet = false;
+};
+
+void print_estimators(bool as_json) {
+    if (as_json) {
+        std::printf("%s\n", json(est::registry()).dump(2).c_str());
+        return;
+    }
+    for (const auto& e : est::registry()) {
+        std::printf("%s\n  %s\n", e.name.c_str(), e.summary.c_str());
+        for (const auto& p : e.params) {
+            json pj = p;
+            std::string range;
+            if (pj.contains("min") || pj.contains("max"))
+                range = " [" + (pj.contains("min") ? pj["min"].dump() : std::string("-inf")) + ", " +
+                        (pj.contains("max") ? pj["max"].dump() : std::string("inf")) + "]";
+            if (pj.contains("options")) {
+                range = " {";
+                for (const auto& opt : p.options) range += (range.size() > 2 ? "|" : "") + opt;
+                range += "}";
+            }
+            std::printf("    %-22s %-8s %-8s default %-10s%s\n        %s\n", p.name.c_str(), pj["type"].get<std::string>().c_str(),
+                        p.unit.empty() ? "-" : p.unit.c_str(), p.default_value.is_null() ? "derived" : p.default_value.dump().c_str(),
+                        range.c_str(), p.description.c_str());
+        }
+    }
+}
+
+int run_estimate(const EstimateOptions& o) {
+    if (o.list) {
+        print_estimators(o.json_list);
+        return kExitOk;
+    }
+    if (o.capture.empty()) throw ConfigError("capture", "a capture file is required (or --list)");
+    if (o.estimator.empty()) throw ConfigError("estimator", "--estimator NAME is required (see --list)");
+    if (o.output.empty() && o.report.empty()) throw ConfigError("output", "give -o ESTIMATES.csv and/or --report REPORT.json");
+    EvaluateOptions e;
+    e.capture_path = o.capture;
+    e.estimator = o.estimator;
+    e.params = est::parse_param_assignments(est::find(o.estimator).params, o.params);
+    if (!o.encoder.empty()) e.encoder = load_encoder(o.encoder);
+    e.settle_s = o.settle_s;
+    e.estimates_path = o.output;
+    const bool tty = isatty(STDERR_FILENO) && !o.quiet;
+    auto last = std::chrono::steady_clock::now();
+    if (tty)
+        e.progress = [&](std::uint64_t done) {
+            const auto now = std::chrono::steady_clock::now();
+            if (now - last > std::chrono::milliseconds(250)) {
+                std::fprintf(stderr, "\restimate: %llu samples", static_cast<unsigned long long>(done));
+                last = now;
+            }
+        };
+    const json r = evaluate_capture(e);
+    if (tty) std::fprintf(stderr, "\r%60s\r", "");
+    if (!o.report.empty()) {
+        std::FILE* f = std::fopen(o.report.c_str(), "w");
+        if (!f) throw std::runtime_error(o.report + ": cannot write report");
+        const std::string text = r.dump(2) + "\n";
+        const bool ok = std::fwrite(text.data(), 1, text.size(), f) == text.size();
+        if (std::fclose(f) != 0 || !ok) throw std::runtime_error(o.report + ": write failed");
+    }
+    if (!o.quiet) {
+        std::printf("%s on %s: %llu samples, %.3g M samples/s\n", o.estimator.c_str(), o.capture.c_str(),
+                    static_cast<unsigned long long>(r["capture"]["samples"].get<std::uint64_t>()),
+                    r["timing"]["estimator_samples_per_s"].get<double>() / 1e6);
+        if (r["metrics"].is_null()) {
+            std::printf("no theta_true in the capture: estimates only\n");
+        } else {
+            const auto& m = r["metrics"];
+            std::printf("error after %.3g s settle (%llu samples): rms %.3e rad (%.4f %% of a period), std %.3e, mean %.3e, max|e| %.3e rad, slipped %llu\n",
+                        o.settle_s, static_cast<unsigned long long>(m["scored"].get<std::uint64_t>()), m["rms"]["rad"].get<double>(),
+                        m["rms"]["percent_period"].get<double>(), m["std"]["rad"].get<double>(), m["mean"]["rad"].get<double>(),
+                        m["max_abs"]["rad"].get<double>(), static_cast<unsigned long long>(m["slipped_samples"].get<std::uint64_t>()));
+            if (!m["harmonics"].empty()) {
+                std::printf("harmonics (rad):");
+                for (const auto& h : m["harmonics"]) std::printf(" %dx %.2e", h["order"].get<int>(), h["amplitude"]["rad"].get<double>());
+                std::printf("\n");
+            }
+            const auto& b = r["bounds"];
+            if (b.is_object() && b.contains("per_sample_crb_rad")) {
+                std::printf("bounds: per-sample CRB %.3e rad", b["per_sample_crb_rad"].get<double>());
+                if (b.contains("pcrb_rad")) std::printf(", PCRB %.3e rad (noise-only %.3e)", b["pcrb_rad"].get<double>(), b["pcrb_noise_only_rad"].get<double>());
+                if (!b["efficiency"].is_null()) std::printf(", efficiency %.3f vs %s", b["efficiency"].get<double>(), b["efficiency_against"].get<std::string>().c_str());
+                std::printf("\n");
+            }
+        }
+    }
+    return kExitOk;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -136,6 +233,19 @@ int main(int argc, char** argv) {
     g->add_option("--block", gen.block, "Samples per block (output does not depend on it)")->check(CLI::Range(1, 1 << 24));
     g->add_flag("-q,--quiet", gen.quiet, "No summary or progress");
 
+    EstimateOptions est_o;
+    auto* es = app.add_subcommand("estimate", "Run an estimator on a capture; score it when the capture has theta_true");
+    es->add_option("capture", est_o.capture, "Capture file (.csv with sidecar, or .fcap)")->check(CLI::ExistingFile);
+    es->add_option("--estimator", est_o.estimator, "Estimator name (see --list)");
+    es->add_option("--encoder", est_o.encoder, "Encoder profile JSON the estimator is told (default: the capture's metadata)")->check(CLI::ExistingFile);
+    es->add_option("--param", est_o.params, "Estimator parameter key=value (repeatable)");
+    es->add_option("-o,--output", est_o.output, "Estimates CSV to write: t,theta_rad,omega_rad_s,valid");
+    es->add_option("--report", est_o.report, "Report JSON to write (scores and bounds when the capture has truth)");
+    es->add_option("--settle-s", est_o.settle_s, "Seconds from the start excluded from scoring")->check(CLI::NonNegativeNumber);
+    es->add_flag("--list", est_o.list, "List the estimators and their parameters");
+    es->add_flag("--json", est_o.json_list, "With --list: as JSON");
+    es->add_flag("-q,--quiet", est_o.quiet, "No summary or progress");
+
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError& e) {
@@ -144,6 +254,7 @@ int main(int argc, char** argv) {
     }
     try {
         if (*g) return run_gen(gen);
+        if (*es) return run_estimate(est_o);
     } catch (const ConfigError& e) {
         spdlog::error("{}", e.what());
         return kExitError;

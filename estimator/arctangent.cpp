@@ -1,0 +1,218 @@
+// atan2 (nominal calibration) and atan2-ellipse (Heydemann correction), MODEL.md 4.1.
+#include "common.hpp"
+#include "registry_parts.hpp"
+
+#include <Eigen/Dense>
+
+#include <algorithm>
+
+namespace fringe::est {
+
+namespace {
+
+// Per block: normalise and atan2 (vectorised), then unwrap serially with an integer turn
+// count. omega is the first difference of theta times fs (a memoryless estimator has no
+// better rate estimate; it is noisy by nature).
+void atan2_block(const Calibration& cal, InputSpan in, OutputSpan out, Unwrapper& uw,
+                 double& prev_theta, bool& have_prev, double fs, std::uint8_t valid) {
+    const std::size_t n = in.size();
+    const double* s = in.sin_v.data();
+    const double* c = in.cos_v.data();
+    double* th = out.theta_rad.data();
+    for (std::size_t i = 0; i < n; ++i) {
+        double sn, cn;
+        cal.normalise(s[i], c[i], sn, cn);
+        th[i] = fast_atan2(sn, cn);
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+        const double t = uw(th[i]);
+        th[i] = t;
+        out.omega_rad_s[i] = have_prev ? (t - prev_theta) * fs : 0.0;
+        out.valid[i] = valid;
+        prev_theta = t;
+        have_prev = true;
+    }
+}
+
+class Atan2 final : public Estimator {
+public:
+    static std::vector<ParamInfo> params() { return calibration_params(); }
+    void reset(const EstimatorConfig& cfg) override {
+        const Params p = resolve_params(params(), cfg.params);
+        if (!(cfg.sample_rate_hz > 0)) throw ConfigError("sample_rate_hz", "must be positive");
+        fs_ = cfg.sample_rate_hz;
+        cal_ = nominal_calibration(cfg.encoder, p);
+        uw_.reset();
+        have_prev_ = false;
+    }
+    void process(InputSpan in, OutputSpan out) override {
+        atan2_block(cal_, in, out, uw_, prev_, have_prev_, fs_, 1);
+    }
+    BoundClass bound_class() const override { return BoundClass::Memoryless; }
+    nlohmann::json state() const override { return {{"calibration", cal_.to_json()}}; }
+
+private:
+    double fs_ = 1;
+    Calibration cal_;
+    Unwrapper uw_;
+    double prev_ = 0;
+    bool have_prev_ = false;
+};
+
+// Heydemann: least squares on A c^2 + B cs + C s^2 + D c + E s = 1 (the origin lies inside
+// the ellipse whenever the offsets are below the amplitudes), then the centre, the
+// normalised quadratic form and (MODEL.md 4.1) sin(delta) = b'/(2 sqrt(a'c')),
+// A_c = 1/(cos(delta) sqrt(a')), A_s = 1/(cos(delta) sqrt(c')).
+struct ConicAccumulator {
+    Eigen::Matrix<double, 5, 5> M = Eigen::Matrix<double, 5, 5>::Zero();
+    Eigen::Matrix<double, 5, 1> v = Eigen::Matrix<double, 5, 1>::Zero();
+    double points = 0;  // effective number of points
+    void add(double s, double c, double keep = 1.0) {
+        Eigen::Matrix<double, 5, 1> m;
+        m << c * c, c * s, s * s, c, s;
+        M = keep * M + m * m.transpose();
+        v = keep * v + m;
+        points = keep * points + 1.0;
+    }
+};
+
+// Returns an empty string on success, else why the fit is rejected.
+std::string fit_ellipse(const ConicAccumulator& acc, Calibration& out) {
+    if (acc.points < 6) return "too few points";
+    Eigen::LDLT<Eigen::Matrix<double, 5, 5>> ldlt(acc.M);
+    if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return "normal equations not positive definite";
+    const Eigen::Matrix<double, 5, 1> p = ldlt.solve(acc.v);
+    // A singular fit (all points at one phase) shows as a tiny pivot.
+    const auto d = ldlt.vectorD();
+    if (!(d.minCoeff() > 1e-12 * d.maxCoeff())) return "degenerate (no motion over the calibration window?)";
+    const double A = p(0), B = p(1), C = p(2), D = p(3), E = p(4);
+    const double det = 4 * A * C - B * B;
+    if (!(det > 0)) return "conic is not an ellipse";
+    const double c0 = (-2 * C * D + B * E) / det, s0 = (B * D - 2 * A * E) / det;
+    const double k = 1.0 + A * c0 * c0 + B * c0 * s0 + C * s0 * s0;
+    if (!(k > 0)) return "ellipse does not enclose its centre";
+    const double a1 = A / k, b1 = B / k, c1 = C / k;
+    const double sd = b1 / (2 * std::sqrt(a1 * c1));
+    if (!(std::fabs(sd) < 0.9)) return "quadrature error beyond 64 degrees";
+    const double cd = std::sqrt(1 - sd * sd);
+    Calibration cal;
+    cal.offset_cos_v = c0;
+    cal.offset_sin_v = s0;
+    cal.amplitude_cos_v = 1.0 / (cd * std::sqrt(a1));
+    cal.amplitude_sin_v = 1.0 / (cd * std::sqrt(c1));
+    cal.quadrature_error_rad = std::asin(sd);
+    cal.prepare();
+    out = cal;
+    return {};
+}
+
+class Atan2Ellipse final : public Estimator {
+public:
+    static std::vector<ParamInfo> params() {
+        auto p = calibration_params();
+        for (auto& i : p) i.description = "initial calibration (until the first fit): " + i.description;
+        p.push_back({"mode", "", ParamType::Choice, "batch", -kInf, kInf, {"batch", "recursive"},
+                     "batch: one fit over the first calibration_samples (output invalid meanwhile); "
+                     "recursive: refit continuously from phase-gated points with forgetting"});
+        p.push_back({"calibration_samples", "samples", ParamType::Integer, 20000, 16, 1e9, {},
+                     "batch window; should span at least one full electrical cycle"});
+        p.push_back({"gate_rad", "rad", ParamType::Number, 0.1, 1e-4, 3.0, {},
+                     "recursive: a point enters the fit only after the phase moved this far since the last one, so a standstill adds nothing and cannot drift the fit"});
+        p.push_back({"memory_points", "points", ParamType::Number, 2000, 16, 1e9, {},
+                     "recursive: forgetting horizon, in accepted points"});
+        p.push_back({"refit_points", "points", ParamType::Integer, 64, 1, 1e9, {},
+                     "recursive: refit after this many accepted points"});
+        return p;
+    }
+    void reset(const EstimatorConfig& cfg) override {
+        const Params p = resolve_params(params(), cfg.params);
+        if (!(cfg.sample_rate_hz > 0)) throw ConfigError("sample_rate_hz", "must be positive");
+        fs_ = cfg.sample_rate_hz;
+        cal_ = nominal_calibration(cfg.encoder, p);
+        recursive_ = p.string("mode") == "recursive";
+        window_ = static_cast<std::uint64_t>(p.integer("calibration_samples"));
+        gate_ = p.number("gate_rad");
+        keep_ = 1.0 - 1.0 / p.number("memory_points");
+        refit_ = static_cast<std::uint64_t>(p.integer("refit_points"));
+        acc_ = {};
+        seen_ = accepted_ = fits_ = 0;
+        have_last_ = false;
+        fitted_ = false;
+        status_ = "not fitted yet";
+        uw_.reset();
+        have_prev_ = false;
+    }
+    void process(InputSpan in, OutputSpan out) override {
+        // Work in sub-blocks so a fit takes effect at a sample boundary independent of the
+        // caller's block size.
+        std::size_t i = 0;
+        const std::size_t n = in.size();
+        while (i < n) {
+            std::size_t m = n - i;
+            if (!recursive_ && !fitted_ && seen_ < window_) m = std::min<std::uint64_t>(m, window_ - seen_);
+            if (recursive_) m = std::min<std::size_t>(m, 256);
+            InputSpan si{in.sin_v.subspan(i, m), in.cos_v.subspan(i, m)};
+            OutputSpan so{out.theta_rad.subspan(i, m), out.omega_rad_s.subspan(i, m), out.valid.subspan(i, m)};
+            const bool valid = recursive_ ? true : fitted_ || seen_ >= window_;
+            const Calibration used = cal_;
+            atan2_block(used, si, so, uw_, prev_, have_prev_, fs_, valid ? 1 : 0);
+            if (recursive_) {
+                for (std::size_t k = 0; k < m; ++k) {
+                    const double a = so.theta_rad[k];
+                    if (!have_last_ || std::fabs(a - last_) >= gate_) {
+                        acc_.add(si.sin_v[k], si.cos_v[k], keep_);
+                        last_ = a;
+                        have_last_ = true;
+                        if (++accepted_ % refit_ == 0 && accepted_ >= 32) refit();
+                    }
+                }
+            } else if (!fitted_ && seen_ < window_) {
+                for (std::size_t k = 0; k < m; ++k) acc_.add(si.sin_v[k], si.cos_v[k]);
+                if (seen_ + m >= window_) {
+                    refit();
+                    fitted_ = true;  // one attempt; status_ says whether it worked
+                }
+            }
+            seen_ += m;
+            i += m;
+        }
+    }
+    BoundClass bound_class() const override { return BoundClass::Memoryless; }
+    nlohmann::json state() const override {
+        return {{"calibration", cal_.to_json()}, {"fit_status", status_}, {"fits", fits_},
+                {"accepted_points", recursive_ ? accepted_ : seen_}};
+    }
+
+private:
+    void refit() {
+        Calibration c;
+        const std::string why = fit_ellipse(acc_, c);
+        if (why.empty()) {
+            cal_ = c;
+            ++fits_;
+            status_ = "ok";
+        } else {
+            status_ = "fit rejected: " + why + " (calibration kept)";
+        }
+    }
+    double fs_ = 1;
+    Calibration cal_;
+    bool recursive_ = false, fitted_ = false, have_last_ = false, have_prev_ = false;
+    std::uint64_t window_ = 0, seen_ = 0, accepted_ = 0, refit_ = 64, fits_ = 0;
+    double gate_ = 0.1, keep_ = 1.0, last_ = 0, prev_ = 0;
+    ConicAccumulator acc_;
+    Unwrapper uw_;
+    std::string status_;
+};
+
+}  // namespace
+
+void register_arctangent(std::vector<EstimatorInfo>& r) {
+    r.push_back({"atan2", "Arctangent with the nominal calibration (offsets, amplitudes, quadrature from the profile or none); memoryless",
+                 Atan2::params(), [] { return std::make_unique<Atan2>(); }});
+    r.push_back({"atan2-ellipse",
+                 "Arctangent after a Heydemann least-squares ellipse fit: batch over a calibration window, or recursive (phase-gated, forgetting; holds still at standstill)",
+                 Atan2Ellipse::params(), [] { return std::make_unique<Atan2Ellipse>(); }});
+}
+
+}  // namespace fringe::est

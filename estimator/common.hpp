@@ -1,0 +1,116 @@
+// Building blocks shared by the estimators: a vectorisable atan2, exact unwrapping, the
+// nominal Lissajous calibration (MODEL.md 4.1) and the acquisition that initialises the
+// trackers (MODEL.md 4.3, "Initialisation").
+#pragma once
+
+#include "estimator.hpp"
+#include "signal_gen/fastmath.hpp"
+
+#include <cmath>
+#include <cstdint>
+
+namespace fringe::est {
+
+// atan2 without libm: octant reduction to t = min/max in [0, 1], then to |u| <= tan(pi/8)
+// via atan(t) = pi/4 + atan((t-1)/(t+1)), then the alternating Taylor series to u^37, whose
+// truncation error is below |u|^39/39 < 3e-17. Branch-free, so GCC vectorises it over a
+// block; within 2 ulp of std::atan2 (tested). atan2(0, 0) = 0.
+inline double fast_atan2(double y, double x) {
+    constexpr double kTanPi8 = 0.41421356237309504880;
+    const double ax = std::fabs(x), ay = std::fabs(y);
+    const double mx = ax > ay ? ax : ay, mn = ax > ay ? ay : ax;
+    const bool big = mn > kTanPi8 * mx;
+    const double num = big ? mn - mx : mn, den = big ? mn + mx : mx;
+    const double u = den > 0.0 ? num / den : 0.0;
+    const double u2 = u * u;
+    double p = 1.0 / 37.0;
+    p = 1.0 / 35.0 - u2 * p; p = 1.0 / 33.0 - u2 * p; p = 1.0 / 31.0 - u2 * p;
+    p = 1.0 / 29.0 - u2 * p; p = 1.0 / 27.0 - u2 * p; p = 1.0 / 25.0 - u2 * p;
+    p = 1.0 / 23.0 - u2 * p; p = 1.0 / 21.0 - u2 * p; p = 1.0 / 19.0 - u2 * p;
+    p = 1.0 / 17.0 - u2 * p; p = 1.0 / 15.0 - u2 * p; p = 1.0 / 13.0 - u2 * p;
+    p = 1.0 / 11.0 - u2 * p; p = 1.0 / 9.0 - u2 * p;  p = 1.0 / 7.0 - u2 * p;
+    p = 1.0 / 5.0 - u2 * p;  p = 1.0 / 3.0 - u2 * p;  p = 1.0 - u2 * p;
+    double a = (big ? kPi / 4 : 0.0) + u * p;
+    a = ay > ax ? kPi / 2 - a : a;
+    a = x < 0.0 ? kPi - a : a;
+    return std::signbit(y) ? -a : a;
+}
+
+// Unwraps a wrapped phase sequence exactly: theta = a + 2*pi*turns with an integer turn
+// count, so no rounding accumulates over 10^8 samples (a running float sum would).
+class Unwrapper {
+public:
+    void reset() { started_ = false; turns_ = 0; prev_ = 0.0; }
+    bool started() const { return started_; }
+    double operator()(double a) {
+        if (started_) {
+            const double d = a - prev_;
+            turns_ += (d < -kPi) - (d > kPi);
+        }
+        started_ = true;
+        prev_ = a;
+        return a + kTwoPi * static_cast<double>(turns_);
+    }
+    // Re-anchor so that the next call continues from an unwrapped value theta.
+    void set(double theta) {
+        const double a = wrap_pi(theta);
+        turns_ = static_cast<std::int64_t>(std::llround((theta - a) / kTwoPi));
+        prev_ = a;
+        started_ = true;
+    }
+
+private:
+    bool started_ = false;
+    std::int64_t turns_ = 0;
+    double prev_ = 0.0;
+};
+
+// Lissajous calibration (MODEL.md 4.1): s = o_s + A_s sin(theta),
+// c = o_c + A_c cos(theta + delta). normalise() returns (sin theta, cos theta) estimates.
+struct Calibration {
+    double offset_sin_v = 0.0, offset_cos_v = 0.0;
+    double amplitude_sin_v = 1.0, amplitude_cos_v = 1.0;
+    double quadrature_error_rad = 0.0;
+
+    void normalise(double s, double c, double& sn, double& cn) const {
+        sn = (s - offset_sin_v) * inv_as_;
+        cn = ((c - offset_cos_v) * inv_ac_ + sn * sin_d_) * inv_cos_d_;
+    }
+    void prepare();  // after setting fields
+    nlohmann::json to_json() const;
+
+private:
+    double inv_as_ = 1.0, inv_ac_ = 1.0, sin_d_ = 0.0, inv_cos_d_ = 1.0;
+};
+
+// The profile's nominal calibration (fundamental amplitude, front-end DC, Lissajous errors),
+// or zero offsets and unit amplitudes without a profile; any of the parameters
+// offset_sin_v, offset_cos_v, amplitude_sin_v, amplitude_cos_v, quadrature_error_rad that is
+// given overrides it.
+Calibration nominal_calibration(const std::optional<EncoderProfile>& encoder, const Params& p);
+std::vector<ParamInfo> calibration_params();
+
+// Tracker initialisation: atan2 of the calibrated samples, unwrapped, and a least-squares
+// line over the first n samples gives the phase at the last of them and the rate.
+class Acquisition {
+public:
+    void reset(std::size_t n, double sample_rate_hz, const Calibration& cal);
+    // Feed one sample; returns true when the fit is complete (theta_rad/omega_rad_s valid).
+    bool add(double s, double c);
+    double theta_rad() const { return theta_; }
+    double omega_rad_s() const { return omega_; }
+    double last_atan2_rad() const { return last_; }
+    bool done() const { return k_ >= n_; }
+    std::size_t samples() const { return n_; }
+
+private:
+    std::size_t n_ = 200, k_ = 0;
+    double fs_ = 1.0;
+    Calibration cal_;
+    Unwrapper unwrap_;
+    double first_ = 0.0, last_ = 0.0, sk_ = 0.0, skk_ = 0.0, sy_ = 0.0, sky_ = 0.0;
+    double theta_ = 0.0, omega_ = 0.0;
+};
+ParamInfo acquisition_param();
+
+}  // namespace fringe::est

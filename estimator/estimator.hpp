@@ -1,0 +1,136 @@
+// The estimator interface (DESIGN.md "Estimator", STYLE.md 1, 5, 6): an interpolation
+// estimator under test turns sin/cos samples (V) into the unwrapped electrical phase
+// theta_rad, the electrical rate omega_rad_s and a valid flag. Estimators are registered by
+// name and describe their own parameters, so the CLI, HTTP API and web forms are built from
+// one description.
+//
+// Lifecycle (liquid-dsp style): make -> reset(config) -> process(...) any number of times.
+// process() does no I/O, no logging and no allocation per sample (the external adapter is
+// the one exception: its samples go through a pipe).
+#pragma once
+
+#include "signal_gen/config.hpp"
+#include "signal_gen/encoder.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <span>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace fringe::est {
+
+// A run-time failure of an estimator (an external child that crashed, a filter whose
+// covariance lost positive definiteness). Configuration problems throw ConfigError instead.
+class EstimatorError : public std::runtime_error {
+public:
+    using std::runtime_error::runtime_error;
+};
+
+enum class ParamType { Number, Integer, Boolean, Choice, String };
+
+// Self-description of one parameter. A null default means "derived" (usually from the
+// encoder profile); `description` says from what.
+struct ParamInfo {
+    std::string name;
+    std::string unit;  // "" for dimensionless
+    ParamType type = ParamType::Number;
+    nlohmann::json default_value;
+    double min = -kInf, max = kInf;    // Number / Integer
+    std::vector<std::string> options;  // Choice
+    std::string description;
+};
+void to_json(nlohmann::json& j, const ParamInfo& p);
+
+// Resolved parameter values: every declared parameter is present (null when derived and
+// not given). Built by resolve_params, which rejects unknown keys, wrong types and values
+// out of range with a ConfigError naming "params.<key>".
+class Params {
+public:
+    Params() = default;
+    explicit Params(nlohmann::json values) : v_(std::move(values)) {}
+    double number(const std::string& key) const;
+    std::optional<double> optional_number(const std::string& key) const;
+    long long integer(const std::string& key) const;
+    bool boolean(const std::string& key) const;
+    std::string string(const std::string& key) const;
+    const nlohmann::json& json() const { return v_; }
+
+private:
+    nlohmann::json v_ = nlohmann::json::object();
+};
+
+Params resolve_params(const std::vector<ParamInfo>& infos, const nlohmann::json& given,
+                      const std::string& path = "params");
+
+// "k=v" strings (CLI --param) to a JSON object, converting each value by its declared type.
+nlohmann::json parse_param_assignments(const std::vector<ParamInfo>& infos,
+                                       const std::vector<std::string>& assignments);
+
+struct EstimatorConfig {
+    double sample_rate_hz = 0.0;
+    // The encoder as the estimator is told it is (a profile file, or the capture's sidecar).
+    // Estimators that need a model throw ConfigError when it is absent.
+    std::optional<EncoderProfile> encoder;
+    nlohmann::json params = nlohmann::json::object();
+};
+
+struct InputSpan {
+    std::span<const double> sin_v, cos_v;
+    std::size_t size() const { return sin_v.size(); }
+};
+
+struct OutputSpan {
+    std::span<double> theta_rad;    // unwrapped electrical phase, a posteriori
+    std::span<double> omega_rad_s;  // electrical rate
+    std::span<std::uint8_t> valid;  // 0 while acquiring / calibrating
+    std::size_t size() const { return theta_rad.size(); }
+};
+
+// How a scorer should grade the estimator (MODEL.md 6, "Efficiency").
+enum class BoundClass { Memoryless, Tracker };
+enum class Kinematics { CV, CA };
+
+// The tracking prior an estimator declares: white acceleration (CV) or jerk (CA) whose PSD
+// is tied to its natural frequency by q = wn^4*r*T (CV) or wn^6*r*T (CA), r being the
+// per-sample phase variance of the signal (MODEL.md 4.3). The scorer evaluates the PCRB for
+// this prior with r from the true signal model.
+struct TrackingPrior {
+    Kinematics kinematics = Kinematics::CV;
+    double natural_freq_hz = 0.0;
+};
+
+class Estimator {
+public:
+    virtual ~Estimator() = default;
+    virtual void reset(const EstimatorConfig& config) = 0;
+    // in and out have equal sizes. Stream in blocks of any size: the result does not depend
+    // on the partition.
+    virtual void process(InputSpan in, OutputSpan out) = 0;
+    virtual BoundClass bound_class() const { return BoundClass::Tracker; }
+    virtual std::optional<TrackingPrior> prior() const { return std::nullopt; }
+    // Diagnostics for the report (fitted calibration, final gain or kappa, ...).
+    virtual nlohmann::json state() const { return nlohmann::json::object(); }
+};
+
+struct EstimatorInfo {
+    std::string name;
+    std::string summary;
+    std::vector<ParamInfo> params;
+    std::function<std::unique_ptr<Estimator>()> make;
+};
+void to_json(nlohmann::json& j, const EstimatorInfo& e);
+
+// All registered estimators, in a stable order.
+const std::vector<EstimatorInfo>& registry();
+// Throws ConfigError("estimator", ...) listing the known names.
+const EstimatorInfo& find(const std::string& name);
+// find + make + reset.
+std::unique_ptr<Estimator> make(const std::string& name, const EstimatorConfig& config);
+
+}  // namespace fringe::est

@@ -1,0 +1,219 @@
+// external: runs a user's estimator as a child process (docs/external-estimator.md).
+// Samples go to its stdin, estimates come back on its stdout, one output frame per input
+// frame and in order. Both pipes are non-blocking and served by one poll() loop, so a child
+// that answers only after reading a whole block cannot deadlock us; a child that exits or
+// stays silent for timeout_s ends the run with an EstimatorError that says so.
+#include "common.hpp"
+#include "registry_parts.hpp"
+
+#include <fcntl.h>
+#include <poll.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <string>
+
+namespace fringe::est {
+
+namespace {
+
+class External final : public Estimator {
+public:
+    static std::vector<ParamInfo> params() {
+        return {
+            {"command", "", ParamType::String, nullptr, -kInf, kInf, {}, "shell command that starts the estimator (run by /bin/sh -c)"},
+            {"protocol", "", ParamType::Choice, "text", -kInf, kInf, {"text", "binary"},
+             "text: lines 'sin cos' in, 'theta_rad omega_rad_s valid' out; binary: little-endian f64 pairs in, f64 triples out"},
+            {"timeout_s", "s", ParamType::Number, 10.0, 0.01, 3600, {}, "give up when the child makes no progress for this long"},
+        };
+    }
+    ~External() override { stop(); }
+
+    void reset(const EstimatorConfig& cfg) override {
+        stop();
+        const Params p = resolve_params(params(), cfg.params);
+        command_ = p.string("command");
+        if (command_.empty()) throw ConfigError("params.command", "is required (the command that runs your estimator)");
+        binary_ = p.string("protocol") == "binary";
+        timeout_ms_ = static_cast<int>(p.number("timeout_s") * 1000);
+        if (!(cfg.sample_rate_hz > 0)) throw ConfigError("sample_rate_hz", "must be positive");
+        // A child that dies while we write must give EPIPE, not kill the bench.
+        ::signal(SIGPIPE, SIG_IGN);
+        int in_pipe[2], out_pipe[2];
+        if (pipe(in_pipe) != 0 || pipe(out_pipe) != 0) throw EstimatorError(std::string("external: pipe: ") + std::strerror(errno));
+        const std::string rate = std::to_string(cfg.sample_rate_hz);
+        const std::string proto = binary_ ? "binary" : "text";
+        pid_ = fork();
+        if (pid_ < 0) throw EstimatorError(std::string("external: fork: ") + std::strerror(errno));
+        if (pid_ == 0) {
+            dup2(in_pipe[0], 0);
+            dup2(out_pipe[1], 1);
+            close(in_pipe[0]); close(in_pipe[1]); close(out_pipe[0]); close(out_pipe[1]);
+            setenv("FRINGE_SAMPLE_RATE_HZ", rate.c_str(), 1);
+            setenv("FRINGE_PROTOCOL", proto.c_str(), 1);
+            signal(SIGPIPE, SIG_DFL);
+            execl("/bin/sh", "sh", "-c", command_.c_str(), static_cast<char*>(nullptr));
+            _exit(127);
+        }
+        close(in_pipe[0]);
+        close(out_pipe[1]);
+        to_child_ = in_pipe[1];
+        from_child_ = out_pipe[0];
+        fcntl(to_child_, F_SETFL, fcntl(to_child_, F_GETFL) | O_NONBLOCK);
+        fcntl(from_child_, F_SETFL, fcntl(from_child_, F_GETFL) | O_NONBLOCK);
+        fcntl(to_child_, F_SETFD, FD_CLOEXEC);
+        fcntl(from_child_, F_SETFD, FD_CLOEXEC);
+        samples_ = 0;
+        partial_.clear();
+    }
+
+    void process(InputSpan in, OutputSpan out) override {
+        if (pid_ <= 0) throw EstimatorError("external: the child process is not running (reset failed or it already ended)");
+        const std::size_t n = in.size();
+        std::string tx;
+        if (binary_) {
+            tx.resize(16 * n);
+            for (std::size_t i = 0; i < n; ++i) {
+                std::memcpy(&tx[16 * i], &in.sin_v[i], 8);
+                std::memcpy(&tx[16 * i + 8], &in.cos_v[i], 8);
+            }
+        } else {
+            tx.reserve(48 * n);
+            char line[96];
+            for (std::size_t i = 0; i < n; ++i) {
+                const int len = std::snprintf(line, sizeof line, "%.17g %.17g\n", in.sin_v[i], in.cos_v[i]);
+                tx.append(line, static_cast<std::size_t>(len));
+            }
+        }
+        std::size_t sent = 0, got = 0;
+        std::string rx = std::move(partial_);
+        partial_.clear();
+        char buf[65536];
+        auto last_progress = std::chrono::steady_clock::now();
+        auto consume = [&]() {  // parse complete frames from rx into out
+            if (binary_) {
+                while (got < n && rx.size() >= 24) {
+                    double f[3];
+                    std::memcpy(f, rx.data(), 24);
+                    rx.erase(0, 24);
+                    put(out, got++, f[0], f[1], f[2]);
+                }
+            } else {
+                std::size_t pos;
+                while (got < n && (pos = rx.find('\n')) != std::string::npos) {
+                    const std::string line = rx.substr(0, pos);
+                    rx.erase(0, pos + 1);
+                    double f[3];
+                    char* end = nullptr;
+                    const char* c = line.c_str();
+                    for (int k = 0; k < 3; ++k) {
+                        f[k] = std::strtod(c, &end);
+                        if (end == c) fail("output line " + std::to_string(samples_ + got + 1) + " is not 'theta_rad omega_rad_s valid': '" + line + "'");
+                        c = end;
+                    }
+                    put(out, got++, f[0], f[1], f[2]);
+                }
+            }
+        };
+        while (got < n) {
+            pollfd fds[2];
+            int nf = 0;
+            fds[nf++] = {from_child_, POLLIN, 0};
+            if (sent < tx.size()) fds[nf++] = {to_child_, POLLOUT, 0};
+            const int rc = poll(fds, static_cast<nfds_t>(nf), 100);
+            if (rc < 0 && errno != EINTR) fail(std::string("poll: ") + std::strerror(errno));
+            bool progress = false;
+            if (nf == 2 && (fds[1].revents & (POLLOUT | POLLERR | POLLHUP))) {
+                const ssize_t w = write(to_child_, tx.data() + sent, tx.size() - sent);
+                if (w > 0) { sent += static_cast<std::size_t>(w); progress = true; }
+                else if (w < 0 && errno != EAGAIN && errno != EINTR) fail_exited("stopped reading its input");
+            }
+            if (fds[0].revents & (POLLIN | POLLHUP | POLLERR)) {
+                const ssize_t r = read(from_child_, buf, sizeof buf);
+                if (r > 0) { rx.append(buf, static_cast<std::size_t>(r)); progress = true; consume(); }
+                else if (r == 0) fail_exited("closed its output");
+                else if (errno != EAGAIN && errno != EINTR) fail(std::string("read: ") + std::strerror(errno));
+            }
+            const auto now = std::chrono::steady_clock::now();
+            if (progress) last_progress = now;
+            else if (now - last_progress > std::chrono::milliseconds(timeout_ms_)) {
+                int status = 0;
+                if (waitpid(pid_, &status, WNOHANG) == pid_) { pid_ = -1; fail(exit_text(status)); }
+                fail("no output for " + std::to_string(timeout_ms_ / 1000.0).substr(0, 5) + " s after " +
+                     std::to_string(samples_ + got) + " estimates (does it flush its output?)");
+            }
+        }
+        partial_ = std::move(rx);  // a child may run ahead by at most a partial frame
+        samples_ += n;
+    }
+
+    BoundClass bound_class() const override { return BoundClass::Tracker; }
+    nlohmann::json state() const override { return {{"command", command_}, {"samples", samples_}}; }
+
+private:
+    void put(OutputSpan out, std::size_t i, double th, double om, double v) {
+        if (!std::isfinite(th)) fail("estimate " + std::to_string(samples_ + i + 1) + " has a non-finite theta");
+        out.theta_rad[i] = th;
+        out.omega_rad_s[i] = om;
+        out.valid[i] = v != 0.0 ? 1 : 0;
+    }
+    static std::string exit_text(int status) {
+        if (WIFEXITED(status)) return "exited with status " + std::to_string(WEXITSTATUS(status));
+        if (WIFSIGNALED(status)) return std::string("was killed by signal ") + strsignal(WTERMSIG(status));
+        return "ended";
+    }
+    [[noreturn]] void fail_exited(const std::string& what) {
+        // Give the child a moment to finish dying so we can say how it ended.
+        int status = 0;
+        for (int i = 0; i < 50; ++i) {
+            if (waitpid(pid_, &status, WNOHANG) == pid_) {
+                pid_ = -1;
+                fail(what + "; it " + exit_text(status));
+            }
+            usleep(10000);
+        }
+        fail(what);
+    }
+    [[noreturn]] void fail(const std::string& what) {
+        const std::string msg = "external estimator '" + command_ + "': " + what + " (after " + std::to_string(samples_) + " samples)";
+        stop();
+        throw EstimatorError(msg);
+    }
+    void stop() {
+        if (to_child_ >= 0) { close(to_child_); to_child_ = -1; }
+        if (pid_ > 0) {
+            int status = 0;
+            bool gone = false;
+            for (int i = 0; i < 20 && !gone; ++i) {  // EOF on stdin should end it
+                gone = waitpid(pid_, &status, WNOHANG) == pid_;
+                if (!gone) usleep(5000);
+            }
+            if (!gone) { kill(pid_, SIGKILL); waitpid(pid_, &status, 0); }
+            pid_ = -1;
+        }
+        if (from_child_ >= 0) { close(from_child_); from_child_ = -1; }
+    }
+
+    std::string command_;
+    bool binary_ = false;
+    int timeout_ms_ = 10000;
+    pid_t pid_ = -1;
+    int to_child_ = -1, from_child_ = -1;
+    std::uint64_t samples_ = 0;
+    std::string partial_;
+};
+
+}  // namespace
+
+void register_external(std::vector<EstimatorInfo>& r) {
+    r.push_back({"external", "Your own estimator as a child process (e.g. host-compiled firmware): samples on stdin, estimates on stdout; see docs/external-estimator.md",
+                 External::params(), [] { return std::make_unique<External>(); }});
+}
+
+}  // namespace fringe::est

@@ -1,0 +1,109 @@
+#include "evaluate.hpp"
+
+#include "bounds.hpp"
+#include "drivers/capture_file.hpp"
+#include "estimator/estimator.hpp"
+#include "scoring.hpp"
+
+#include <charconv>
+#include <chrono>
+#include <cstdio>
+#include <cstring>
+
+namespace fringe {
+
+using nlohmann::json;
+
+EstimatesWriter::EstimatesWriter(const std::string& path) : path_(path) {
+    f_ = std::fopen(path.c_str(), "w");
+    if (!f_) throw CaptureError(path + ": cannot write: " + std::strerror(errno));
+    std::fputs("t,theta_rad,omega_rad_s,valid\n", f_);
+}
+
+void EstimatesWriter::write(std::size_t n, const double* t, const double* th, const double* om, const std::uint8_t* v) {
+    buf_.resize(n * 80);
+    char* p = buf_.data();
+    for (std::size_t i = 0; i < n; ++i) {
+        p = std::to_chars(p, p + 32, t[i]).ptr; *p++ = ',';
+        p = std::to_chars(p, p + 32, th[i]).ptr; *p++ = ',';
+        p = std::to_chars(p, p + 32, om[i]).ptr; *p++ = ',';
+        *p++ = v[i] ? '1' : '0'; *p++ = '\n';
+    }
+    const std::size_t len = static_cast<std::size_t>(p - buf_.data());
+    if (std::fwrite(buf_.data(), 1, len, f_) != len) throw CaptureError(path_ + ": write failed: " + std::strerror(errno));
+}
+
+void EstimatesWriter::close() {
+    if (f_) {
+        const bool bad = std::fclose(f_) != 0;
+        f_ = nullptr;
+        if (bad) throw CaptureError(path_ + ": close failed");
+    }
+}
+
+json evaluate_capture(const EvaluateOptions& o) {
+    CaptureReader reader(o.capture_path);
+    const double fs = reader.sample_rate_hz();
+    if (!(fs > 0)) throw CaptureError(o.capture_path + ": sample rate unknown (no sidecar and fewer than two time stamps)");
+    std::optional<EncoderProfile> from_capture;
+    if (reader.meta().is_object() && reader.meta().contains("encoder"))
+        from_capture = encoder_from_json(reader.meta()["encoder"], "capture.encoder");
+    est::EstimatorConfig cfg;
+    cfg.sample_rate_hz = fs;
+    cfg.encoder = o.encoder ? o.encoder : from_capture;
+    cfg.params = o.params.is_null() ? json::object() : o.params;
+    auto estimator = est::make(o.estimator, cfg);
+
+    const bool truth = reader.columns().theta_true;
+    std::optional<EstimatesWriter> out;
+    if (!o.estimates_path.empty()) out.emplace(o.estimates_path);
+    Scorer scorer(o.settle_s);
+    CaptureData d;
+    std::vector<double> th, om;
+    std::vector<std::uint8_t> valid;
+    std::uint64_t total = 0;
+    const auto t0 = std::chrono::steady_clock::now();
+    double est_seconds = 0;
+    while (reader.read(o.block, d)) {
+        const std::size_t n = d.size();
+        th.resize(n); om.resize(n); valid.resize(n);
+        const auto a = std::chrono::steady_clock::now();
+        estimator->process({d.sin_v, d.cos_v}, {th, om, valid});
+        est_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - a).count();
+        if (out) out->write(n, d.t_s.data(), th.data(), om.data(), valid.data());
+        if (truth)
+            scorer.add(n, d.t_s.data(), d.theta_true_rad.data(),
+                       d.omega_true_rad_s.empty() ? nullptr : d.omega_true_rad_s.data(), th.data(), om.data(), valid.data());
+        total += n;
+        if (o.progress) o.progress(total);
+    }
+    if (out) out->close();
+    const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+
+    json r;
+    r["schema"] = "fringe.estimate";
+    r["schema_version"] = 1;
+    r["capture"] = {{"path", o.capture_path}, {"samples", total}, {"sample_rate_hz", fs}, {"has_truth", truth}};
+    r["estimator"] = {{"name", o.estimator}, {"params", cfg.params}, {"state", estimator->state()}};
+    r["encoder_source"] = o.encoder ? "profile file" : (from_capture ? "capture metadata" : "none");
+    r["timing"] = {{"estimator_s", est_seconds}, {"wall_s", wall},
+                   {"estimator_samples_per_s", est_seconds > 0 ? static_cast<double>(total) / est_seconds : 0.0}};
+    if (!truth) {
+        r["metrics"] = nullptr;
+        r["note"] = "the capture has no theta_true column: estimates only, no scores";
+        return r;
+    }
+    const ErrorMetrics m = scorer.finish();
+    // Truth for units and bounds: the capture's own encoder, else the profile given.
+    const std::optional<EncoderProfile>& truth_enc = from_capture ? from_capture : o.encoder;
+    const int lines = truth_enc ? truth_enc->lines_per_rev : 0;
+    r["settle_s"] = o.settle_s;
+    r["metrics"] = to_json(m, lines);
+    if (truth_enc && m.scored > 0)
+        r["bounds"] = bounds_json(*truth_enc, *estimator, fs, m.scored, m.rms_rad);
+    else
+        r["bounds"] = nullptr;
+    return r;
+}
+
+}  // namespace fringe
