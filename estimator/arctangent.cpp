@@ -143,30 +143,18 @@ public:
         have_prev_ = false;
     }
     void process(InputSpan in, OutputSpan out) override {
-        // Work in sub-blocks so a fit takes effect at a sample boundary independent of the
-        // caller's block size.
+        if (recursive_) return process_recursive(in, out);
+        // Batch: sub-blocks split at the end of the calibration window, so the fit takes
+        // effect at the same sample whatever the caller's block size.
         std::size_t i = 0;
         const std::size_t n = in.size();
         while (i < n) {
             std::size_t m = n - i;
-            if (!recursive_ && !fitted_ && seen_ < window_) m = std::min<std::uint64_t>(m, window_ - seen_);
-            if (recursive_) m = std::min<std::size_t>(m, 256);
+            if (!fitted_) m = std::min<std::uint64_t>(m, window_ - seen_);
             InputSpan si{in.sin_v.subspan(i, m), in.cos_v.subspan(i, m)};
             OutputSpan so{out.theta_rad.subspan(i, m), out.omega_rad_s.subspan(i, m), out.valid.subspan(i, m)};
-            const bool valid = recursive_ ? true : fitted_ || seen_ >= window_;
-            const Calibration used = cal_;
-            atan2_block(used, si, so, uw_, prev_, have_prev_, fs_, valid ? 1 : 0);
-            if (recursive_) {
-                for (std::size_t k = 0; k < m; ++k) {
-                    const double a = so.theta_rad[k];
-                    if (!have_last_ || std::fabs(a - last_) >= gate_) {
-                        acc_.add(si.sin_v[k], si.cos_v[k], keep_);
-                        last_ = a;
-                        have_last_ = true;
-                        if (++accepted_ % refit_ == 0 && accepted_ >= 32) refit();
-                    }
-                }
-            } else if (!fitted_ && seen_ < window_) {
+            atan2_block(cal_, si, so, uw_, prev_, have_prev_, fs_, fitted_ ? 1 : 0);
+            if (!fitted_) {
                 for (std::size_t k = 0; k < m; ++k) acc_.add(si.sin_v[k], si.cos_v[k]);
                 if (seen_ + m >= window_) {
                     refit();
@@ -176,6 +164,26 @@ public:
             seen_ += m;
             i += m;
         }
+    }
+    // Recursive: per sample, so each refit applies from the next sample on.
+    void process_recursive(InputSpan in, OutputSpan out) {
+        for (std::size_t k = 0; k < in.size(); ++k) {
+            double sn, cn;
+            cal_.normalise(in.sin_v[k], in.cos_v[k], sn, cn);
+            const double a = uw_(fast_atan2(sn, cn));
+            out.theta_rad[k] = a;
+            out.omega_rad_s[k] = have_prev_ ? (a - prev_) * fs_ : 0.0;
+            out.valid[k] = 1;
+            prev_ = a;
+            have_prev_ = true;
+            if (!have_last_ || std::fabs(a - last_) >= gate_) {
+                acc_.add(in.sin_v[k], in.cos_v[k], keep_);
+                last_ = a;
+                have_last_ = true;
+                if (++accepted_ % refit_ == 0 && accepted_ >= 32) refit();
+            }
+        }
+        seen_ += in.size();
     }
     BoundClass bound_class() const override { return BoundClass::Memoryless; }
     nlohmann::json state() const override {

@@ -281,6 +281,15 @@ public:
             put("offset_cos_v", layout_.off_c);
             put("gain_mismatch", layout_.eps);
             put("quadrature_error_rad", layout_.delta);
+            double min_eig = 0;
+            bool ok = filter_.covariance_ok(&min_eig);
+            if (f_.variant == Variant::Parallel) {
+                double m2 = 0;
+                ok = filter_c_.covariance_ok(&m2) && ok;
+                min_eig = std::min(min_eig, m2);
+            }
+            j["covariance_ok"] = ok;  // symmetric and Cholesky-factorable
+            j["covariance_min_eigenvalue"] = min_eig;
         }
         if (closed_) {
             j["gain_bits_final"] = n_gain_;

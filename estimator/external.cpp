@@ -92,6 +92,7 @@ public:
             }
         }
         std::size_t sent = 0, got = 0;
+        got_ = 0;
         std::string rx = std::move(partial_);
         partial_.clear();
         char buf[65536];
@@ -103,6 +104,7 @@ public:
                     std::memcpy(f, rx.data(), 24);
                     rx.erase(0, 24);
                     put(out, got++, f[0], f[1], f[2]);
+                    got_ = got;
                 }
             } else {
                 std::size_t pos;
@@ -118,6 +120,7 @@ public:
                         c = end;
                     }
                     put(out, got++, f[0], f[1], f[2]);
+                    got_ = got;
                 }
             }
         };
@@ -145,12 +148,13 @@ public:
             else if (now - last_progress > std::chrono::milliseconds(timeout_ms_)) {
                 int status = 0;
                 if (waitpid(pid_, &status, WNOHANG) == pid_) { pid_ = -1; fail(exit_text(status)); }
-                fail("no output for " + std::to_string(timeout_ms_ / 1000.0).substr(0, 5) + " s after " +
-                     std::to_string(samples_ + got) + " estimates (does it flush its output?)");
+                fail("no output for " + std::to_string(timeout_ms_ / 1000.0).substr(0, 5) +
+                     " s (does it flush its output after each line or block?)");
             }
         }
         partial_ = std::move(rx);  // a child may run ahead by at most a partial frame
         samples_ += n;
+        got_ = 0;
     }
 
     BoundClass bound_class() const override { return BoundClass::Tracker; }
@@ -164,7 +168,13 @@ private:
         out.valid[i] = v != 0.0 ? 1 : 0;
     }
     static std::string exit_text(int status) {
-        if (WIFEXITED(status)) return "exited with status " + std::to_string(WEXITSTATUS(status));
+        if (WIFEXITED(status)) {
+            const int code = WEXITSTATUS(status);
+            std::string t = "exited with status " + std::to_string(code);
+            // /bin/sh reports a child killed by signal N as 128 + N
+            if (code > 128 && code < 128 + 32) t += std::string(" (killed by signal: ") + strsignal(code - 128) + ")";
+            return t;
+        }
         if (WIFSIGNALED(status)) return std::string("was killed by signal ") + strsignal(WTERMSIG(status));
         return "ended";
     }
@@ -181,7 +191,8 @@ private:
         fail(what);
     }
     [[noreturn]] void fail(const std::string& what) {
-        const std::string msg = "external estimator '" + command_ + "': " + what + " (after " + std::to_string(samples_) + " samples)";
+        const std::string msg = "external estimator '" + command_ + "': " + what + " (after " +
+                                std::to_string(samples_ + got_) + " estimates)";
         stop();
         throw EstimatorError(msg);
     }
@@ -206,6 +217,7 @@ private:
     pid_t pid_ = -1;
     int to_child_ = -1, from_child_ = -1;
     std::uint64_t samples_ = 0;
+    std::size_t got_ = 0;  // estimates received in the current block
     std::string partial_;
 };
 

@@ -43,6 +43,9 @@ void EstimatesWriter::close() {
 
 json evaluate_capture(const EvaluateOptions& o) {
     CaptureReader reader(o.capture_path);
+    CaptureData d;
+    // A CSV without a sidecar gives its rate from the first time stamps: read a block first.
+    bool more = reader.read(o.block, d);
     const double fs = reader.sample_rate_hz();
     if (!(fs > 0)) throw CaptureError(o.capture_path + ": sample rate unknown (no sidecar and fewer than two time stamps)");
     std::optional<EncoderProfile> from_capture;
@@ -58,13 +61,12 @@ json evaluate_capture(const EvaluateOptions& o) {
     std::optional<EstimatesWriter> out;
     if (!o.estimates_path.empty()) out.emplace(o.estimates_path);
     Scorer scorer(o.settle_s);
-    CaptureData d;
     std::vector<double> th, om;
     std::vector<std::uint8_t> valid;
     std::uint64_t total = 0;
     const auto t0 = std::chrono::steady_clock::now();
     double est_seconds = 0;
-    while (reader.read(o.block, d)) {
+    for (; more; more = reader.read(o.block, d)) {
         const std::size_t n = d.size();
         th.resize(n); om.resize(n); valid.resize(n);
         const auto a = std::chrono::steady_clock::now();

@@ -1,0 +1,59 @@
+#!/usr/bin/env bash
+# fringe estimate through the real executable: scores with truth, estimates only without,
+# exit 2 with a message naming the problem on bad input.
+set -euo pipefail
+FRINGE="$1"; SRC="$2"
+PY=/usr/bin/python3
+dir=$(mktemp -d); trap 'rm -rf "$dir"' EXIT
+fail() { echo "FAIL: $*" >&2; exit 1; }
+expect_error() {  # expect_error PATTERN cmd...: exit 2 and stderr contains PATTERN
+  local pat="$1"; shift
+  set +e; msg=$("$@" 2>&1); rc=$?; set -e
+  [ $rc -eq 2 ] || fail "expected exit 2, got $rc: $*"
+  echo "$msg" | grep -q -- "$pat" || fail "expected '$pat' in: $msg"
+}
+
+"$FRINGE" gen "$SRC/fixtures/scenarios/paper-duty1p6.json" -o "$dir/cap.csv" -q --samples 30000
+
+# --list names every estimator, as text and JSON
+"$FRINGE" estimate --list > "$dir/list.txt"; grep -q "^ekf-diffraction" "$dir/list.txt" || fail "--list"
+"$FRINGE" estimate --list --json | $PY -c 'import json,sys; n=[e["name"] for e in json.load(sys.stdin)]; assert "closed-loop" in n and "external" in n, n'
+
+# with truth: a scored report; ekf-diffraction at the ~2e-5 rad bound
+"$FRINGE" estimate "$dir/cap.csv" --estimator ekf-diffraction -o "$dir/est.csv" --report "$dir/r.json"
+[ "$(head -1 "$dir/est.csv")" = "t,theta_rad,omega_rad_s,valid" ] || fail "estimates header"
+[ "$(wc -l < "$dir/est.csv")" -eq 30001 ] || fail "estimates rows"
+$PY - "$dir/r.json" <<'PY'
+import json, sys
+r = json.load(open(sys.argv[1]))
+assert r["schema"] == "fringe.estimate" and r["schema_version"] == 1
+m, b = r["metrics"], r["bounds"]
+assert m["scored"] == 20000, m["scored"]
+assert 5e-6 < m["rms"]["rad"] < 4e-5, m["rms"]
+assert abs(m["rms"]["percent_period"] - m["rms"]["rad"] / 6.283185307179586 * 100) < 1e-12
+assert abs(m["rms"]["arcsec_mech"] - m["rms"]["rad"] / 1024 * 206264.80624709636) < 1e-9
+assert len(m["harmonics"]) == 6 and m["slipped_samples"] == 0
+assert b["efficiency_against"] == "pcrb_noise_only" and 0.3 < b["efficiency"] < 1.5, b
+assert r["encoder_source"] == "capture metadata"
+PY
+
+# parameters through --param, an explicit profile through --encoder
+"$FRINGE" estimate "$dir/cap.csv" --estimator pll2 --param natural_freq_hz=50 --param damping=1 \
+  --encoder "$SRC/fixtures/encoders/paper-d2-duty1p6.json" --report "$dir/p.json" -q
+$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["estimator"]["params"]["natural_freq_hz"]==50 and r["encoder_source"]=="profile file"' "$dir/p.json"
+
+# without truth: estimates only
+cut -d, -f1-3 "$dir/cap.csv" > "$dir/notruth.csv"
+"$FRINGE" estimate "$dir/notruth.csv" --estimator atan2 -o "$dir/e2.csv" --report "$dir/n.json" > "$dir/n.txt"; grep -q "estimates only" "$dir/n.txt" || fail "no-truth summary"
+[ "$(wc -l < "$dir/e2.csv")" -eq 30001 ] || fail "no-truth rows"
+$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["metrics"] is None and r["capture"]["has_truth"] is False' "$dir/n.json"
+
+# bad input: exit 2, the problem named
+expect_error "unknown estimator 'ekf-magic'" "$FRINGE" estimate "$dir/cap.csv" --estimator ekf-magic -o "$dir/x.csv"
+expect_error "params.natural_freq_hz" "$FRINGE" estimate "$dir/cap.csv" --estimator pll2 --param natural_freq_hz=-3 -o "$dir/x.csv"
+expect_error "params.bandwidth" "$FRINGE" estimate "$dir/cap.csv" --estimator pll2 --param bandwidth=3 -o "$dir/x.csv"
+expect_error "params.kappa" "$FRINGE" estimate "$dir/notruth.csv" --estimator ekf-diffraction -o "$dir/x.csv"
+sed '5s/^\([^,]*\),[^,]*,/\1,nan,/' "$dir/notruth.csv" > "$dir/nan.csv"
+expect_error "nan.csv:5" "$FRINGE" estimate "$dir/nan.csv" --estimator atan2 -o "$dir/x.csv"
+expect_error "no output for" "$FRINGE" estimate "$dir/cap.csv" --estimator external --param "command=sleep 20" --param timeout_s=0.3 -o "$dir/x.csv"
+echo "cli.estimate OK"
