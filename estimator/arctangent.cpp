@@ -16,12 +16,14 @@ namespace {
 void atan2_block(const Calibration& cal, InputSpan in, OutputSpan out, Unwrapper& uw,
                  double& prev_theta, bool& have_prev, double fs, std::uint8_t valid) {
     const std::size_t n = in.size();
-    const double* s = in.sin_v.data();
-    const double* c = in.cos_v.data();
-    double* th = out.theta_rad.data();
+    const double* __restrict s = in.sin_v.data();
+    const double* __restrict c = in.cos_v.data();
+    double* __restrict th = out.theta_rad.data();
+    // Constants in locals: the compiler cannot prove cal does not alias th.
+    const auto [os, oc, inv_as, inv_ac, sin_d, inv_cos_d] = cal.coeffs();
     for (std::size_t i = 0; i < n; ++i) {
-        double sn, cn;
-        cal.normalise(s[i], c[i], sn, cn);
+        const double sn = (s[i] - os) * inv_as;
+        const double cn = ((c[i] - oc) * inv_ac + sn * sin_d) * inv_cos_d;
         th[i] = fast_atan2(sn, cn);
     }
     for (std::size_t i = 0; i < n; ++i) {

@@ -33,7 +33,7 @@ inline double fast_atan2(double y, double x) {
     double a = (big ? kPi / 4 : 0.0) + u * p;
     a = ay > ax ? kPi / 2 - a : a;
     a = x < 0.0 ? kPi - a : a;
-    return std::signbit(y) ? -a : a;
+    return std::copysign(a, y);  // a >= 0 here; copysign keeps atan2(-0, x) = -0 or -pi
 }
 
 // Unwraps a wrapped phase sequence exactly: theta = a + 2*pi*turns with an integer turn
@@ -77,6 +77,9 @@ struct Calibration {
         cn = ((c - offset_cos_v) * inv_ac_ + sn * sin_d_) * inv_cos_d_;
     }
     void prepare();  // after setting fields
+    // The constants of normalise(), for loops that hoist them into registers.
+    struct Coeffs { double os, oc, inv_as, inv_ac, sin_d, inv_cos_d; };
+    Coeffs coeffs() const { return {offset_sin_v, offset_cos_v, inv_as_, inv_ac_, sin_d_, inv_cos_d_}; }
     nlohmann::json to_json() const;
 
 private:

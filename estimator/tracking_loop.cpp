@@ -31,6 +31,8 @@ public:
         k1_ = 2 * p.number("damping") * wn * T_;
         k2_ = wn * wn * T_;
         cal_ = nominal_calibration(cfg.encoder, p);
+        const auto cc = cal_.coeffs();
+        os_ = cc.os; oc_ = cc.oc; inv_as_ = cc.inv_as; inv_ac_ = cc.inv_ac; sin_d_ = cc.sin_d; inv_cos_d_ = cc.inv_cos_d;
         acq_.reset(static_cast<std::size_t>(p.integer("acquisition_samples")), cfg.sample_rate_hz, cal_);
         frac_ = omega_ = 0;
         turns_ = 0;
@@ -50,22 +52,44 @@ public:
                     frac_ = wrap_pi(th);
                     turns_ = std::llround((th - frac_) / kTwoPi);
                     frac_ += T_ * omega_;  // prediction for the next sample
+                    sincos_small(frac_, ps_, pc_);
+                    since_sync_ = 0;
                 }
                 continue;
             }
-            double sn, cn, sp, cp;
-            cal_.normalise(s, c, sn, cn);
-            fast_sincos(frac_, sp, cp);
-            const double mag = std::sqrt(sn * sn + cn * cn);
-            const double e = mag > 0 ? (sn * cp - cn * sp) / mag : 0.0;
-            frac_ += k1_ * e;
-            omega_ += k2_ * e;
-            out.theta_rad[i] = frac_ + kTwoPi * static_cast<double>(turns_);
+            const double sn = (s - os_) * inv_as_;
+            const double cn = ((c - oc_) * inv_ac_ + sn * sin_d_) * inv_cos_d_;
+            // Off the recursion: the ratiometric normalisation depends on the input only.
+            const double m2 = sn * sn + cn * cn;
+            const double inv_mag = m2 > 0 ? 1.0 / std::sqrt(m2) : 0.0;
+            // On it: error, loop update, and the phasor rotated by the phase step.
+            const double e = std::fma(sn, pc_, -cn * ps_) * inv_mag;
+            const double post = std::fma(k1_, e, frac_);
+            omega_ = std::fma(k2_, e, omega_);
+            out.theta_rad[i] = post + kTwoPi * static_cast<double>(turns_);
             out.omega_rad_s[i] = omega_;
             out.valid[i] = 1;
-            frac_ += T_ * omega_;
+            const double step = std::fma(T_, omega_, k1_ * e);  // theta-(k+1) - theta-(k)
+            frac_ += step;
             if (frac_ > kPi) { frac_ -= kTwoPi; ++turns_; }
             else if (frac_ < -kPi) { frac_ += kTwoPi; --turns_; }
+            if (++since_sync_ == kResync || std::fabs(step) > 0.125) {
+                // Exact phasor from the phase now and then (and for big steps, i.e. fewer
+                // than ~50 samples per cycle), so rotation rounding never accumulates.
+                sincos_small(frac_, ps_, pc_);
+                since_sync_ = 0;
+            } else {
+                // sin/cos of a small step, Taylor to step^9 / step^10 (|step| <= 1/8:
+                // truncation < 3e-18) by Estrin's scheme, then a complex multiply.
+                const double z = step * step, z2 = z * z;
+                const double ss = step * std::fma(std::fma(1.0 / 362880.0, z2, std::fma(-1.0 / 5040.0, z, 1.0 / 120.0)), z2,
+                                                  std::fma(-1.0 / 6.0, z, 1.0));
+                const double cs = std::fma(std::fma(std::fma(-1.0 / 3628800.0, z, 1.0 / 40320.0), z2, std::fma(-1.0 / 720.0, z, 1.0 / 24.0)),
+                                           z2, std::fma(-0.5, z, 1.0));
+                const double npc = std::fma(pc_, cs, -ps_ * ss);
+                ps_ = std::fma(ps_, cs, pc_ * ss);
+                pc_ = npc;
+            }
         }
     }
     std::optional<TrackingPrior> prior() const override { return TrackingPrior{Kinematics::CV, fn_}; }
@@ -76,7 +100,11 @@ private:
     Calibration cal_;
     Acquisition acq_;
     double frac_ = 0, omega_ = 0;  // predicted phase in (-pi, pi] (+ turns), rate
+    double pc_ = 1, ps_ = 0;       // cos, sin of the predicted phase
     long long turns_ = 0;
+    static constexpr int kResync = 256;
+    int since_sync_ = 0;
+    double os_ = 0, oc_ = 0, inv_as_ = 1, inv_ac_ = 1, sin_d_ = 0, inv_cos_d_ = 1;
 };
 
 }  // namespace

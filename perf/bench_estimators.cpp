@@ -1,0 +1,70 @@
+// Estimator throughput, samples/s on one core, on the paper's 1.6 % duty-cycle signal
+// (16-bit ADC, noise) pre-generated outside the timed loop. Each iteration pushes one
+// 65536-sample block through an estimator that keeps running (no reset), as in a long run.
+#include "estimator/estimator.hpp"
+#include "server/scenario.hpp"
+#include "signal_gen/generator.hpp"
+
+#include <benchmark/benchmark.h>
+
+using namespace fringe;
+
+namespace {
+
+struct Signal {
+    Block b;
+    EncoderProfile enc;
+    double fs;
+};
+
+const Signal& paper_signal() {
+    static const Signal s = [] {
+        const auto sc = load_scenario(std::string(FRINGE_SOURCE_DIR) + "/fixtures/scenarios/paper-duty1p6.json");
+        Signal out{{}, sc.encoder, sc.sample_rate_hz};
+        Generator g(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed);
+        out.b.resize(65536, false);
+        g.generate(0, out.b);
+        return out;
+    }();
+    return s;
+}
+
+void run(benchmark::State& state, const std::string& name, const nlohmann::json& params) {
+    const auto& s = paper_signal();
+    est::EstimatorConfig cfg;
+    cfg.sample_rate_hz = s.fs;
+    cfg.encoder = s.enc;
+    cfg.params = params;
+    auto e = est::make(name, cfg);
+    const std::size_t n = s.b.size();
+    std::vector<double> th(n), om(n);
+    std::vector<std::uint8_t> v(n);
+    e->process({s.b.sin_v, s.b.cos_v}, {th, om, v});  // past acquisition
+    for (auto _ : state) {
+        e->process({s.b.sin_v, s.b.cos_v}, {th, om, v});
+        benchmark::DoNotOptimize(th.data());
+        benchmark::ClobberMemory();
+    }
+    state.SetItemsProcessed(static_cast<std::int64_t>(state.iterations() * n));
+}
+
+}  // namespace
+
+#define FRINGE_BENCH(label, name, params) \
+    BENCHMARK_CAPTURE(run, label, std::string(name), nlohmann::json(params))->Unit(benchmark::kMillisecond)
+
+FRINGE_BENCH(atan2, "atan2", nlohmann::json::object());
+FRINGE_BENCH(atan2_ellipse_recursive, "atan2-ellipse", (nlohmann::json{{"mode", "recursive"}}));
+FRINGE_BENCH(pll2, "pll2", nlohmann::json::object());
+FRINGE_BENCH(ekf_ideal_cv, "ekf-ideal", nlohmann::json::object());
+FRINGE_BENCH(ekf_diffraction_cv, "ekf-diffraction", nlohmann::json::object());
+FRINGE_BENCH(ekf_diffraction_ca, "ekf-diffraction", (nlohmann::json{{"kinematics", "ca"}}));
+FRINGE_BENCH(ekf_diffraction_agc_kappa_bias, "ekf-diffraction",
+             (nlohmann::json{{"agc", true}, {"track_kappa", true}, {"track_offsets", true}}));
+FRINGE_BENCH(ekf_sin_only, "ekf-sin-only", nlohmann::json::object());
+FRINGE_BENCH(ekf_parallel, "ekf-parallel", nlohmann::json::object());
+FRINGE_BENCH(ekf_rectified, "ekf-rectified", nlohmann::json::object());
+FRINGE_BENCH(ekf_selfcal, "ekf-selfcal", nlohmann::json::object());
+FRINGE_BENCH(closed_loop, "closed-loop", nlohmann::json::object());
+
+BENCHMARK_MAIN();
