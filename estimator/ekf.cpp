@@ -25,6 +25,8 @@ void ChannelModel::configure(const Setup& s, const StateLayout& L) {
             q_c_[m] = -std::sin(m * s_.delta_rad);
         }
     }
+    sin_delta_ = std::sin(s_.delta_rad);
+    cos_delta_ = std::cos(s_.delta_rad);
     white_var_ = s_.sigma_v * s_.sigma_v + s_.adc_step_v * s_.adc_step_v / 12.0;
 }
 
@@ -35,7 +37,7 @@ void ChannelModel::eval(const double* x, double h[2], double H[2][kMaxStates], d
     const double os = L_.off_s >= 0 ? x[L_.off_s] : s_.offset_sin_v;
     const double oc = L_.off_c >= 0 ? x[L_.off_c] : s_.offset_cos_v;
     double s1, c1;
-    fast_sincos(theta, s1, c1);
+    sincos_small(theta, s1, c1);  // theta is the wrapped state, |theta| <= pi + one step
     if (s_.kind == Kind::Diffraction) {
         const double kappa = L_.kappa >= 0 ? x[L_.kappa] : s_.kappa;
         const double inv2k = 0.5 / kappa, invk2 = 1.0 / (kappa * kappa);
@@ -51,8 +53,10 @@ void ChannelModel::eval(const double* x, double h[2], double H[2][kMaxStates], d
                 vc += B * fc;
                 ds += B * m * (q_s_[m] * cm - p_s_[m] * sm);
                 dc += B * m * (q_c_[m] * cm - p_c_[m] * sm);
-                ks += dB * fs;
-                kc += dB * fc;
+                if (L_.kappa >= 0) {
+                    ks += dB * fs;
+                    kc += dB * fc;
+                }
             }
             const double cn = cm * c1 - sm * s1;
             sm = sm * c1 + cm * s1;
@@ -70,9 +74,8 @@ void ChannelModel::eval(const double* x, double h[2], double H[2][kMaxStates], d
         if (L_.kappa >= 0) { H[0][L_.kappa] = gs * g * V * ks; H[1][L_.kappa] = gc * g * V * kc; }
     } else {
         const double eps = L_.eps >= 0 ? x[L_.eps] : 0.0;
-        const double delta = L_.delta >= 0 ? x[L_.delta] : s_.delta_rad;
-        double sd, cd;
-        fast_sincos(delta, sd, cd);
+        double sd = sin_delta_, cd = cos_delta_;
+        if (L_.delta >= 0) sincos_small(x[L_.delta], sd, cd);
         const double sin_td = s1 * cd + c1 * sd, cos_td = c1 * cd - s1 * sd;  // theta + delta
         const double A = s_.amplitude_v;
         const double As = A * (s_.gain_sin + eps / 2), Ac = A * (s_.gain_cos - eps / 2);
@@ -215,9 +218,16 @@ struct EkfN final : Ekf::Impl {
             }
             const Eigen::Matrix<double, 2, N> HP = H * Pm;
             const Eigen::Matrix2d S = HP * H.transpose() + Rm;
-            Eigen::LLT<Eigen::Matrix2d> llt(S);
-            if (llt.info() != Eigen::Success) return false;
-            const Eigen::Matrix<double, N, 2> K = llt.solve(HP).transpose();
+            // S^-1 for the 2x2 innovation covariance: positive definiteness checked first
+            // (Sylvester: S00 > 0 and det > 0, the condition under which its Cholesky factor
+            // exists), then the adjugate over the determinant, one division instead of the
+            // two square roots and divisions of a Cholesky solve on the per-sample path.
+            const double det = S(0, 0) * S(1, 1) - S(0, 1) * S(1, 0);
+            if (!(S(0, 0) > 0) || !(det > 1e-300)) return false;
+            const double inv_det = 1.0 / det;
+            Eigen::Matrix2d Sinv;
+            Sinv << S(1, 1) * inv_det, -S(0, 1) * inv_det, -S(1, 0) * inv_det, S(0, 0) * inv_det;
+            const Eigen::Matrix<double, N, 2> K = (Sinv * HP).transpose();
             xs += K * innov;
             const Mat IKH = Mat::Identity() - K * H;
             Pm = IKH * Pm * IKH.transpose() + K * Rm * K.transpose();  // Joseph form

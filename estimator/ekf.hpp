@@ -57,7 +57,7 @@ private:
     Setup s_;
     StateLayout L_;
     std::array<double, 16> sinmw2_{}, p_s_{}, q_s_{}, p_c_{}, q_c_{};
-    double white_var_ = 0;
+    double white_var_ = 0, sin_delta_ = 0, cos_delta_ = 1;
 };
 
 // One EKF of any state size (dispatch to fixed-size Eigen code inside).

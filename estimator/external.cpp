@@ -50,8 +50,10 @@ public:
         const std::string rate = std::to_string(cfg.sample_rate_hz);
         const std::string proto = binary_ ? "binary" : "text";
         pid_ = fork();
+        if (pid_ > 0) { setpgid(pid_, pid_); pgid_ = pid_; }  // also here: no race with the child's own call
         if (pid_ < 0) throw EstimatorError(std::string("external: fork: ") + std::strerror(errno));
         if (pid_ == 0) {
+            setpgid(0, 0);  // its own process group, so stop() also ends anything it started
             dup2(in_pipe[0], 0);
             dup2(out_pipe[1], 1);
             close(in_pipe[0]); close(in_pipe[1]); close(out_pipe[0]); close(out_pipe[1]);
@@ -92,6 +94,7 @@ public:
             }
         }
         std::size_t sent = 0, got = 0;
+        bool stopped_reading = false;
         got_ = 0;
         std::string rx = std::move(partial_);
         partial_.clear();
@@ -135,12 +138,17 @@ public:
             if (nf == 2 && (fds[1].revents & (POLLOUT | POLLERR | POLLHUP))) {
                 const ssize_t w = write(to_child_, tx.data() + sent, tx.size() - sent);
                 if (w > 0) { sent += static_cast<std::size_t>(w); progress = true; }
-                else if (w < 0 && errno != EAGAIN && errno != EINTR) fail_exited("stopped reading its input");
+                else if (w < 0 && errno != EAGAIN && errno != EINTR) {
+                    // It stopped reading (probably exited): stop writing, but drain what it
+                    // wrote before, so the report says how far it got.
+                    sent = tx.size();
+                    stopped_reading = true;
+                }
             }
             if (fds[0].revents & (POLLIN | POLLHUP | POLLERR)) {
                 const ssize_t r = read(from_child_, buf, sizeof buf);
                 if (r > 0) { rx.append(buf, static_cast<std::size_t>(r)); progress = true; consume(); }
-                else if (r == 0) fail_exited("closed its output");
+                else if (r == 0) fail_exited(stopped_reading ? "stopped reading its input and closed its output" : "closed its output");
                 else if (errno != EAGAIN && errno != EINTR) fail(std::string("read: ") + std::strerror(errno));
             }
             const auto now = std::chrono::steady_clock::now();
@@ -205,16 +213,17 @@ private:
                 gone = waitpid(pid_, &status, WNOHANG) == pid_;
                 if (!gone) usleep(5000);
             }
-            if (!gone) { kill(pid_, SIGKILL); waitpid(pid_, &status, 0); }
+            if (!gone) { kill(-pid_, SIGKILL); waitpid(pid_, &status, 0); }
             pid_ = -1;
         }
+        if (pgid_ > 0) { kill(-pgid_, SIGKILL); pgid_ = -1; }  // grandchildren (a wrapper script's helpers) too
         if (from_child_ >= 0) { close(from_child_); from_child_ = -1; }
     }
 
     std::string command_;
     bool binary_ = false;
     int timeout_ms_ = 10000;
-    pid_t pid_ = -1;
+    pid_t pid_ = -1, pgid_ = -1;
     int to_child_ = -1, from_child_ = -1;
     std::uint64_t samples_ = 0;
     std::size_t got_ = 0;  // estimates received in the current block
