@@ -2,6 +2,9 @@
 #include "drivers/capture_file.hpp"
 #include "estimator/estimator.hpp"
 #include "server/evaluate.hpp"
+#include "server/report_formats.hpp"
+#include "server/run.hpp"
+#include "server/store.hpp"
 #include "server/scenario.hpp"
 #include "signal_gen/analysis.hpp"
 #include "signal_gen/config.hpp"
@@ -213,6 +216,85 @@ int run_estimate(const EstimateOptions& o) {
     return kExitOk;
 }
 
+struct RunCliOptions {
+    std::string scenario, report, junit, html, data;
+    std::int64_t seed = -1;
+    bool no_db = false, quiet = false;
+};
+
+int run_run(const RunCliOptions& o) {
+    Scenario sc = load_scenario(o.scenario);
+    if (o.seed >= 0) sc.seed = static_cast<std::uint64_t>(o.seed);
+    validate_run(sc);
+    std::unique_ptr<RunStore> store;
+    RunOptions ro;
+    ro.run_id = new_run_id();
+    if (!o.no_db) {
+        const std::string dir = o.data.empty() ? default_data_dir() : o.data;
+        store = std::make_unique<RunStore>(dir + "/runs.db");
+        store->begin(ro.run_id, "", sc.name, sc.dut);
+    }
+    const bool tty = isatty(STDERR_FILENO) && !o.quiet;
+    auto last = std::chrono::steady_clock::now();
+    if (tty)
+        ro.progress = [&](std::uint64_t done, std::uint64_t total) {
+            const auto now = std::chrono::steady_clock::now();
+            if (now - last > std::chrono::milliseconds(250)) {
+                std::fprintf(stderr, "\rrun: %5.1f %%", 100.0 * static_cast<double>(done) / static_cast<double>(total));
+                last = now;
+            }
+        };
+    const json r = execute_run(sc, ro);
+    if (tty) std::fprintf(stderr, "\r%40s\r", "");
+    // The report survives first: files, then the history.
+    if (!o.report.empty()) write_file_atomic(o.report, r.dump(2) + "\n");
+    if (!o.junit.empty()) write_file_atomic(o.junit, junit_xml(r));
+    if (!o.html.empty()) write_file_atomic(o.html, report_html(r));
+    if (store) store->finish(r);
+    if (!o.quiet) {
+        std::printf("run %s: %s %s (%s)\n", r["id"].get<std::string>().c_str(), sc.name.c_str(), r["verdict"].get<std::string>().c_str(),
+                    r["status"].get<std::string>().c_str());
+        if (r["error"].is_string()) std::printf("error: %s\n", r["error"].get<std::string>().c_str());
+        for (const auto& e : r["estimators"])
+            std::printf("  %-20s rms %.3e rad, max|e| %.3e rad, slipped %llu\n", e["label"].get<std::string>().c_str(),
+                        e["metrics"]["rms"]["rad"].get<double>(), e["metrics"]["max_abs"]["rad"].get<double>(),
+                        static_cast<unsigned long long>(e["metrics"]["slipped_samples"].get<std::uint64_t>()));
+        for (const auto& m : r["measurements"])
+            std::printf("  %-8s %s %s = %s %s\n", m["outcome"].get<std::string>().c_str(), m["estimator"].get<std::string>().c_str(),
+                        m["metric"].get<std::string>().c_str(), m["value"].dump().c_str(), m["unit"].get<std::string>().c_str());
+    }
+    if (r["status"] == "error") spdlog::error("{}", r["error"].get<std::string>());
+    return exit_code(r);
+}
+
+struct RunsOptions {
+    std::string data, verdict, scenario, since, show;
+    int limit = 20;
+    bool as_json = false;
+};
+
+int run_runs(const RunsOptions& o) {
+    RunStore store((o.data.empty() ? default_data_dir() : o.data) + "/runs.db");
+    if (!o.show.empty()) {
+        auto r = store.report(o.show);
+        if (!r) throw ConfigError("id", "no completed report for run '" + o.show + "'");
+        std::printf("%s\n", r->dump(2).c_str());
+        return kExitOk;
+    }
+    const auto rows = store.list({o.verdict, o.scenario, o.since, o.limit});
+    if (o.as_json) {
+        json a = json::array();
+        for (const auto& r : rows)
+            a.push_back({{"id", r.id}, {"created_at", r.created_at}, {"scenario", r.scenario}, {"dut", r.dut}, {"status", r.status}, {"verdict", r.verdict}});
+        std::printf("%s\n", a.dump(2).c_str());
+        return kExitOk;
+    }
+    std::printf("%-22s %-20s %-24s %-12s %-11s %s\n", "id", "started", "scenario", "dut", "status", "verdict");
+    for (const auto& r : rows)
+        std::printf("%-22s %-20s %-24s %-12s %-11s %s\n", r.id.c_str(), r.created_at.c_str(), r.scenario.c_str(), r.dut.c_str(), r.status.c_str(), r.verdict.c_str());
+    return kExitOk;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -246,6 +328,27 @@ int main(int argc, char** argv) {
     es->add_flag("--json", est_o.json_list, "With --list: as JSON");
     es->add_flag("-q,--quiet", est_o.quiet, "No summary or progress");
 
+    RunCliOptions run_o;
+    auto* rn = app.add_subcommand("run", "Run a scenario: generate, play through the device, estimate, score, apply limits; exit 0 PASS/MARGINAL, 1 FAIL, 2 ERROR");
+    rn->add_option("scenario", run_o.scenario, "Scenario JSON file")->required()->check(CLI::ExistingFile);
+    rn->add_option("--report", run_o.report, "Write the report JSON here");
+    rn->add_option("--junit", run_o.junit, "Write JUnit XML here (one testcase per measurement)");
+    rn->add_option("--html", run_o.html, "Write a self-contained HTML report here");
+    rn->add_option("--data", run_o.data, "Data directory for the run history (default $FRINGE_DATA or ~/.local/share/fringe)");
+    rn->add_option("--seed", run_o.seed, "Override the scenario's seed")->check(CLI::NonNegativeNumber);
+    rn->add_flag("--no-db", run_o.no_db, "Do not record the run in the history");
+    rn->add_flag("-q,--quiet", run_o.quiet, "No summary or progress");
+
+    RunsOptions runs_o;
+    auto* rs = app.add_subcommand("runs", "List the run history (newest first), or print one run's report");
+    rs->add_option("--data", runs_o.data, "Data directory (default $FRINGE_DATA or ~/.local/share/fringe)");
+    rs->add_option("--verdict", runs_o.verdict, "Only runs with this verdict (PASS, MARGINAL, FAIL, ERROR, ABORTED)");
+    rs->add_option("--scenario", runs_o.scenario, "Only runs of this scenario name");
+    rs->add_option("--since", runs_o.since, "Only runs started at or after this ISO time");
+    rs->add_option("--limit", runs_o.limit, "At most this many")->check(CLI::PositiveNumber);
+    rs->add_option("--show", runs_o.show, "Print the report of this run id");
+    rs->add_flag("--json", runs_o.as_json, "As JSON");
+
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError& e) {
@@ -255,6 +358,8 @@ int main(int argc, char** argv) {
     try {
         if (*g) return run_gen(gen);
         if (*es) return run_estimate(est_o);
+        if (*rn) return run_run(run_o);
+        if (*rs) return run_runs(runs_o);
     } catch (const ConfigError& e) {
         spdlog::error("{}", e.what());
         return kExitError;

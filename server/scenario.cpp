@@ -52,6 +52,52 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
     s.seed = static_cast<std::uint64_t>(r.integer("seed", 1, 0, (1LL << 53)));
     s.motion = motion_from_json(r.raw("motion"), base_dir, s.encoder.lines_per_rev, "motion");
     if (s.samples() < 1) throw ConfigError("duration_s", "gives no samples at this sample rate");
+    s.device = r.string("device", s.device);
+    s.settle_s = r.number("settle_s", s.settle_s, 0.0, 1e7);
+    s.dut = r.string("dut", "");
+    if (r.has("estimators")) {
+        const json& arr = r.raw("estimators");
+        if (!arr.is_array()) throw ConfigError("estimators", "expected an array of {name, params}");
+        for (std::size_t i = 0; i < arr.size(); ++i) {
+            const std::string path = "estimators[" + std::to_string(i) + "]";
+            JsonReader er(arr[i], path);
+            EstimatorSpec e;
+            e.name = er.string("name");
+            e.label = er.string("label", e.name);
+            if (er.has("params")) e.params = er.raw("params");
+            if (er.has("encoder")) {
+                const json& ej = er.raw("encoder");
+                if (ej.is_string()) {
+                    fs::path p(ej.get<std::string>());
+                    if (p.is_relative()) p = fs::path(base_dir) / p;
+                    e.encoder = encoder_from_json(load_json_file(p.string()), path + ".encoder");
+                } else {
+                    e.encoder = encoder_from_json(ej, path + ".encoder");
+                }
+            }
+            er.finish();
+            for (const auto& other : s.estimators)
+                if (other.label == e.label) throw ConfigError(path + ".label", "duplicate label '" + e.label + "' (give each a distinct label)");
+            s.estimators.push_back(std::move(e));
+        }
+    }
+    if (r.has("limits")) {
+        const json& arr = r.raw("limits");
+        if (!arr.is_array()) throw ConfigError("limits", "expected an array of {estimator, metric, max|min}");
+        for (std::size_t i = 0; i < arr.size(); ++i) {
+            const std::string path = "limits[" + std::to_string(i) + "]";
+            JsonReader lr(arr[i], path);
+            Limit l;
+            l.estimator = lr.string("estimator", "*");
+            l.metric = lr.string("metric");
+            l.max = lr.optional_number("max", -kInf, kInf);
+            l.min = lr.optional_number("min", -kInf, kInf);
+            l.marginal_fraction = lr.number("marginal_fraction", 0.0, 0.0, 1.0);
+            lr.finish();
+            if (!l.max && !l.min) throw ConfigError(path, "needs max or min");
+            s.limits.push_back(std::move(l));
+        }
+    }
     r.finish();
     return s;
 }
@@ -66,6 +112,24 @@ void to_json(json& j, const Scenario& s) {
              {"sample_rate_hz", s.sample_rate_hz}, {"duration_s", s.duration_s},
              {"t0_s", s.t0_s}, {"seed", s.seed}};
     if (!s.description.empty()) j["description"] = s.description;
+    j["device"] = s.device;
+    j["settle_s"] = s.settle_s;
+    if (!s.dut.empty()) j["dut"] = s.dut;
+    auto est = json::array();
+    for (const auto& e : s.estimators) {
+        json x{{"name", e.name}, {"label", e.label}, {"params", e.params}};
+        if (e.encoder) x["encoder"] = *e.encoder;
+        est.push_back(x);
+    }
+    j["estimators"] = est;
+    auto lim = json::array();
+    for (const auto& l : s.limits) {
+        json x{{"estimator", l.estimator}, {"metric", l.metric}, {"marginal_fraction", l.marginal_fraction}};
+        if (l.max) x["max"] = *l.max;
+        if (l.min) x["min"] = *l.min;
+        lim.push_back(x);
+    }
+    j["limits"] = lim;
 }
 
 }  // namespace fringe

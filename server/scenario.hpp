@@ -9,9 +9,27 @@
 #include <nlohmann/json.hpp>
 
 #include <cstdint>
+#include <optional>
 #include <string>
+#include <vector>
 
 namespace fringe {
+
+// An estimator under test in a run. label names it in reports and limits (default: name).
+struct EstimatorSpec {
+    std::string name, label;
+    nlohmann::json params = nlohmann::json::object();
+    std::optional<EncoderProfile> encoder;  // what it is told; default: the scenario's encoder
+};
+
+// A pass/fail limit on one metric (server/limits.hpp lists the metrics). Outcome: FAIL
+// beyond max/min; MARGINAL within marginal_fraction of the limit on the passing side.
+struct Limit {
+    std::string estimator = "*";  // a label, or "*" for every estimator
+    std::string metric;
+    std::optional<double> max, min;
+    double marginal_fraction = 0.0;
+};
 
 struct Scenario {
     std::string name = "unnamed";
@@ -22,6 +40,12 @@ struct Scenario {
     double duration_s = 1.0;
     double t0_s = 0.0;
     std::uint64_t seed = 1;
+    // Runs (ignored by `fringe gen`):
+    std::string device = "loopback:";
+    std::vector<EstimatorSpec> estimators;
+    std::vector<Limit> limits;
+    double settle_s = 0.1;
+    std::string dut;  // DUT / board id for the history; default: the device's
 
     std::uint64_t samples() const;
 };

@@ -21,11 +21,17 @@ class ConfigError : public std::runtime_error {
 public:
     ConfigError(std::string field, const std::string& message)
         : std::runtime_error(field.empty() ? message : field + ": " + message),
-          field_(std::move(field)) {}
+          field_(std::move(field)), message_(message) {}
     const std::string& field() const { return field_; }
+    const std::string& message() const { return message_; }
+    // The same error one level down, e.g. "params.x" -> "estimators[1].params.x".
+    ConfigError prefixed(const std::string& prefix) const {
+        return ConfigError(field_.empty() ? prefix : prefix + "." + field_, message_);
+    }
 
 private:
     std::string field_;
+    std::string message_;
 };
 
 // Reads one JSON object under a dotted path. Call finish() when done: any key that was

@@ -1,0 +1,111 @@
+// The Device interface (DESIGN.md "Device", STYLE.md 1-4, 11): one interface for the
+// simulated loopback, capture replay, Modbus boards and USB streaming boards, opened by URI
+// (`loopback:?adc_bits=12&noise_v=1e-4`, `capture:/path/x.fcap`, `modbus+tcp://...`,
+// `usb:1209:ec01`). Settings describe themselves. Configuration and control throw
+// DeviceError naming the device and the native cause; the stream path returns a status with
+// exact counts and never throws per block. Sample loss is never silent.
+#pragma once
+
+#include "signal_gen/params.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <span>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace fringe::dev {
+
+class DeviceError : public std::runtime_error {
+public:
+    DeviceError(const std::string& device, const std::string& message)
+        : std::runtime_error(device + ": " + message), device_(device) {}
+    const std::string& device() const { return device_; }
+
+private:
+    std::string device_;
+};
+
+enum class StreamStatus {
+    Ok,
+    Timeout,    // no data within the timeout (stalled device)
+    Overflow,   // input samples were lost (dropped = exact count)
+    Underflow,  // the output ran dry (dropped = samples not played)
+    Error,      // the device failed (gone, unplugged); message says why
+};
+const char* to_string(StreamStatus s);
+
+struct StreamResult {
+    StreamStatus status = StreamStatus::Ok;
+    std::size_t frames = 0;        // frames transferred by this call
+    std::uint64_t first_index = 0; // stream index of the first frame (input)
+    std::uint64_t dropped = 0;     // frames lost before them (overflow/underflow)
+    std::string message;
+};
+
+struct DeviceInfo {
+    std::string driver;       // "loopback", "capture", "modbus", "usb"
+    std::string uri;
+    std::string description;
+    std::string board_id;     // DUT / board identification for the run history
+    bool streaming = false;   // output/input streams
+    bool step_mode = false;   // static pair, settle, read back
+    bool dut_position = false;
+    bool needs_output = true; // false: an input-only source (capture replay)
+    int latency_samples = 0;  // known input delay relative to the output, samples
+    nlohmann::json settings = nlohmann::json::object();  // resolved settings
+};
+void to_json(nlohmann::json& j, const DeviceInfo& d);
+
+struct StepResult {
+    double sin_v = 0, cos_v = 0;         // measured (averaged) ADC pair
+    std::optional<double> dut_theta_rad; // the DUT's own interpolated position, if it has one
+};
+
+class Device {
+public:
+    virtual ~Device() = default;
+    virtual DeviceInfo info() const = 0;
+
+    // Streaming (DAC out, ADC in) at one sample rate. Throws DeviceError if unsupported.
+    virtual void start(double sample_rate_hz) = 0;
+    // Queue output frames (V). Non-blocking for simulated devices.
+    virtual StreamResult write(std::span<const double> sin_v, std::span<const double> cos_v) = 0;
+    // Read up to sin_v.size() input frames (V).
+    virtual StreamResult read(std::span<double> sin_v, std::span<double> cos_v, int timeout_ms) = 0;
+    virtual void stop() = 0;
+
+    // Sources that carry truth (capture replay) fill theta/omega for the frames of the last
+    // read; others return false.
+    virtual bool last_truth(std::span<double> theta_rad, std::span<double> omega_rad_s) {
+        (void)theta_rad; (void)omega_rad_s;
+        return false;
+    }
+    virtual double source_sample_rate_hz() const { return 0.0; }  // capture replay: the file's rate
+
+    // Step mode: set a static sin/cos pair, wait settle_s, read back (averaged).
+    virtual StepResult step(double sin_v, double cos_v, double settle_s, int average) {
+        (void)sin_v; (void)cos_v; (void)settle_s; (void)average;
+        throw DeviceError(info().uri, "step mode is not supported by this device");
+    }
+};
+
+struct DriverInfo {
+    std::string scheme;  // URI scheme: "loopback", "capture", ...
+    std::string summary;
+    std::vector<ParamInfo> settings;  // query parameters
+    std::function<std::unique_ptr<Device>(const std::string& uri, const std::string& path, const nlohmann::json& settings)> open;
+};
+void to_json(nlohmann::json& j, const DriverInfo& d);
+
+const std::vector<DriverInfo>& drivers();
+// Parses scheme:path?k=v&k=v, validates the query against the driver's settings (errors name
+// "device.<key>"), opens it. Throws ConfigError for a bad URI, DeviceError for a device fault.
+std::unique_ptr<Device> open(const std::string& uri);
+
+}  // namespace fringe::dev

@@ -1,0 +1,342 @@
+#include "run.hpp"
+
+#include "bounds.hpp"
+#include "drivers/capture_file.hpp"
+#include "drivers/device.hpp"
+#include "estimator/estimator.hpp"
+#include "scoring.hpp"
+#include "signal_gen/config.hpp"
+#include "signal_gen/fastmath.hpp"
+#include "signal_gen/generator.hpp"
+
+#include <chrono>
+#include <cmath>
+#include <ctime>
+#include <deque>
+#include <random>
+
+#ifndef FRINGE_VERSION
+#define FRINGE_VERSION "dev"
+#endif
+
+namespace fringe {
+
+using nlohmann::json;
+
+const std::vector<MetricInfo>& metric_catalog() {
+    static const std::vector<MetricInfo> m = [] {
+        std::vector<MetricInfo> v = {
+            {"rms_rad", "rad", "rms phase error (electrical)"},
+            {"std_rad", "rad", "phase error standard deviation"},
+            {"mean_rad", "rad", "mean phase error"},
+            {"max_abs_rad", "rad", "largest |error|"},
+            {"max_dev_rad", "rad", "largest |error - mean|"},
+            {"rms_percent_period", "%", "rms error in % of a signal period"},
+            {"rms_arcsec_mech", "arcsec", "rms error, mechanical arcseconds"},
+            {"max_abs_arcsec_mech", "arcsec", "largest |error|, mechanical arcseconds"},
+            {"slipped_samples", "samples", "samples off by more than pi (cycle slips)"},
+            {"invalid_after_settle", "samples", "samples flagged invalid after the settle time"},
+            {"omega_error_std_rad_s", "rad/s", "rate error standard deviation"},
+            {"lock_time_s", "s", "time until the error stays within 0.1 rad"},
+            {"efficiency", "", "bound variance / mean squared error"},
+        };
+        for (int k = 1; k <= Scorer::kHarmonics; ++k)
+            v.push_back({"harmonic_" + std::to_string(k) + "x_rad", "rad", std::to_string(k) + "x harmonic of the error"});
+        return v;
+    }();
+    return m;
+}
+
+namespace {
+
+const MetricInfo* find_metric(const std::string& name) {
+    for (const auto& m : metric_catalog())
+        if (m.name == name) return &m;
+    return nullptr;
+}
+
+std::optional<double> metric_value(const std::string& name, const json& metrics, const json& bounds) {
+    auto num = [](const json& j) -> std::optional<double> { return j.is_number() ? std::optional(j.get<double>()) : std::nullopt; };
+    if (name == "rms_rad") return num(metrics["rms"]["rad"]);
+    if (name == "std_rad") return num(metrics["std"]["rad"]);
+    if (name == "mean_rad") return num(metrics["mean"]["rad"]);
+    if (name == "max_abs_rad") return num(metrics["max_abs"]["rad"]);
+    if (name == "max_dev_rad") return num(metrics["max_dev"]["rad"]);
+    if (name == "rms_percent_period") return num(metrics["rms"]["percent_period"]);
+    if (name == "rms_arcsec_mech") return num(metrics["rms"]["arcsec_mech"]);
+    if (name == "max_abs_arcsec_mech") return num(metrics["max_abs"]["arcsec_mech"]);
+    if (name == "slipped_samples") return num(metrics["slipped_samples"]);
+    if (name == "invalid_after_settle") return num(metrics["invalid_after_settle"]);
+    if (name == "omega_error_std_rad_s") return metrics.contains("omega_error") ? num(metrics["omega_error"]["std_rad_s"]) : std::nullopt;
+    if (name == "lock_time_s") return num(metrics["lock_time_s"]);
+    if (name == "efficiency") return bounds.is_object() && bounds.contains("efficiency") ? num(bounds["efficiency"]) : std::nullopt;
+    if (name.rfind("harmonic_", 0) == 0) {
+        const int k = std::atoi(name.c_str() + 9);
+        for (const auto& h : metrics["harmonics"])
+            if (h["order"] == k) return num(h["amplitude"]["rad"]);
+    }
+    return std::nullopt;
+}
+
+std::string iso_now() {
+    const auto t = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
+    std::tm tm{};
+    gmtime_r(&t, &tm);
+    char buf[32];
+    std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
+    return buf;
+}
+
+struct Lane {  // one estimator under test
+    const EstimatorSpec* spec;
+    std::unique_ptr<est::Estimator> e;
+    Scorer scorer;
+    std::vector<double> th, om;
+    std::vector<std::uint8_t> valid;
+    json trace_err = json::array();
+    explicit Lane(const EstimatorSpec* s, double settle) : spec(s), scorer(settle) {}
+};
+
+}  // namespace
+
+std::string new_run_id() {
+    const auto t = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
+    std::tm tm{};
+    gmtime_r(&t, &tm);
+    char buf[32];
+    std::strftime(buf, sizeof buf, "%Y%m%dT%H%M%SZ", &tm);
+    std::random_device rd;
+    char tail[8];
+    std::snprintf(tail, sizeof tail, "%04x", rd() & 0xffff);
+    return std::string(buf) + "-" + tail;
+}
+
+void validate_run(const Scenario& sc) {
+    if (sc.estimators.empty()) throw ConfigError("estimators", "a run needs at least one estimator under test");
+    for (std::size_t i = 0; i < sc.estimators.size(); ++i) {
+        const auto& spec = sc.estimators[i];
+        est::EstimatorConfig cfg;
+        cfg.sample_rate_hz = sc.sample_rate_hz;
+        cfg.encoder = spec.encoder ? spec.encoder : std::optional(sc.encoder);
+        cfg.params = spec.params;
+        try {
+            const auto& info = est::find(spec.name);
+            resolve_params(info.params, spec.params);  // cheap checks first; external is not started here
+            if (spec.name != "external") est::make(spec.name, cfg);
+        } catch (const ConfigError& e) {
+            throw e.prefixed("estimators[" + std::to_string(i) + "]");
+        }
+    }
+    for (std::size_t i = 0; i < sc.limits.size(); ++i) {
+        const auto& l = sc.limits[i];
+        const std::string path = "limits[" + std::to_string(i) + "]";
+        if (!find_metric(l.metric)) {
+            std::string known;
+            for (const auto& m : metric_catalog()) known += (known.empty() ? "" : ", ") + m.name;
+            throw ConfigError(path + ".metric", "unknown metric '" + l.metric + "' (known: " + known + ")");
+        }
+        if (l.estimator != "*") {
+            bool found = false;
+            for (const auto& e : sc.estimators) found |= e.label == l.estimator;
+            if (!found) throw ConfigError(path + ".estimator", "no estimator labelled '" + l.estimator + "' in this scenario");
+        }
+    }
+}
+
+json execute_run(const Scenario& sc, const RunOptions& o) {
+    validate_run(sc);
+    json report;
+    report["schema"] = "fringe.report";
+    report["schema_version"] = 1;
+    report["fringe_version"] = FRINGE_VERSION;
+    report["id"] = o.run_id.empty() ? new_run_id() : o.run_id;
+    report["started_at"] = iso_now();
+    report["scenario"] = sc;
+    report["seed"] = sc.seed;
+    std::string status = "done", error;
+    const auto wall0 = std::chrono::steady_clock::now();
+
+    std::vector<std::unique_ptr<Lane>> lanes;
+    std::unique_ptr<dev::Device> device;
+    dev::DeviceInfo dinfo;
+    const std::uint64_t total = sc.samples();
+    std::uint64_t processed = 0;
+    json trace_t = json::array(), trace_th = json::array(), trace_s = json::array(), trace_c = json::array();
+    const std::uint64_t stride = std::max<std::uint64_t>(1, total / std::max<std::size_t>(o.trace_points, 1));
+    try {
+        device = dev::open(sc.device);
+        dinfo = device->info();
+        report["device"] = dinfo;
+        for (const auto& spec : sc.estimators) {
+            auto lane = std::make_unique<Lane>(&spec, sc.settle_s);
+            est::EstimatorConfig cfg;
+            cfg.sample_rate_hz = sc.sample_rate_hz;
+            cfg.encoder = spec.encoder ? spec.encoder : std::optional(sc.encoder);
+            cfg.params = spec.params;
+            lane->e = est::make(spec.name, cfg);
+            lanes.push_back(std::move(lane));
+        }
+        Generator gen(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed, sc.t0_s);
+        device->start(sc.sample_rate_hz);
+        // Truth for each input frame: the generated sample latency_samples earlier. The first
+        // latency_samples input frames predate the signal and are not scored.
+        struct Truth { double t, th, om; bool known; };
+        std::deque<Truth> pending;
+        for (int k = 0; k < dinfo.latency_samples; ++k) pending.push_back({sc.t0_s + k / sc.sample_rate_hz, 0, 0, false});
+        Block b;
+        std::vector<double> in_s, in_c, t_s, th_true, om_true;
+        std::vector<std::uint8_t> known;
+        for (std::uint64_t k = 0; k < total;) {
+            if (o.cancel && o.cancel->load()) { status = "aborted"; error = "cancelled"; break; }
+            const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(o.block, total - k));
+            std::size_t want = n;
+            if (dinfo.needs_output) {
+                b.resize(n, sc.encoder.index.enabled);
+                gen.generate(k, b);
+                const auto w = device->write(b.sin_v, b.cos_v);
+                if (w.status != dev::StreamStatus::Ok) {
+                    status = "error";
+                    error = std::string("output ") + dev::to_string(w.status) + " at sample " + std::to_string(k) + ": " + w.message;
+                    break;
+                }
+                for (std::size_t i = 0; i < n; ++i) pending.push_back({b.t_s[i], b.theta_rad[i], b.omega_rad_s[i], true});
+            }
+            in_s.resize(want); in_c.resize(want); t_s.resize(want); th_true.resize(want); om_true.resize(want); known.resize(want);
+            std::size_t got = 0;
+            bool eof = false;
+            while (got < want) {
+                const auto r = device->read(std::span(in_s).subspan(got), std::span(in_c).subspan(got), 1000);
+                if (r.status == dev::StreamStatus::Overflow || r.dropped) {
+                    status = "error";
+                    error = "sample loss: " + std::to_string(r.dropped) + " input samples dropped before input sample " +
+                            std::to_string(r.first_index) + " (" + r.message + ")";
+                    break;
+                }
+                if (r.status != dev::StreamStatus::Ok) {
+                    status = "error";
+                    error = std::string("input ") + dev::to_string(r.status) + " at input sample " + std::to_string(k + got) + ": " + r.message;
+                    break;
+                }
+                if (!dinfo.needs_output) {
+                    if (r.frames == 0) { eof = true; break; }
+                    std::vector<double> th(r.frames), om(r.frames);
+                    const bool has = device->last_truth(th, om);
+                    for (std::size_t i = 0; i < r.frames; ++i)
+                        pending.push_back({sc.t0_s + static_cast<double>(k + got + i) / sc.sample_rate_hz, th[i], om[i], has});
+                }
+                if (r.frames == 0) {
+                    status = "error";
+                    error = "input underrun: the device returned no samples at input sample " + std::to_string(k + got);
+                    break;
+                }
+                got += r.frames;
+            }
+            if (status != "done") break;
+            const std::size_t m = got;
+            for (std::size_t i = 0; i < m; ++i) {
+                const Truth tr = pending.front();
+                pending.pop_front();
+                t_s[i] = tr.t; th_true[i] = tr.th; om_true[i] = tr.om; known[i] = tr.known;
+            }
+            for (auto& lane : lanes) {
+                lane->th.resize(m); lane->om.resize(m); lane->valid.resize(m);
+                lane->e->process({std::span(in_s).first(m), std::span(in_c).first(m)},
+                                 {std::span(lane->th), std::span(lane->om), std::span(lane->valid)});
+                for (std::size_t i = 0; i < m; ++i) lane->valid[i] = lane->valid[i] && known[i];
+                lane->scorer.add(m, t_s.data(), th_true.data(), om_true.data(), lane->th.data(), lane->om.data(), lane->valid.data());
+            }
+            for (std::size_t i = 0; i < m; ++i) {
+                if ((k + i) % stride) continue;
+                trace_t.push_back(t_s[i]);
+                trace_th.push_back(known[i] ? json(wrap_pi(th_true[i])) : json());
+                trace_s.push_back(in_s[i]);
+                trace_c.push_back(in_c[i]);
+                for (auto& lane : lanes) {
+                    const double e = lane->th[i] - th_true[i];
+                    lane->trace_err.push_back(lane->valid[i] && std::isfinite(e) ? json(wrap_pi(e)) : json());
+                }
+            }
+            k += m;
+            processed = k;
+            if (o.progress) o.progress(k, total);
+            if (eof) break;
+        }
+        device->stop();
+    } catch (const dev::DeviceError& e) {
+        status = "error";
+        error = e.what();
+    } catch (const est::EstimatorError& e) {
+        status = "error";
+        error = e.what();
+    } catch (const CaptureError& e) {
+        status = "error";
+        error = e.what();
+    }
+    if (!report.contains("device")) report["device"] = nullptr;
+
+    // Scores, bounds, measurements
+    const int lines = sc.encoder.lines_per_rev;
+    json estimators = json::array(), measurements = json::array();
+    std::string verdict = "PASS";
+    for (auto& lane : lanes) {
+        const ErrorMetrics m = lane->scorer.finish();
+        json ej;
+        ej["label"] = lane->spec->label;
+        ej["name"] = lane->spec->name;
+        ej["params"] = lane->spec->params;
+        ej["state"] = lane->e ? lane->e->state() : json();
+        ej["metrics"] = to_json(m, lines);
+        ej["bounds"] = m.scored > 0 && lane->e ? bounds_json(sc.encoder, *lane->e, sc.sample_rate_hz, m.scored, m.rms_rad) : json();
+        estimators.push_back(ej);
+    }
+    for (const auto& l : sc.limits) {
+        for (const auto& ej : estimators) {
+            if (l.estimator != "*" && l.estimator != ej["label"]) continue;
+            const MetricInfo* mi = find_metric(l.metric);
+            const auto v = metric_value(l.metric, ej["metrics"], ej["bounds"]);
+            json mj{{"estimator", ej["label"]}, {"metric", l.metric}, {"unit", mi->unit}, {"value", v ? json(*v) : json()}};
+            json lim = json::object();
+            if (l.max) lim["max"] = *l.max;
+            if (l.min) lim["min"] = *l.min;
+            lim["marginal_fraction"] = l.marginal_fraction;
+            mj["limit"] = lim;
+            std::string outcome = "PASS";
+            if (!v || status != "done") outcome = status == "done" ? "FAIL" : "ERROR";  // a metric that could not be measured fails
+            else {
+                if (l.max && *v > *l.max) outcome = "FAIL";
+                else if (l.min && *v < *l.min) outcome = "FAIL";
+                else if (l.max && *v > *l.max - l.marginal_fraction * std::fabs(*l.max)) outcome = "MARGINAL";
+                else if (l.min && *v < *l.min + l.marginal_fraction * std::fabs(*l.min)) outcome = "MARGINAL";
+            }
+            mj["outcome"] = outcome;
+            if (outcome == "FAIL") verdict = "FAIL";
+            else if (outcome == "MARGINAL" && verdict == "PASS") verdict = "MARGINAL";
+            measurements.push_back(mj);
+        }
+    }
+    if (status == "error") verdict = "ERROR";
+    if (status == "aborted") verdict = "ABORTED";
+    report["status"] = status;
+    report["verdict"] = verdict;
+    report["error"] = error.empty() ? json() : json(error);
+    report["samples"] = {{"planned", total}, {"processed", processed}};
+    report["estimators"] = estimators;
+    report["measurements"] = measurements;
+    json traces{{"stride", stride}, {"t_s", trace_t}, {"theta_true_wrapped_rad", trace_th}, {"sin_v", trace_s}, {"cos_v", trace_c}};
+    json errs = json::object();
+    for (auto& lane : lanes) errs[lane->spec->label] = std::move(lane->trace_err);
+    traces["error_rad"] = errs;
+    report["traces"] = traces;
+    report["finished_at"] = iso_now();
+    report["wall_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+    return report;
+}
+
+int exit_code(const json& report) {
+    const std::string v = report.value("verdict", std::string("ERROR"));
+    if (v == "PASS" || v == "MARGINAL") return 0;
+    if (v == "FAIL") return 1;
+    return 2;
+}
+
+}  // namespace fringe

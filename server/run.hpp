@@ -1,0 +1,44 @@
+// The run engine: generate the encoder signals, play them through a device, capture, run the
+// estimators under test, score against truth, apply limits, and build the report
+// (schema "fringe.report", version 1). Streams in blocks: memory does not grow with the run
+// length (traces are decimated to a fixed number of points).
+#pragma once
+
+#include "scenario.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <atomic>
+#include <functional>
+#include <string>
+
+namespace fringe {
+
+struct RunOptions {
+    std::size_t block = 65536;
+    std::size_t trace_points = 2000;
+    std::function<void(std::uint64_t done, std::uint64_t total)> progress;
+    const std::atomic<bool>* cancel = nullptr;
+    std::string run_id;
+};
+
+// Metrics a limit can name, with their units.
+struct MetricInfo {
+    std::string name, unit, description;
+};
+const std::vector<MetricInfo>& metric_catalog();
+
+// Validates a scenario for running (estimators exist and accept their parameters, limits
+// name known metrics and estimators). Throws ConfigError naming the key.
+void validate_run(const Scenario& sc);
+
+// Never throws for device faults, sample loss, estimator failure or cancellation: those end
+// the run with status "error" or "aborted" and a report saying why.
+nlohmann::json execute_run(const Scenario& sc, const RunOptions& o = {});
+
+// Exit code for a report: 0 PASS/MARGINAL, 1 FAIL, 2 ERROR/ABORTED.
+int exit_code(const nlohmann::json& report);
+
+std::string new_run_id();
+
+}  // namespace fringe
