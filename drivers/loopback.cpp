@@ -78,7 +78,7 @@ public:
             aa_[ch] = Biquad::lowpass(s_.at("aa_order").get<int>(), s_.at("aa_cutoff_hz").get<double>(), fs);
         }
         queue_.clear();
-        for (int k = 0; k < latency_; ++k) queue_.push_back({adc_.apply(0.0), adc_.apply(0.0)});
+        for (int k = 0; k < latency_; ++k) queue_.push_back({adc_.apply(0.0), adc_.apply(0.0), 0.0});
         written_ = read_ = 0;
         pending_drop_ = 0;
         running_ = true;
@@ -97,23 +97,27 @@ public:
                 v[ch] = adc_.apply(a);
             }
             if (drop_after_ >= 0 && k >= drop_after_ && k < drop_after_ + drop_count_) {
-                ++pending_drop_;  // lost on the way in: counted, reported by the next read
+                ++pending_drop_;  // lost on the way in: the gap is reported where it happened
                 continue;
             }
-            queue_.push_back({v[0], v[1]});
+            queue_.push_back({v[0], v[1], static_cast<double>(pending_drop_)});
+            pending_drop_ = 0;
         }
         return {StreamStatus::Ok, s.size(), 0, 0, {}};
     }
     StreamResult read(std::span<double> s, std::span<double> c, int) override {
         StreamResult r;
         r.first_index = read_ + dropped_total_;
-        if (pending_drop_) {
+        const double gap = !queue_.empty() ? queue_.front()[2] : static_cast<double>(pending_drop_);
+        if (gap > 0) {  // samples were lost just before the next frame
+            const auto lost = static_cast<std::uint64_t>(gap);
+            if (!queue_.empty()) queue_.front()[2] = 0; else pending_drop_ = 0;
             r.status = StreamStatus::Overflow;
-            r.dropped = pending_drop_;
-            dropped_total_ += pending_drop_;
+            r.dropped = lost;
+            dropped_total_ += lost;
             r.first_index = read_ + dropped_total_;
-            r.message = std::to_string(pending_drop_) + " input samples lost (injected: drop_after/drop_count)";
-            pending_drop_ = 0;
+            r.message = std::to_string(lost) + " input samples lost (injected: drop_after/drop_count)";
+            return r;
         }
         if (stall_after_ >= 0 && static_cast<long long>(read_) >= stall_after_) {
             r.status = StreamStatus::Timeout;
@@ -121,6 +125,8 @@ public:
             return r;
         }
         std::size_t n = std::min(s.size(), queue_.size());
+        for (std::size_t i = 1; i < n; ++i)  // stop before the next gap
+            if (queue_[i][2] > 0) { n = i; break; }
         if (stall_after_ >= 0) n = std::min<std::size_t>(n, static_cast<std::size_t>(stall_after_ - static_cast<long long>(read_)));
         for (std::size_t i = 0; i < n; ++i) {
             s[i] = queue_.front()[0];
@@ -160,7 +166,7 @@ private:
     int latency_ = 0;
     double noise_v_ = 0, fs_ = 0;
     Xoshiro256pp rng_{1};
-    std::deque<std::array<double, 2>> queue_;
+    std::deque<std::array<double, 3>> queue_;  // sin, cos, samples lost just before this frame
     std::uint64_t written_ = 0, read_ = 0, pending_drop_ = 0, dropped_total_ = 0, clipped_ = 0;
     long long drop_after_ = -1, drop_count_ = 0, stall_after_ = -1, saturate_after_ = -1;
     bool running_ = false;

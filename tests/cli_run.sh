@@ -1,0 +1,75 @@
+#!/usr/bin/env bash
+# fringe run / fringe runs through the real executable: exit codes, the three report formats,
+# the history, and a kill -9 during a run losing no completed report.
+set -euo pipefail
+FRINGE="$1"; SRC="$(cd "$2" && pwd)"
+PY=/usr/bin/python3
+dir=$(mktemp -d); trap 'kill -9 $pid 2>/dev/null || true; rm -rf "$dir"' EXIT
+pid=
+fail() { echo "FAIL: $*" >&2; exit 1; }
+S="$SRC/fixtures/scenarios"
+
+"$FRINGE" run "$S/fig10c-loopback.json" --data "$dir/data" --report "$dir/r.json" --junit "$dir/r.xml" --html "$dir/r.html" -q \
+  || fail "fig10c-loopback should pass"
+$PY - "$dir" <<'PY'
+import json, sys, xml.etree.ElementTree as ET
+d = sys.argv[1]
+r = json.load(open(d + "/r.json"))
+assert r["schema"] == "fringe.report" and r["verdict"] == "PASS", r["verdict"]
+suite = ET.parse(d + "/r.xml").getroot().find("testsuite")
+cases = suite.findall("testcase")
+assert len(cases) == len(r["measurements"]) == 4, len(cases)
+props = {p.get("name"): p.get("value") for p in cases[0].find("properties")}
+assert props["unit"] == "rad" and "max" in props and props["outcome"] == "PASS", props
+html = open(d + "/r.html").read()
+assert html.count("<svg") >= 4 and "PASS" in html
+PY
+
+set +e
+"$FRINGE" run "$S/ci-failing.json" --data "$dir/data" --junit "$dir/f.xml" -q; rc=$?
+set -e
+[ $rc -eq 1 ] || fail "ci-failing: exit $rc, want 1"
+$PY -c 'import sys, xml.etree.ElementTree as ET; s=ET.parse(sys.argv[1]).getroot().find("testsuite"); assert s.get("failures")=="1"' "$dir/f.xml"
+
+# sample loss is never silent: ERROR, exit 2, with the count
+$PY - "$S/fig10c-loopback.json" "$dir/loss.json" <<'PY'
+import json, sys
+s = json.load(open(sys.argv[1])); s["device"] = "loopback:?drop_after=5000&drop_count=3"; s["duration_s"] = 0.2; s["name"] = "loss-run"
+s["encoder"] = sys.argv[1].rsplit("/", 1)[0] + "/" + s["encoder"]
+json.dump(s, open(sys.argv[2], "w"))
+PY
+set +e
+out=$("$FRINGE" run "$dir/loss.json" --data "$dir/data" --report "$dir/loss-r.json" 2>&1); rc=$?
+set -e
+[ $rc -eq 2 ] || fail "sample loss: exit $rc, want 2"
+echo "$out" | grep -q "sample loss: 3 input samples dropped" || fail "loss message: $out"
+
+# bad scenario: exit 2 naming the key
+$PY -c 'import json,sys; s=json.load(open(sys.argv[1])); s["limits"][0]["metric"]="rms"; s["encoder"]=sys.argv[1].rsplit("/",1)[0]+"/"+s["encoder"]; json.dump(s,open(sys.argv[2],"w"))' \
+  "$S/fig10c-loopback.json" "$dir/bad.json"
+set +e
+out=$("$FRINGE" run "$dir/bad.json" --data "$dir/data" 2>&1); rc=$?
+set -e
+[ $rc -eq 2 ] || fail "bad scenario: exit $rc"
+echo "$out" | grep -q "limits\[0\].metric" || fail "bad scenario message: $out"
+
+# kill -9 during a long run: completed reports survive, the killed run shows as interrupted
+$PY -c 'import json,sys; s=json.load(open(sys.argv[1])); s["duration_s"]=600; s["name"]="long-run"; s["encoder"]=sys.argv[1].rsplit("/",1)[0]+"/"+s["encoder"]; json.dump(s,open(sys.argv[2],"w"))' \
+  "$S/fig10c-loopback.json" "$dir/long.json"
+"$FRINGE" run "$dir/long.json" --data "$dir/data" -q & pid=$!
+sleep 1.5
+kill -9 $pid; wait $pid 2>/dev/null || true
+"$FRINGE" runs --data "$dir/data" --json > "$dir/runs.json"
+$PY - "$dir/runs.json" <<'PY'
+import json, sys
+rows = json.load(open(sys.argv[1]))
+by = {r["scenario"]: r for r in rows}
+assert by["fig10c-loopback"]["verdict"] == "PASS", rows
+assert by["ci-failing"]["verdict"] == "FAIL", rows
+assert by["long-run"]["status"] == "interrupted", rows
+assert by["loss-run"]["verdict"] == "ERROR", rows
+PY
+id=$($PY -c 'import json,sys; print([r for r in json.load(open(sys.argv[1])) if r["scenario"]=="fig10c-loopback"][0]["id"])' "$dir/runs.json")
+"$FRINGE" runs --data "$dir/data" --show "$id" | $PY -c 'import json,sys; assert json.load(sys.stdin)["verdict"]=="PASS"'
+"$FRINGE" runs --data "$dir/data" --verdict FAIL | grep -q ci-failing || fail "runs --verdict"
+echo "cli.run OK"

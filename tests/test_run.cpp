@@ -1,0 +1,261 @@
+// Devices (loopback, capture) and the run engine: limits, verdicts, faults, reproducibility,
+// report renderings and the run history.
+#include "helpers.hpp"
+
+#include "drivers/capture_file.hpp"
+#include "drivers/device.hpp"
+#include "server/report_formats.hpp"
+#include "server/run.hpp"
+#include "server/scenario.hpp"
+#include "server/store.hpp"
+#include "signal_gen/config.hpp"
+#include "signal_gen/fastmath.hpp"
+
+#include <catch2/catch.hpp>
+
+#include <filesystem>
+#include <unistd.h>
+
+using namespace fringe;
+using nlohmann::json;
+
+namespace {
+std::string fixture(const std::string& name) { return std::string(FRINGE_SOURCE_DIR) + "/fixtures/scenarios/" + name; }
+
+Scenario short_run(double duration_s = 0.3) {
+    Scenario sc = load_scenario(fixture("fig10c-loopback.json"));
+    sc.duration_s = duration_s;
+    return sc;
+}
+
+std::vector<double> sine(std::size_t n, double f_hz, double fs, double amp, double phase = 0) {
+    std::vector<double> v(n);
+    for (std::size_t i = 0; i < n; ++i) v[i] = amp * std::sin(kTwoPi * f_hz * static_cast<double>(i) / fs + phase);
+    return v;
+}
+}  // namespace
+
+TEST_CASE("loopback: transparent when ideal, exact latency, quantised on the ADC grid", "[device][loopback]") {
+    const double fs = 1e5;
+    auto s = sine(1000, 1000, fs, 1.0), c = sine(1000, 1000, fs, 1.0, kPi / 2);
+    {
+        auto d = dev::open("loopback:?dac_bits=0&adc_bits=0&latency_samples=7");
+        d->start(fs);
+        d->write(s, c);
+        std::vector<double> rs(1007), rc(1007);
+        const auto r = d->read(rs, rc, 0);
+        REQUIRE(r.status == dev::StreamStatus::Ok);
+        REQUIRE(r.frames == 1007);
+        for (int k = 0; k < 7; ++k) CHECK(rs[k] == 0.0);
+        for (std::size_t k = 0; k < 1000; ++k) REQUIRE(rs[k + 7] == s[k]);
+        CHECK(d->info().latency_samples == 7);
+    }
+    {
+        auto d = dev::open("loopback:?dac_bits=0&adc_bits=10&range_v=1.25");
+        d->start(fs);
+        d->write(s, c);
+        std::vector<double> rs(1000), rc(1000);
+        d->read(rs, rc, 0);
+        const double q = 2.5 / 1024;
+        for (std::size_t k = 0; k < 1000; ++k) {
+            const double code = (rs[k] + 1.25) / q;
+            REQUIRE(std::fabs(code - std::round(code)) < 1e-9);
+            REQUIRE(std::fabs(rs[k] - s[k]) <= q / 2 + 1e-12);
+        }
+    }
+}
+
+TEST_CASE("loopback: anti-alias filter phase and gain match the analog Butterworth response", "[device][loopback]") {
+    const double fs = 1e5, fc = 5000, f = 1000;
+    const int order = GENERATE(1, 2);
+    auto d = dev::open("loopback:?dac_bits=0&adc_bits=0&aa_cutoff_hz=5000&aa_order=" + std::to_string(order));
+    d->start(fs);
+    const std::size_t n = 20000;
+    auto s = sine(n, f, fs, 1.0), c = sine(n, f, fs, 1.0, kPi / 2);
+    d->write(s, c);
+    std::vector<double> rs(n), rc(n);
+    d->read(rs, rc, 0);
+    // Fit a*sin + b*cos over the settled second half.
+    double ss = 0, sc = 0, cc = 0, ys = 0, yc = 0;
+    for (std::size_t i = n / 2; i < n; ++i) {
+        const double x = kTwoPi * f * static_cast<double>(i) / fs, sn = std::sin(x), cs = std::cos(x);
+        ss += sn * sn; sc += sn * cs; cc += cs * cs; ys += rs[i] * sn; yc += rs[i] * cs;
+    }
+    const double det = ss * cc - sc * sc, a = (ys * cc - yc * sc) / det, b = (yc * ss - ys * sc) / det;
+    const double gain = std::hypot(a, b), phase = std::atan2(b, a);
+    // Analog prototype at the frequency the bilinear transform (prewarped at fc) maps f to.
+    const double u = std::tan(kPi * f / fs) / std::tan(kPi * fc / fs);
+    const double want_gain = order == 1 ? 1 / std::sqrt(1 + u * u) : 1 / std::sqrt(1 + u * u * u * u);
+    const double want_phase = order == 1 ? -std::atan(u) : -std::atan2(std::sqrt(2.0) * u, 1 - u * u);
+    CHECK(gain == Approx(want_gain).epsilon(1e-6));
+    CHECK(phase == Approx(want_phase).epsilon(1e-6));
+}
+
+TEST_CASE("loopback: injected faults are reported with exact counts", "[device][loopback][faults]") {
+    auto d = dev::open("loopback:?drop_after=1000&drop_count=37&stall_after=3000");
+    d->start(1e5);
+    std::vector<double> z(4000, 0.0), rs(4000), rc(4000);
+    d->write(z, z);
+    auto r = d->read(std::span(rs).first(1000), std::span(rc).first(1000), 0);
+    CHECK(r.status == dev::StreamStatus::Ok);
+    CHECK(r.frames == 1000);
+    r = d->read(std::span(rs).first(500), std::span(rc).first(500), 0);
+    CHECK(r.status == dev::StreamStatus::Overflow);
+    CHECK(r.dropped == 37);
+    CHECK(r.first_index == 1037);
+    r = d->read(rs, rc, 0);  // up to the stall point (3000 delivered)
+    CHECK(r.status == dev::StreamStatus::Ok);
+    CHECK(r.frames == 2000);
+    CHECK(r.first_index == 1037);
+    r = d->read(rs, rc, 0);
+    CHECK(r.status == dev::StreamStatus::Timeout);
+    CHECK_THROWS_WITH(dev::open("loopback:?adc_bitz=3"), Catch::Contains("device.adc_bitz") && Catch::Contains("unknown"));
+    CHECK_THROWS_WITH(dev::open("loopback:?adc_bits=99"), Catch::Contains("device.adc_bits"));
+    CHECK_THROWS_WITH(dev::open("warp:"), Catch::Contains("unknown driver 'warp'"));
+    CHECK_THROWS_WITH(dev::open("capture:/nonexistent.fcap"), Catch::Contains("nonexistent.fcap"));
+}
+
+TEST_CASE("run: PASS, MARGINAL and FAIL from limits; exit codes", "[run]") {
+    Scenario sc = short_run();
+    sc.estimators = {{"ekf-diffraction", "ekf", json::object(), std::nullopt}};
+    auto run_with = [&](Limit l) {
+        sc.limits = {l};
+        return execute_run(sc);
+    };
+    Limit l;
+    l.metric = "rms_rad";
+    l.max = 1e-3;
+    auto r = run_with(l);
+    const double rms = r["estimators"][0]["metrics"]["rms"]["rad"].get<double>();
+    CHECK(r["verdict"] == "PASS");
+    CHECK(exit_code(r) == 0);
+    l.max = rms * 1.05;
+    l.marginal_fraction = 0.1;
+    r = run_with(l);
+    CHECK(r["verdict"] == "MARGINAL");
+    CHECK(exit_code(r) == 0);
+    l.max = rms * 0.95;
+    r = run_with(l);
+    CHECK(r["verdict"] == "FAIL");
+    CHECK(exit_code(r) == 1);
+    CHECK(r["measurements"][0]["outcome"] == "FAIL");
+    CHECK(r["measurements"][0]["value"].get<double>() == rms);  // same seed: bit for bit
+    l = {};
+    l.metric = "efficiency";
+    l.min = 0.5;
+    r = run_with(l);
+    CHECK(r["verdict"] == "PASS");
+}
+
+TEST_CASE("run: re-running with the same seed reproduces the metrics bit for bit", "[run]") {
+    Scenario sc = short_run();
+    const auto a = execute_run(sc), b = execute_run(sc);
+    CHECK(a["estimators"] == b["estimators"]);
+    sc.seed = 2;
+    const auto c = execute_run(sc);
+    CHECK(a["estimators"][1]["metrics"] != c["estimators"][1]["metrics"]);
+}
+
+TEST_CASE("run: device latency is compensated, sample loss and stalls end the run as ERROR", "[run][faults]") {
+    Scenario sc = short_run();
+    sc.device = "loopback:?dac_bits=16&adc_bits=16&latency_samples=25";
+    auto r = execute_run(sc);
+    CHECK(r["status"] == "done");
+    CHECK(r["estimators"][1]["metrics"]["rms"]["rad"].get<double>() < 4e-5);  // no 25-sample phase offset
+    sc.device = "loopback:?drop_after=12345&drop_count=500";
+    r = execute_run(sc);
+    CHECK(r["status"] == "error");
+    CHECK(r["verdict"] == "ERROR");
+    CHECK(exit_code(r) == 2);
+    CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("sample loss: 500 input samples dropped before input sample 12845"));
+    for (const auto& m : r["measurements"]) CHECK(m["outcome"] == "ERROR");
+    sc.device = "loopback:?stall_after=20000";
+    r = execute_run(sc);
+    CHECK(r["verdict"] == "ERROR");
+    CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("timeout"));
+    CHECK(r["samples"]["processed"].get<int>() < 30000);
+    sc.device = "loopback:?saturate_after=10000";  // a railed ADC: the run completes and fails on accuracy
+    sc.limits = {{"*", "rms_rad", 1e-3, std::nullopt, 0.0}};
+    r = execute_run(sc);
+    CHECK(r["status"] == "done");
+    CHECK(r["verdict"] == "FAIL");
+}
+
+TEST_CASE("run: capture replay scores against the file's truth", "[run][capture]") {
+    const auto sc0 = load_scenario(fixture("paper-duty1p6.json"));
+    const std::string dir = std::filesystem::temp_directory_path() / ("fringe-run-" + std::to_string(getpid()));
+    std::filesystem::create_directories(dir);
+    const std::string path = dir + "/cap.fcap";
+    {
+        Generator g(sc0.encoder, sc0.motion, sc0.sample_rate_hz, sc0.seed);
+        Block b;
+        b.resize(30000, false);
+        g.generate(0, b);
+        json meta{{"sample_rate_hz", sc0.sample_rate_hz}, {"t0_s", 0.0}, {"encoder", sc0.encoder}};
+        CaptureWriter w(path, {true, true, false}, meta);
+        w.write(b);
+    }
+    Scenario sc = short_run();
+    sc.encoder = sc0.encoder;
+    sc.device = "capture:" + path;
+    const auto r = execute_run(sc);
+    CHECK(r["status"] == "done");
+    CHECK(r["samples"]["processed"] == 30000);
+    CHECK(r["estimators"][1]["metrics"]["rms"]["rad"].get<double>() < 4e-5);
+    std::filesystem::remove_all(dir);
+}
+
+TEST_CASE("run: scenario validation names the bad key", "[run][config]") {
+    Scenario sc = short_run();
+    sc.estimators[1].params = {{"natural_freq_hz", -1}};
+    CHECK_THROWS_WITH(validate_run(sc), Catch::Contains("estimators[1].params.natural_freq_hz"));
+    sc = short_run();
+    sc.limits = {{"ekf-diffraction", "rms_radians", 1.0, std::nullopt, 0.0}};
+    CHECK_THROWS_WITH(validate_run(sc), Catch::Contains("limits[0].metric") && Catch::Contains("rms_rad"));
+    sc.limits = {{"ekf-magic", "rms_rad", 1.0, std::nullopt, 0.0}};
+    CHECK_THROWS_WITH(validate_run(sc), Catch::Contains("limits[0].estimator"));
+    json j = load_json_file(fixture("fig10c-loopback.json"));
+    j["limits"][0]["maximum"] = 3;
+    CHECK_THROWS_WITH(scenario_from_json(j, std::string(FRINGE_SOURCE_DIR) + "/fixtures/scenarios"), Catch::Contains("limits[0].maximum"));
+}
+
+TEST_CASE("report renderings: JUnit testcases per measurement, HTML with plots", "[run][report]") {
+    Scenario sc = short_run();
+    const auto r = execute_run(sc);
+    const std::string x = junit_xml(r);
+    CHECK_THAT(x, Catch::Contains("<testsuite name=\"fig10c-loopback\" tests=\"4\" failures=\"0\""));
+    CHECK_THAT(x, Catch::Contains("name=\"rms_rad\""));
+    CHECK_THAT(x, Catch::Contains("<property name=\"unit\" value=\"rad\"/>"));
+    const std::string h = report_html(r);
+    CHECK_THAT(h, Catch::Contains("Lissajous") && Catch::Contains("Error vs electrical angle") && Catch::Contains("<circle"));
+    CHECK_THAT(h, Catch::Contains("<polyline") && Catch::Contains("Error harmonics"));
+    // self-contained: no scripts, stylesheets or images fetched from anywhere
+    CHECK(h.find("src=") == std::string::npos);
+    CHECK(h.find("<link") == std::string::npos);
+    CHECK(r["traces"]["t_s"].size() <= 2001);
+}
+
+TEST_CASE("run history: begin, finish, list, interrupted runs", "[store]") {
+    const std::string dir = std::filesystem::temp_directory_path() / ("fringe-store-" + std::to_string(getpid()));
+    std::filesystem::remove_all(dir);
+    {
+        RunStore st(dir + "/runs.db");
+        Scenario sc = short_run(0.2);
+        RunOptions o;
+        o.run_id = "run-a";
+        st.begin(o.run_id, "2026-01-01T00:00:00Z", sc.name, "");
+        const auto r = execute_run(sc, o);
+        st.finish(r);
+        // a run whose process died: pid that cannot exist
+        st.begin("run-b", "2026-01-01T00:00:01Z", "dead", "");
+    }
+    RunStore st(dir + "/runs.db");
+    auto rows = st.list();
+    REQUIRE(rows.size() == 2);
+    const auto a = st.report("run-a");
+    REQUIRE(a);
+    CHECK((*a)["verdict"] == "PASS");
+    CHECK(st.list({"PASS", "", "", 10}).size() == 1);
+    CHECK_FALSE(st.report("run-b"));
+    std::filesystem::remove_all(dir);
+}
