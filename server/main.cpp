@@ -5,6 +5,7 @@
 #include "server/report_formats.hpp"
 #include "server/run.hpp"
 #include "server/store.hpp"
+#include "server/sweep.hpp"
 #include "server/scenario.hpp"
 #include "signal_gen/analysis.hpp"
 #include "signal_gen/config.hpp"
@@ -295,6 +296,33 @@ int run_runs(const RunsOptions& o) {
     return kExitOk;
 }
 
+struct SweepOptions {
+    std::string sweep, csv, md;
+    int jobs = 0;
+    bool quiet = false;
+};
+
+int run_sweep_cli(const SweepOptions& o) {
+    const Sweep s = load_sweep(o.sweep);
+    const bool tty = isatty(STDERR_FILENO) && !o.quiet;
+    const auto t0 = std::chrono::steady_clock::now();
+    const auto res = run_sweep(s, o.jobs > 0 ? o.jobs : s.jobs, [&](std::size_t done, std::size_t total) {
+        if (tty) std::fprintf(stderr, "\rsweep: %zu / %zu runs", done, total);
+    });
+    if (tty) std::fprintf(stderr, "\r%40s\r", "");
+    const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    if (!o.csv.empty()) write_file_atomic(o.csv, sweep_csv(s, res));
+    const std::string md = sweep_markdown(s, res);
+    if (!o.md.empty()) write_file_atomic(o.md, md);
+    if (!o.quiet) std::printf("%s\n%zu runs in %.1f s\n", md.c_str(), res.size(), secs);
+    for (const auto& r : res)
+        if (r.status != "done") {
+            spdlog::error("{}: {}", r.row.label, r.error);
+            return kExitError;
+        }
+    return kExitOk;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -349,6 +377,14 @@ int main(int argc, char** argv) {
     rs->add_option("--show", runs_o.show, "Print the report of this run id");
     rs->add_flag("--json", runs_o.as_json, "As JSON");
 
+    SweepOptions sw_o;
+    auto* sw = app.add_subcommand("sweep", "Run a scenario over rows or a grid of parameter values, in parallel; write a table (CSV, Markdown)");
+    sw->add_option("sweep", sw_o.sweep, "Sweep JSON file (e.g. fixtures/sweeps/table1.json)")->required()->check(CLI::ExistingFile);
+    sw->add_option("-o,--csv", sw_o.csv, "Write the table as CSV here");
+    sw->add_option("--md", sw_o.md, "Write the table as Markdown here");
+    sw->add_option("--jobs", sw_o.jobs, "Parallel runs (default: the sweep's, else all cores)")->check(CLI::NonNegativeNumber);
+    sw->add_flag("-q,--quiet", sw_o.quiet, "No table on stdout or progress");
+
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError& e) {
@@ -360,6 +396,7 @@ int main(int argc, char** argv) {
         if (*es) return run_estimate(est_o);
         if (*rn) return run_run(run_o);
         if (*rs) return run_runs(runs_o);
+        if (*sw) return run_sweep_cli(sw_o);
     } catch (const ConfigError& e) {
         spdlog::error("{}", e.what());
         return kExitError;

@@ -55,6 +55,8 @@ const MetricInfo* find_metric(const std::string& name) {
     return nullptr;
 }
 
+}  // namespace
+
 std::optional<double> metric_value(const std::string& name, const json& metrics, const json& bounds) {
     auto num = [](const json& j) -> std::optional<double> { return j.is_number() ? std::optional(j.get<double>()) : std::nullopt; };
     if (name == "rms_rad") return num(metrics["rms"]["rad"]);
@@ -77,6 +79,8 @@ std::optional<double> metric_value(const std::string& name, const json& metrics,
     }
     return std::nullopt;
 }
+
+namespace {
 
 std::string iso_now() {
     const auto t = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());

@@ -10,6 +10,7 @@
 
 #include <atomic>
 #include <functional>
+#include <optional>
 #include <string>
 
 namespace fringe {
@@ -27,6 +28,8 @@ struct MetricInfo {
     std::string name, unit, description;
 };
 const std::vector<MetricInfo>& metric_catalog();
+// A metric's value from an estimator's report "metrics" and "bounds" (nullopt if absent).
+std::optional<double> metric_value(const std::string& name, const nlohmann::json& metrics, const nlohmann::json& bounds);
 
 // Validates a scenario for running (estimators exist and accept their parameters, limits
 // name known metrics and estimators). Throws ConfigError naming the key.
