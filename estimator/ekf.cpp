@@ -143,18 +143,36 @@ struct Ekf::Impl {
 
 namespace {
 
-template <int N>
+// Diagnostics only (not per sample): dynamic size, so the eigen solver is compiled once
+// rather than for every state size.
+bool dynamic_covariance_ok(const Eigen::MatrixXd& P, double* min_eig) {
+    const double asym = (P - P.transpose()).cwiseAbs().maxCoeff();
+    Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(P, Eigen::EigenvaluesOnly);
+    if (min_eig) *min_eig = es.eigenvalues().minCoeff();
+    Eigen::LLT<Eigen::MatrixXd> llt(P);
+    return asym <= 1e-12 * P.cwiseAbs().maxCoeff() && llt.info() == Eigen::Success && es.eigenvalues().minCoeff() > 0;
+}
+
+// Fixed sizes up to 7 states (fast per sample); one dynamic instantiation with fixed
+// capacity (no allocation) for 8..9 states keeps compile time and memory in check.
+template <int N, int MaxN = N>
 struct EkfN final : Ekf::Impl {
-    using Vec = Eigen::Matrix<double, N, 1>;
-    using Mat = Eigen::Matrix<double, N, N>;
+    using Vec = Eigen::Matrix<double, N, 1, 0, MaxN, 1>;
+    using Mat = Eigen::Matrix<double, N, N, 0, MaxN, MaxN>;
+    using Mat2N = Eigen::Matrix<double, 2, N, 0, 2, MaxN>;
+    using MatN2 = Eigen::Matrix<double, N, 2, 0, MaxN, 2>;
+    using Row = Eigen::Matrix<double, 1, N, Eigen::RowMajor, 1, MaxN>;
+    int n_ = N;
     Vec xs;
     Mat Pm, F, Q;
     const ChannelModel* model = nullptr;
 
-    EkfN(const Ekf::Options& o, const ChannelModel* m) : model(m) {
+    EkfN(const Ekf::Options& o, const ChannelModel* m) : n_(o.layout.n), model(m) {
         const double T = o.T_s;
-        F.setIdentity();
-        Q.setZero();
+        xs.resize(n_);
+        Pm.resize(n_, n_);
+        F.setIdentity(n_, n_);
+        Q.setZero(n_, n_);
         F(0, 1) = T;
         if (o.kinematics == Kinematics::CV) {
             Q(0, 0) = o.q_kin * T * T * T / 3; Q(0, 1) = Q(1, 0) = o.q_kin * T * T / 2; Q(1, 1) = o.q_kin * T;
@@ -177,9 +195,9 @@ struct EkfN final : Ekf::Impl {
         Pm.setIdentity();
     }
     void init(const double* x0, const double* p0) override {
-        for (int i = 0; i < N; ++i) xs(i) = x0[i];
+        for (int i = 0; i < n_; ++i) xs(i) = x0[i];
         Pm.setZero();
-        for (int i = 0; i < N; ++i) Pm(i, i) = p0[i];
+        for (int i = 0; i < n_; ++i) Pm(i, i) = p0[i];
         turns = 0;
         rewrap();
     }
@@ -204,8 +222,8 @@ struct EkfN final : Ekf::Impl {
         model->eval(xs.data(), h, Ha, v);
         model->noise(v, extra, R);
         if (channels == 3) {
-            Eigen::Matrix<double, 2, N> H;
-            for (int i = 0; i < N; ++i) { H(0, i) = Ha[0][i]; H(1, i) = Ha[1][i]; }
+            Mat2N H(2, n_);
+            for (int i = 0; i < n_; ++i) { H(0, i) = Ha[0][i]; H(1, i) = Ha[1][i]; }
             Eigen::Vector2d innov(z[0] - h[0], z[1] - h[1]);
             Eigen::Matrix2d Rm;
             Rm << R[0], R[1], R[1], R[2];
@@ -216,7 +234,7 @@ struct EkfN final : Ekf::Impl {
                 H = Pf * H;
                 Rm = Pf * Rm * Pf.transpose();
             }
-            const Eigen::Matrix<double, 2, N> HP = H * Pm;
+            const Mat2N HP = H * Pm;
             const Eigen::Matrix2d S = HP * H.transpose() + Rm;
             // S^-1 for the 2x2 innovation covariance: positive definiteness checked first
             // (Sylvester: S00 > 0 and det > 0, the condition under which its Cholesky factor
@@ -227,21 +245,21 @@ struct EkfN final : Ekf::Impl {
             const double inv_det = 1.0 / det;
             Eigen::Matrix2d Sinv;
             Sinv << S(1, 1) * inv_det, -S(0, 1) * inv_det, -S(1, 0) * inv_det, S(0, 0) * inv_det;
-            const Eigen::Matrix<double, N, 2> K = (Sinv * HP).transpose();
+            const MatN2 K = (Sinv * HP).transpose();
             xs += K * innov;
-            const Mat IKH = Mat::Identity() - K * H;
+            const Mat IKH = Mat::Identity(n_, n_) - K * H;
             Pm = IKH * Pm * IKH.transpose() + K * Rm * K.transpose();  // Joseph form
         } else {
             const int row = channels == 1 ? 0 : 1;
-            Eigen::Matrix<double, 1, N> H;
-            for (int i = 0; i < N; ++i) H(0, i) = Ha[row][i];
+            Row H(1, n_);
+            for (int i = 0; i < n_; ++i) H(0, i) = Ha[row][i];
             const double r = channels == 1 ? R[0] : R[2];
-            const Eigen::Matrix<double, 1, N> HP = H * Pm;
+            const Row HP = H * Pm;
             const double S = HP.dot(H) + r;
             if (!(S > 0)) return false;
             const Vec K = HP.transpose() / S;
             xs += K * (z[row] - h[row]);
-            const Mat IKH = Mat::Identity() - K * H;
+            const Mat IKH = Mat::Identity(n_, n_) - K * H;
             Pm = IKH * Pm * IKH.transpose() + (r * K) * K.transpose();
         }
         Pm = 0.5 * (Pm + Pm.transpose()).eval();
@@ -250,15 +268,8 @@ struct EkfN final : Ekf::Impl {
     }
     double x(int i) const override { return xs(i); }
     double P(int i, int j) const override { return Pm(i, j); }
-    int n() const override { return N; }
-    bool covariance_ok(double* min_eig) const override {
-        const double asym = (Pm - Pm.transpose()).cwiseAbs().maxCoeff();
-        Eigen::SelfAdjointEigenSolver<Mat> es(Pm, Eigen::EigenvaluesOnly);
-        if (min_eig) *min_eig = es.eigenvalues().minCoeff();
-        Eigen::LLT<Mat> llt(Pm);
-        return asym <= 1e-12 * Pm.cwiseAbs().maxCoeff() && llt.info() == Eigen::Success &&
-               es.eigenvalues().minCoeff() > 0;
-    }
+    int n() const override { return n_; }
+    bool covariance_ok(double* min_eig) const override { return dynamic_covariance_ok(Pm, min_eig); }
 };
 
 std::unique_ptr<Ekf::Impl> make_impl(const Ekf::Options& o, const ChannelModel* m) {
@@ -269,8 +280,7 @@ std::unique_ptr<Ekf::Impl> make_impl(const Ekf::Options& o, const ChannelModel* 
         case 5: return std::make_unique<EkfN<5>>(o, m);
         case 6: return std::make_unique<EkfN<6>>(o, m);
         case 7: return std::make_unique<EkfN<7>>(o, m);
-        case 8: return std::make_unique<EkfN<8>>(o, m);
-        case 9: return std::make_unique<EkfN<9>>(o, m);
+        case 8: case 9: return std::make_unique<EkfN<Eigen::Dynamic, kMaxStates>>(o, m);
     }
     throw ConfigError("params", "unsupported EKF state size " + std::to_string(o.layout.n));
 }
