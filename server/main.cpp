@@ -17,6 +17,8 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <atomic>
+#include <csignal>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -217,8 +219,11 @@ int run_estimate(const EstimateOptions& o) {
     return kExitOk;
 }
 
+std::atomic<bool> g_cancel{false};
+extern "C" void on_interrupt(int) { g_cancel.store(true); }
+
 struct RunCliOptions {
-    std::string scenario, report, junit, html, data;
+    std::string scenario, report, junit, html, data, record;
     std::int64_t seed = -1;
     bool no_db = false, quiet = false;
 };
@@ -230,6 +235,11 @@ int run_run(const RunCliOptions& o) {
     std::unique_ptr<RunStore> store;
     RunOptions ro;
     ro.run_id = new_run_id();
+    ro.record_path = o.record;
+    // Ctrl-C / SIGTERM: finish the block, end the run as ABORTED and keep its report.
+    ro.cancel = &g_cancel;
+    std::signal(SIGINT, on_interrupt);
+    std::signal(SIGTERM, on_interrupt);
     if (!o.no_db) {
         const std::string dir = o.data.empty() ? default_data_dir() : o.data;
         store = std::make_unique<RunStore>(dir + "/runs.db");
@@ -365,6 +375,7 @@ int main(int argc, char** argv) {
     rn->add_option("--data", run_o.data, "Data directory for the run history (default $FRINGE_DATA or ~/.local/share/fringe)");
     rn->add_option("--seed", run_o.seed, "Override the scenario's seed")->check(CLI::NonNegativeNumber);
     rn->add_flag("--no-db", run_o.no_db, "Do not record the run in the history");
+    rn->add_option("--record", run_o.record, "Record the device input with aligned truth to this capture (.csv or .fcap)");
     rn->add_flag("-q,--quiet", run_o.quiet, "No summary or progress");
 
     RunsOptions runs_o;

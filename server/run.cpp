@@ -181,6 +181,14 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             lanes.push_back(std::move(lane));
         }
         Generator gen(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed, sc.t0_s);
+        std::optional<CaptureWriter> recorder;
+        if (!o.record_path.empty()) {
+            json meta{{"sample_rate_hz", sc.sample_rate_hz}, {"t0_s", sc.t0_s}, {"encoder", sc.encoder}, {"scenario", sc},
+                      {"device", dinfo}, {"board_id", dinfo.board_id}, {"run_id", report["id"]},
+                      {"note", "device input recorded by fringe run; theta_true aligned for the device latency (0 where unknown)"}};
+            recorder.emplace(o.record_path, CaptureColumns{true, true, false}, meta);
+        }
+        CaptureData rec;
         device->start(sc.sample_rate_hz);
         // Truth for each input frame: the generated sample latency_samples earlier. The first
         // latency_samples input frames predate the signal and are not scored.
@@ -242,6 +250,14 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
                 pending.pop_front();
                 t_s[i] = tr.t; th_true[i] = tr.th; om_true[i] = tr.om; known[i] = tr.known;
             }
+            if (recorder) {
+                rec.t_s.assign(t_s.begin(), t_s.begin() + static_cast<std::ptrdiff_t>(m));
+                rec.sin_v.assign(in_s.begin(), in_s.begin() + static_cast<std::ptrdiff_t>(m));
+                rec.cos_v.assign(in_c.begin(), in_c.begin() + static_cast<std::ptrdiff_t>(m));
+                rec.theta_true_rad.assign(th_true.begin(), th_true.begin() + static_cast<std::ptrdiff_t>(m));
+                rec.omega_true_rad_s.assign(om_true.begin(), om_true.begin() + static_cast<std::ptrdiff_t>(m));
+                recorder->write(rec);
+            }
             for (auto& lane : lanes) {
                 lane->th.resize(m); lane->om.resize(m); lane->valid.resize(m);
                 lane->e->process({std::span(in_s).first(m), std::span(in_c).first(m)},
@@ -266,6 +282,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             if (eof) break;
         }
         device->stop();
+        if (recorder) recorder->close();
     } catch (const dev::DeviceError& e) {
         status = "error";
         error = e.what();

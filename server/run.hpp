@@ -21,6 +21,8 @@ struct RunOptions {
     std::function<void(std::uint64_t done, std::uint64_t total)> progress;
     const std::atomic<bool>* cancel = nullptr;
     std::string run_id;
+    // Record the device input (with the aligned truth) to this capture (.csv or .fcap).
+    std::string record_path;
 };
 
 // Metrics a limit can name, with their units.

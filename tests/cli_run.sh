@@ -72,4 +72,17 @@ PY
 id=$($PY -c 'import json,sys; print([r for r in json.load(open(sys.argv[1])) if r["scenario"]=="fig10c-loopback"][0]["id"])' "$dir/runs.json")
 "$FRINGE" runs --data "$dir/data" --show "$id" | $PY -c 'import json,sys; assert json.load(sys.stdin)["verdict"]=="PASS"'
 "$FRINGE" runs --data "$dir/data" --verdict FAIL | grep -q ci-failing || fail "runs --verdict"
+# --record: the device input with aligned truth; re-estimating it gives the run's figure exactly
+"$FRINGE" run "$S/agc-drift.json" --no-db --record "$dir/rec.fcap" --report "$dir/agc.json" -q
+"$FRINGE" estimate "$dir/rec.fcap" --estimator ekf-diffraction --param agc=true --param q_gain_per_s=0.01 --report "$dir/re.json" -q
+$PY -c 'import json,sys; a=json.load(open(sys.argv[1])); b=json.load(open(sys.argv[2])); x=[e for e in a["estimators"] if e["label"]=="agc"][0]["metrics"]["rms"]["rad"]; y=b["metrics"]["rms"]["rad"]; assert x==y, (x,y)' "$dir/agc.json" "$dir/re.json"
+
+# SIGINT: the run ends ABORTED (exit 2) and its report is kept
+"$FRINGE" run "$dir/long.json" --data "$dir/data" --report "$dir/int.json" -q & pid=$!
+sleep 1.5
+kill -INT $pid
+set +e; wait $pid; rc=$?; set -e
+[ $rc -eq 2 ] || fail "interrupted run: exit $rc"
+$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["verdict"]=="ABORTED" and r["status"]=="aborted", r["verdict"]' "$dir/int.json"
+"$FRINGE" runs --data "$dir/data" --verdict ABORTED | grep -q long-run || fail "aborted run not in history"
 echo "cli.run OK"
