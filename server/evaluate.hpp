@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 
 #include <cstdint>
+#include <cstdio>
 #include <functional>
 #include <optional>
 #include <string>
@@ -34,6 +35,9 @@ nlohmann::json evaluate_capture(const EvaluateOptions& o);
 class EstimatesWriter {
 public:
     explicit EstimatesWriter(const std::string& path);
+    ~EstimatesWriter() { if (f_) std::fclose(f_); }  // on an error path: what was written stays
+    EstimatesWriter(const EstimatesWriter&) = delete;
+    EstimatesWriter& operator=(const EstimatesWriter&) = delete;
     void write(std::size_t n, const double* t, const double* theta, const double* omega, const std::uint8_t* valid);
     void close();
 
