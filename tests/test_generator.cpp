@@ -156,7 +156,7 @@ TEST_CASE("the generator quantises through the profile's ADC", "[generator][adc]
     }
 }
 
-TEST_CASE("same seed, same output; any block partition, same output", "[generator][determinism]") {
+TEST_CASE("same seed, same output, and any block partition gives the same output", "[generator][determinism]") {
     EncoderProfile e = test::clean_diffraction(1.1149, 2.8713);
     e.noise = {2e-4, 1e-4, 0.03, 2.0, 0.0};
     e.adc = Quantizer{16, -1.25, 1.25};

@@ -81,7 +81,7 @@ TEST_CASE("quasi-static steps hold each angle for the dwell time", "[motion]") {
     for (double w : r.w) REQUIRE(w == 0.0);
 }
 
-TEST_CASE("table motion interpolates a CSV; bad tables are named", "[motion]") {
+TEST_CASE("table motion interpolates a CSV, bad tables are named", "[motion]") {
     const std::string path = "motion_table_test.csv";
     { std::ofstream f(path); f << "t_s,phi_rad\n0,0\n1,2\n3,0\n"; }
     json j = {{"kind", "table"}, {"file", path}};

@@ -115,7 +115,7 @@ TEST_CASE("loopback: injected faults are reported with exact counts", "[device][
     CHECK_THROWS_WITH(dev::open("capture:/nonexistent.fcap"), Catch::Contains("nonexistent.fcap"));
 }
 
-TEST_CASE("run: PASS, MARGINAL and FAIL from limits; exit codes", "[run]") {
+TEST_CASE("run: PASS, MARGINAL and FAIL from limits, and exit codes", "[run]") {
     Scenario sc = short_run();
     sc.estimators = {{"ekf-diffraction", "ekf", json::object(), std::nullopt}};
     auto run_with = [&](Limit l) {
