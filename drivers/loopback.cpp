@@ -81,13 +81,24 @@ public:
         for (int k = 0; k < latency_; ++k) queue_.push_back({adc_.apply(0.0), adc_.apply(0.0), 0.0});
         written_ = read_ = 0;
         pending_drop_ = 0;
+        last_update_ = -1;
+        dac_rate_hz_ = s_.at("dac_rate_hz").get<double>();
+        if (dac_rate_hz_ > fs) throw DeviceError(uri_, "dac_rate_hz above the stream rate is not simulated (it must be <= the sample rate)");
         running_ = true;
     }
     StreamResult write(std::span<const double> s, std::span<const double> c) override {
         if (!running_) throw DeviceError(uri_, "write before start");
         for (std::size_t i = 0; i < s.size(); ++i, ++written_) {
             const long long k = static_cast<long long>(written_);
-            double v[2] = {dac_.apply(s[i]), dac_.apply(c[i])};
+            // DAC update rate: a new code is latched when floor(k*dac_rate/fs) advances
+            // (zero-order hold in between); 0 means every sample.
+            const std::int64_t u = dac_rate_hz_ > 0 ? static_cast<std::int64_t>(std::floor(static_cast<double>(k) * dac_rate_hz_ / fs_)) : k;
+            if (u != last_update_) {
+                held_[0] = dac_.apply(s[i]);
+                held_[1] = dac_.apply(c[i]);
+                last_update_ = u;
+            }
+            double v[2] = {held_[0], held_[1]};
             for (int ch = 0; ch < 2; ++ch) {
                 double a = recon_[ch].step(v[ch]);
                 if (noise_v_ > 0) a += noise_v_ * standard_normal(rng_);
@@ -170,6 +181,8 @@ private:
     std::uint64_t written_ = 0, read_ = 0, pending_drop_ = 0, dropped_total_ = 0, clipped_ = 0;
     long long drop_after_ = -1, drop_count_ = 0, stall_after_ = -1, saturate_after_ = -1;
     bool running_ = false;
+    double dac_rate_hz_ = 0, held_[2] = {0, 0};
+    std::int64_t last_update_ = -1;
 };
 
 }  // namespace
@@ -182,6 +195,7 @@ void register_loopback(std::vector<DriverInfo>& r) {
         {"dac_bits", "bit", ParamType::Integer, 16, 0, 24, {}, "DAC resolution (0: ideal)"},
         {"adc_bits", "bit", ParamType::Integer, 16, 0, 24, {}, "ADC resolution (0: ideal)"},
         {"range_v", "V", ParamType::Number, 1.25, 1e-3, 100, {}, "DAC and ADC full scale [-range_v, range_v)"},
+        {"dac_rate_hz", "Hz", ParamType::Number, 0.0, 0, 1e10, {}, "DAC update rate, zero-order hold in between (0: the stream rate; at most the stream rate)"},
         {"recon_cutoff_hz", "Hz", ParamType::Number, 0.0, 0, 1e9, {}, "reconstruction filter (1st order) cutoff; 0: none"},
         {"aa_cutoff_hz", "Hz", ParamType::Number, 0.0, 0, 1e9, {}, "anti-alias filter cutoff; 0: none"},
         {"aa_order", "", ParamType::Integer, 2, 1, 2, {}, "anti-alias filter order (Butterworth)"},

@@ -65,6 +65,18 @@ TEST_CASE("loopback: transparent when ideal, exact latency, quantised on the ADC
     }
 }
 
+TEST_CASE("loopback: a slower DAC holds each code until its next update", "[device][loopback]") {
+    auto d = dev::open("loopback:?dac_bits=0&adc_bits=0&dac_rate_hz=25000");
+    d->start(1e5);
+    auto s = sine(400, 1000, 1e5, 1.0), c = sine(400, 1000, 1e5, 1.0, kPi / 2);
+    d->write(s, c);
+    std::vector<double> rs(400), rc(400);
+    REQUIRE(d->read(rs, rc, 0).frames == 400);
+    for (std::size_t k = 0; k < 400; ++k) REQUIRE(rs[k] == s[4 * (k / 4)]);
+    auto bad = dev::open("loopback:?dac_rate_hz=2e5");
+    CHECK_THROWS_WITH(bad->start(1e5), Catch::Contains("dac_rate_hz"));
+}
+
 TEST_CASE("loopback: anti-alias filter phase and gain match the analog Butterworth response", "[device][loopback]") {
     const double fs = 1e5, fc = 5000, f = 1000;
     const int order = GENERATE(1, 2);
