@@ -23,7 +23,6 @@ public:
         i.settings = {{"path", reader_.path()}, {"has_truth", reader_.columns().theta_true}};
         return i;
     }
-    double source_sample_rate_hz() const override { return reader_.sample_rate_hz(); }
     void start(double fs) override {
         const double file_fs = reader_.sample_rate_hz();
         if (file_fs > 0 && std::fabs(file_fs - fs) > 1e-9 * fs)

@@ -86,7 +86,6 @@ public:
         (void)theta_rad; (void)omega_rad_s;
         return false;
     }
-    virtual double source_sample_rate_hz() const { return 0.0; }  // capture replay: the file's rate
 
     // Step mode: set a static sin/cos pair, wait settle_s, read back (averaged).
     virtual StepResult step(double sin_v, double cos_v, double settle_s, int average) {

@@ -303,7 +303,6 @@ double Ekf::theta_rad() const { return impl_->x(0) + kTwoPi * static_cast<double
 double Ekf::omega_rad_s() const { return impl_->x(1); }
 double Ekf::state(int i) const { return impl_->x(i); }
 double Ekf::cov(int i, int j) const { return impl_->P(i, j); }
-int Ekf::size() const { return impl_->n(); }
 bool Ekf::covariance_ok(double* min_eig) const { return impl_->covariance_ok(min_eig); }
 
 }  // namespace fringe::est

@@ -88,7 +88,6 @@ public:
     double omega_rad_s() const;
     double state(int i) const;
     double cov(int i, int j) const;
-    int size() const;
     // Covariance check: symmetric to rounding and Cholesky-factorable.
     bool covariance_ok(double* min_eig = nullptr) const;
 

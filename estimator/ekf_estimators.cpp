@@ -298,7 +298,6 @@ public:
         }
         return j;
     }
-    const Ekf& filter() const { return filter_; }
 
 private:
     void start() {

@@ -31,8 +31,7 @@ public:
         k1_ = 2 * p.number("damping") * wn * T_;
         k2_ = wn * wn * T_;
         cal_ = nominal_calibration(cfg.encoder, p);
-        const auto cc = cal_.coeffs();
-        os_ = cc.os; oc_ = cc.oc; inv_as_ = cc.inv_as; inv_ac_ = cc.inv_ac; sin_d_ = cc.sin_d; inv_cos_d_ = cc.inv_cos_d;
+        k_ = cal_.coeffs();
         acq_.reset(static_cast<std::size_t>(p.integer("acquisition_samples")), cfg.sample_rate_hz, cal_);
         frac_ = omega_ = 0;
         turns_ = 0;
@@ -57,8 +56,8 @@ public:
                 }
                 continue;
             }
-            const double sn = (s - os_) * inv_as_;
-            const double cn = ((c - oc_) * inv_ac_ + sn * sin_d_) * inv_cos_d_;
+            const double sn = (s - k_.os) * k_.inv_as;
+            const double cn = ((c - k_.oc) * k_.inv_ac + sn * k_.sin_d) * k_.inv_cos_d;
             // Off the recursion: the ratiometric normalisation depends on the input only.
             const double m2 = sn * sn + cn * cn;
             const double inv_mag = m2 > 0 ? 1.0 / std::sqrt(m2) : 0.0;
@@ -104,7 +103,7 @@ private:
     long long turns_ = 0;
     static constexpr int kResync = 256;
     int since_sync_ = 0;
-    double os_ = 0, oc_ = 0, inv_as_ = 1, inv_ac_ = 1, sin_d_ = 0, inv_cos_d_ = 1;
+    Calibration::Coeffs k_{0, 0, 1, 1, 0, 1};  // cal_'s constants, read per sample
 };
 
 }  // namespace

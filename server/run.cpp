@@ -47,13 +47,13 @@ const std::vector<MetricInfo>& metric_catalog() {
     return m;
 }
 
-namespace {
-
 const MetricInfo* find_metric(const std::string& name) {
     for (const auto& m : metric_catalog())
         if (m.name == name) return &m;
     return nullptr;
 }
+
+namespace {
 
 }  // namespace
 

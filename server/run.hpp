@@ -30,6 +30,7 @@ struct MetricInfo {
     std::string name, unit, description;
 };
 const std::vector<MetricInfo>& metric_catalog();
+const MetricInfo* find_metric(const std::string& name);  // nullptr if unknown
 // A metric's value from an estimator's report "metrics" and "bounds" (nullopt if absent).
 std::optional<double> metric_value(const std::string& name, const nlohmann::json& metrics, const nlohmann::json& bounds);
 

@@ -25,6 +25,15 @@ json load_json_file(const std::string& path) {
     }
 }
 
+json resolve_json_ref(const json& j, const std::string& base_dir, std::string* file_out) {
+    if (file_out) file_out->clear();
+    if (!j.is_string()) return j;
+    fs::path p(j.get<std::string>());
+    if (p.is_relative()) p = fs::path(base_dir) / p;
+    if (file_out) *file_out = p.string();
+    return load_json_file(p.string());
+}
+
 EncoderProfile load_encoder(const std::string& path) { return encoder_from_json(load_json_file(path), "encoder"); }
 
 Scenario scenario_from_json(const json& j, const std::string& base_dir) {
@@ -33,18 +42,13 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
     s.name = r.string("name", s.name);
     s.description = r.string("description", "");
     const json& enc = r.raw("encoder");
-    if (enc.is_string()) {
-        fs::path p(enc.get<std::string>());
-        if (p.is_relative()) p = fs::path(base_dir) / p;
-        try {
-            s.encoder = encoder_from_json(load_json_file(p.string()), "encoder");
-        } catch (const ConfigError& e) {
-            throw ConfigError(e.field().empty() ? "encoder" : e.field(), std::string(e.what()) + " (in " + p.string() + ")");
-        }
-    } else if (enc.is_object()) {
-        s.encoder = encoder_from_json(enc, "encoder");
-    } else {
-        throw ConfigError("encoder", "expected a profile object or a file name");
+    if (!enc.is_string() && !enc.is_object()) throw ConfigError("encoder", "expected a profile object or a file name");
+    std::string file;
+    try {
+        s.encoder = encoder_from_json(resolve_json_ref(enc, base_dir, &file), "encoder");
+    } catch (const ConfigError& e) {
+        if (file.empty()) throw;
+        throw ConfigError(e.field().empty() ? "encoder" : e.field(), std::string(e.what()) + " (in " + file + ")");
     }
     s.sample_rate_hz = r.number("sample_rate_hz", s.sample_rate_hz, 1.0, 1e10);
     s.duration_s = r.number("duration_s", 1e-9, 1e7);
@@ -65,16 +69,7 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
             e.name = er.string("name");
             e.label = er.string("label", e.name);
             if (er.has("params")) e.params = er.raw("params");
-            if (er.has("encoder")) {
-                const json& ej = er.raw("encoder");
-                if (ej.is_string()) {
-                    fs::path p(ej.get<std::string>());
-                    if (p.is_relative()) p = fs::path(base_dir) / p;
-                    e.encoder = encoder_from_json(load_json_file(p.string()), path + ".encoder");
-                } else {
-                    e.encoder = encoder_from_json(ej, path + ".encoder");
-                }
-            }
+            if (er.has("encoder")) e.encoder = encoder_from_json(resolve_json_ref(er.raw("encoder"), base_dir), path + ".encoder");
             er.finish();
             for (const auto& other : s.estimators)
                 if (other.label == e.label) throw ConfigError(path + ".label", "duplicate label '" + e.label + "' (give each a distinct label)");

@@ -55,6 +55,9 @@ Scenario scenario_from_json(const nlohmann::json& j, const std::string& base_dir
 Scenario load_scenario(const std::string& path);
 EncoderProfile load_encoder(const std::string& path);
 nlohmann::json load_json_file(const std::string& path);  // throws ConfigError with the parse position
+// A JSON value that is either inline or a file name (relative to base_dir): the object.
+// file_out (optional) receives the resolved path, or "" when inline.
+nlohmann::json resolve_json_ref(const nlohmann::json& j, const std::string& base_dir, std::string* file_out = nullptr);
 void to_json(nlohmann::json& j, const Scenario& s);  // as run: the encoder inlined
 
 }  // namespace fringe

@@ -53,22 +53,11 @@ Sweep load_sweep(const std::string& path) {
     s.name = r.string("name", fs::path(path).stem().string());
     s.description = r.string("description", "");
     s.jobs = static_cast<int>(r.integer("jobs", 0, 0, 1024));
-    const json& base = r.raw("base");
-    std::string base_dir = dir;
-    if (base.is_string()) {
-        fs::path p(base.get<std::string>());
-        if (p.is_relative()) p = fs::path(dir) / p;
-        s.base = load_json_file(p.string());
-        base_dir = p.parent_path().string();
-    } else {
-        s.base = base;
-    }
+    std::string base_file;
+    s.base = resolve_json_ref(r.raw("base"), dir, &base_file);
+    const std::string base_dir = base_file.empty() ? dir : fs::path(base_file).parent_path().string();
     // Inline the encoder so rows can set its keys.
-    if (s.base.contains("encoder") && s.base["encoder"].is_string()) {
-        fs::path p(s.base["encoder"].get<std::string>());
-        if (p.is_relative()) p = fs::path(base_dir) / p;
-        s.base["encoder"] = load_json_file(p.string());
-    }
+    if (s.base.contains("encoder")) s.base["encoder"] = resolve_json_ref(s.base["encoder"], base_dir);
     s.base_dir = base_dir;
     const json& cols = r.raw("columns");
     if (!cols.is_array() || cols.empty()) throw ConfigError("columns", "expected a non-empty array of {estimator, metric}");
@@ -76,9 +65,7 @@ Sweep load_sweep(const std::string& path) {
         JsonReader c(cols[i], "columns[" + std::to_string(i) + "]");
         s.columns.push_back({c.string("estimator"), c.string("metric")});
         c.finish();
-        bool known = false;
-        for (const auto& m : metric_catalog()) known |= m.name == s.columns.back().metric;
-        if (!known) throw ConfigError("columns[" + std::to_string(i) + "].metric", "unknown metric '" + s.columns.back().metric + "'");
+        if (!find_metric(s.columns.back().metric)) throw ConfigError("columns[" + std::to_string(i) + "].metric", "unknown metric '" + s.columns.back().metric + "'");
     }
     if (r.has("references")) {
         for (const auto& n : r.raw("references")) s.reference_names.push_back(n.get<std::string>());
