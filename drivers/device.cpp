@@ -38,7 +38,14 @@ const std::vector<DriverInfo>& drivers() {
     return all;
 }
 
-std::unique_ptr<Device> open(const std::string& uri) {
+namespace {
+struct ParsedUri {
+    const DriverInfo* drv;
+    std::string path;
+    nlohmann::json settings;
+};
+
+ParsedUri parse_uri(const std::string& uri) {
     const auto colon = uri.find(':');
     if (colon == std::string::npos || colon == 0)
         throw ConfigError("device", "'" + uri + "' is not a device URI (scheme:path?key=value, e.g. loopback:)");
@@ -66,7 +73,18 @@ std::unique_ptr<Device> open(const std::string& uri) {
     }
     const nlohmann::json given = parse_param_assignments(drv->settings, kv, "device");
     const Params p = resolve_params(drv->settings, given, "device");
-    return drv->open(uri, rest, p.json());
+    return {drv, rest, p.json()};
+}
+}  // namespace
+
+UriParts check_uri(const std::string& uri) {
+    auto p = parse_uri(uri);
+    return {p.drv->scheme, p.path, p.settings};
+}
+
+std::unique_ptr<Device> open(const std::string& uri) {
+    auto p = parse_uri(uri);
+    return p.drv->open(uri, p.path, p.settings);
 }
 
 }  // namespace fringe::dev

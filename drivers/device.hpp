@@ -106,5 +106,11 @@ const std::vector<DriverInfo>& drivers();
 // Parses scheme:path?k=v&k=v, validates the query against the driver's settings (errors name
 // "device.<key>"), opens it. Throws ConfigError for a bad URI, DeviceError for a device fault.
 std::unique_ptr<Device> open(const std::string& uri);
+// The same parsing and validation without opening anything.
+struct UriParts {
+    std::string scheme, path;
+    nlohmann::json settings;
+};
+UriParts check_uri(const std::string& uri);
 
 }  // namespace fringe::dev

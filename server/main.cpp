@@ -2,6 +2,8 @@
 #include "drivers/capture_file.hpp"
 #include "estimator/estimator.hpp"
 #include "server/evaluate.hpp"
+#include "server/http_server.hpp"
+#include "server/service.hpp"
 #include "server/report_formats.hpp"
 #include "server/run.hpp"
 #include "server/store.hpp"
@@ -22,6 +24,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <thread>
 #include <unistd.h>
 
 namespace {
@@ -243,7 +246,7 @@ int run_run(const RunCliOptions& o) {
     if (!o.no_db) {
         const std::string dir = o.data.empty() ? default_data_dir() : o.data;
         store = std::make_unique<RunStore>(dir + "/runs.db");
-        store->begin(ro.run_id, "", sc.name, sc.dut);
+        store->begin(ro.run_id, iso_now(), sc.name, sc.dut);
     }
     const bool tty = isatty(STDERR_FILENO) && !o.quiet;
     auto last = std::chrono::steady_clock::now();
@@ -333,6 +336,43 @@ int run_sweep_cli(const SweepOptions& o) {
     return kExitOk;
 }
 
+struct ServeOptions {
+    std::string bind = "127.0.0.1:8080", data, token_file, fixtures = FRINGE_SOURCE_DIR "/fixtures", web = FRINGE_SOURCE_DIR "/web";
+    unsigned workers = 0, threads = 2;
+    double max_upload_mb = 256;
+    bool allow_external = false;
+};
+
+int run_serve(const ServeOptions& o) {
+    ServiceConfig cfg;
+    cfg.data_dir = o.data.empty() ? default_data_dir() : o.data;
+    cfg.fixtures_dir = o.fixtures;
+    cfg.web_dir = o.web;
+    cfg.workers = o.workers ? o.workers : std::max(1u, std::thread::hardware_concurrency());
+    cfg.max_upload_bytes = static_cast<std::uint64_t>(o.max_upload_mb * 1024 * 1024);
+    cfg.allow_external = o.allow_external;
+    cfg.token_for_reads = !is_loopback_bind(o.bind);
+    const std::string token_file = o.token_file.empty() ? cfg.data_dir + "/token" : o.token_file;
+    bool created = false;
+    cfg.token = load_or_create_token(token_file, &created);
+    Service svc(cfg);
+    HttpServerOptions ho;
+    ho.bind = o.bind;
+    ho.threads = o.threads;
+    HttpServer server(svc, ho);
+    std::printf("fringe %s serving %s (data %s, %u run workers)\n", FRINGE_VERSION, server.url().c_str(), cfg.data_dir.c_str(), cfg.workers);
+    if (created)
+        std::printf("API token (printed this once; stored in %s, mode 0600): %s\nopen %s#token=%s\n", token_file.c_str(), cfg.token.c_str(),
+                    server.url().c_str(), cfg.token.c_str());
+    else
+        std::printf("API token: in %s (send Authorization: Bearer <token>; paste it into the UI once)\n", token_file.c_str());
+    if (cfg.token_for_reads) std::printf("bound beyond loopback: every API request needs the token\n");
+    std::fflush(stdout);
+    server.run();
+    std::printf("fringe serve: stopped\n");
+    return kExitOk;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -396,6 +436,18 @@ int main(int argc, char** argv) {
     sw->add_option("--jobs", sw_o.jobs, "Parallel runs (default: the sweep's, else all cores)")->check(CLI::NonNegativeNumber);
     sw->add_flag("-q,--quiet", sw_o.quiet, "No table on stdout or progress");
 
+    ServeOptions serve_o;
+    auto* sv = app.add_subcommand("serve", "Serve the JSON/HTTP API and the browser UI; run scenarios from a queue");
+    sv->add_option("--bind", serve_o.bind, "host:port to listen on; beyond loopback every request needs the token")->capture_default_str();
+    sv->add_option("--data", serve_o.data, "Data directory: run history, uploads, token (default $FRINGE_DATA or ~/.local/share/fringe)");
+    sv->add_option("--token-file", serve_o.token_file, "Bearer token file (default DATA/token; created with mode 0600 when absent)");
+    sv->add_option("--fixtures", serve_o.fixtures, "Fixtures folder ({\"fixture\": NAME} and file references resolve here)")->capture_default_str();
+    sv->add_option("--web", serve_o.web, "Browser UI folder")->capture_default_str();
+    sv->add_option("--workers", serve_o.workers, "Runs executed in parallel (default: cores); runs on one board always queue");
+    sv->add_option("--threads", serve_o.threads, "HTTP I/O threads")->check(CLI::Range(1, 64))->capture_default_str();
+    sv->add_option("--max-upload-mb", serve_o.max_upload_mb, "Largest capture upload, MiB")->check(CLI::PositiveNumber)->capture_default_str();
+    sv->add_flag("--allow-external", serve_o.allow_external, "Allow the external estimator (runs a command on this host) in HTTP requests");
+
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError& e) {
@@ -408,6 +460,7 @@ int main(int argc, char** argv) {
         if (*rn) return run_run(run_o);
         if (*rs) return run_runs(runs_o);
         if (*sw) return run_sweep_cli(sw_o);
+        if (*sv) return run_serve(serve_o);
     } catch (const ConfigError& e) {
         spdlog::error("{}", e.what());
         return kExitError;

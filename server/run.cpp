@@ -80,8 +80,6 @@ std::optional<double> metric_value(const std::string& name, const json& metrics,
     return std::nullopt;
 }
 
-namespace {
-
 std::string iso_now() {
     const auto t = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
     std::tm tm{};
@@ -90,6 +88,8 @@ std::string iso_now() {
     std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
     return buf;
 }
+
+namespace {
 
 struct Lane {  // one estimator under test
     const EstimatorSpec* spec;
@@ -110,8 +110,8 @@ std::string new_run_id() {
     char buf[32];
     std::strftime(buf, sizeof buf, "%Y%m%dT%H%M%SZ", &tm);
     std::random_device rd;
-    char tail[8];
-    std::snprintf(tail, sizeof tail, "%04x", rd() & 0xffff);
+    char tail[12];
+    std::snprintf(tail, sizeof tail, "%08x", static_cast<unsigned>(rd()));
     return std::string(buf) + "-" + tail;
 }
 

@@ -45,6 +45,8 @@ nlohmann::json execute_run(const Scenario& sc, const RunOptions& o = {});
 // Exit code for a report: 0 PASS/MARGINAL, 1 FAIL, 2 ERROR/ABORTED.
 int exit_code(const nlohmann::json& report);
 
+// "20261121T150745Z-1a2b3c4d": UTC time plus 32 random bits.
 std::string new_run_id();
+std::string iso_now();  // "2026-11-21T15:07:45Z"
 
 }  // namespace fringe

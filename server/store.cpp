@@ -2,6 +2,7 @@
 
 #include <sqlite3.h>
 
+#include <cerrno>
 #include <csignal>
 #include <cstdlib>
 #include <filesystem>
@@ -61,10 +62,46 @@ void RunStore::exec(const std::string& sql) const {
     }
 }
 
-void RunStore::begin(const std::string& id, const std::string& created_at, const std::string& scenario, const std::string& dut) {
-    Stmt st(db_, "INSERT INTO runs (id, created_at, scenario, dut, status, pid) VALUES (?, ?, ?, ?, 'running', ?)");
-    st.bind(1, id); st.bind(2, created_at); st.bind(3, scenario); st.bind(4, dut); st.bind(5, static_cast<long long>(getpid()));
+namespace {
+bool process_gone(long long pid) { return pid > 0 && kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH; }
+}  // namespace
+
+void RunStore::begin(const std::string& id, const std::string& created_at, const std::string& scenario, const std::string& dut,
+                     const std::string& status) {
+    Stmt st(db_, "INSERT INTO runs (id, created_at, scenario, dut, status, pid) VALUES (?, ?, ?, ?, ?, ?)");
+    st.bind(1, id); st.bind(2, created_at); st.bind(3, scenario); st.bind(4, dut); st.bind(5, status);
+    st.bind(6, static_cast<long long>(getpid()));
     if (sqlite3_step(st.s) != SQLITE_DONE) throw StoreError(std::string("run store: ") + sqlite3_errmsg(db_));
+}
+
+void RunStore::set_status(const std::string& id, const std::string& status) {
+    Stmt st(db_, "UPDATE runs SET status = ?2 WHERE id = ?1");
+    st.bind(1, id); st.bind(2, status);
+    if (sqlite3_step(st.s) != SQLITE_DONE) throw StoreError(std::string("run store: ") + sqlite3_errmsg(db_));
+}
+
+std::optional<RunRow> RunStore::row(const std::string& id) const {
+    Stmt st(db_, "SELECT id, created_at, scenario, dut, status, COALESCE(verdict, ''), COALESCE(pid, 0) FROM runs WHERE id = ?1");
+    st.bind(1, id);
+    if (sqlite3_step(st.s) != SQLITE_ROW) return std::nullopt;
+    RunRow r{st.text(0), st.text(1), st.text(2), st.text(3), st.text(4), st.text(5)};
+    if ((r.status == "running" || r.status == "queued") && process_gone(sqlite3_column_int64(st.s, 6))) r.status = "interrupted";
+    return r;
+}
+
+int RunStore::mark_dead_interrupted() {
+    std::vector<std::string> dead;
+    {
+        Stmt st(db_, "SELECT id, COALESCE(pid, 0) FROM runs WHERE status IN ('queued', 'running')");
+        while (sqlite3_step(st.s) == SQLITE_ROW)
+            if (process_gone(sqlite3_column_int64(st.s, 1))) dead.push_back(st.text(0));
+    }
+    for (const auto& id : dead) {
+        Stmt st(db_, "UPDATE runs SET status = 'interrupted', verdict = 'ABORTED', pid = NULL WHERE id = ?1");
+        st.bind(1, id);
+        if (sqlite3_step(st.s) != SQLITE_DONE) throw StoreError(std::string("run store: ") + sqlite3_errmsg(db_));
+    }
+    return static_cast<int>(dead.size());
 }
 
 void RunStore::finish(const nlohmann::json& r) {
@@ -96,9 +133,8 @@ std::vector<RunRow> RunStore::list(const RunFilter& f) const {
     std::vector<RunRow> out;
     while (sqlite3_step(st.s) == SQLITE_ROW) {
         RunRow r{st.text(0), st.text(1), st.text(2), st.text(3), st.text(4), st.text(5)};
-        const long long pid = sqlite3_column_int64(st.s, 6);
         // A run whose process is gone never completed: report it as interrupted.
-        if (r.status == "running" && pid > 0 && kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH) r.status = "interrupted";
+        if ((r.status == "running" || r.status == "queued") && process_gone(sqlite3_column_int64(st.s, 6))) r.status = "interrupted";
         out.push_back(std::move(r));
     }
     return out;

@@ -38,10 +38,17 @@ public:
     RunStore(const RunStore&) = delete;
     RunStore& operator=(const RunStore&) = delete;
 
-    void begin(const std::string& id, const std::string& created_at, const std::string& scenario, const std::string& dut);
+    // status "running" (the CLI) or "queued" (the service); the row records this process.
+    void begin(const std::string& id, const std::string& created_at, const std::string& scenario, const std::string& dut,
+               const std::string& status = "running");
+    void set_status(const std::string& id, const std::string& status);
     void finish(const nlohmann::json& report);  // by report["id"]; inserts if begin() was not called
     std::vector<RunRow> list(const RunFilter& f = {}) const;
     std::optional<nlohmann::json> report(const std::string& id) const;
+    std::optional<RunRow> row(const std::string& id) const;
+    // Rows left "queued" or "running" by a process that is gone become "interrupted" for
+    // good (the service calls this at start). Returns how many.
+    int mark_dead_interrupted();
     const std::string& path() const { return path_; }
 
 private:

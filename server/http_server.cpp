@@ -1,0 +1,311 @@
+#include "http_server.hpp"
+
+#include <boost/asio/ip/tcp.hpp>
+#include <boost/asio/signal_set.hpp>
+#include <boost/asio/steady_timer.hpp>
+#include <boost/asio/strand.hpp>
+#include <boost/beast/core.hpp>
+#include <boost/beast/http.hpp>
+#include <spdlog/spdlog.h>
+
+#include <atomic>
+#include <limits>
+#include <chrono>
+#include <filesystem>
+#include <mutex>
+#include <optional>
+#include <stdexcept>
+#include <thread>
+
+namespace fringe {
+
+namespace beast = boost::beast;
+namespace http = beast::http;
+namespace net = boost::asio;
+using tcp = net::ip::tcp;
+
+namespace {
+
+tcp::endpoint parse_bind(const std::string& bind) {
+    const auto colon = bind.rfind(':');
+    if (colon == std::string::npos) throw std::runtime_error("--bind " + bind + ": expected host:port (e.g. 127.0.0.1:8080 or [::1]:8080)");
+    std::string host = bind.substr(0, colon);
+    const std::string port = bind.substr(colon + 1);
+    if (host.size() >= 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
+    if (host.empty() || host == "localhost") host = "127.0.0.1";
+    boost::system::error_code ec;
+    const auto addr = net::ip::make_address(host, ec);
+    if (ec) throw std::runtime_error("--bind " + bind + ": '" + host + "' is not an IP address");
+    int p = -1;
+    try {
+        std::size_t used = 0;
+        p = std::stoi(port, &used);
+        if (used != port.size()) p = -1;
+    } catch (const std::exception&) {
+    }
+    if (p < 0 || p > 65535) throw std::runtime_error("--bind " + bind + ": '" + port + "' is not a port number");
+    return {addr, static_cast<unsigned short>(p)};
+}
+
+struct Shared {
+    Service& svc;
+    HttpServerOptions opt;
+};
+
+class Session : public std::enable_shared_from_this<Session> {
+public:
+    Session(tcp::socket&& s, Shared& sh) : stream_(std::move(s)), sh_(sh), timer_(stream_.get_executor()) {}
+
+    void start() {
+        net::dispatch(stream_.get_executor(), beast::bind_front_handler(&Session::read_header, shared_from_this()));
+    }
+
+private:
+    void read_header() {
+        head_.emplace();
+        head_->header_limit(16 * 1024);
+        head_->body_limit(std::numeric_limits<std::uint64_t>::max());  // decided in on_header
+        stream_.expires_after(std::chrono::seconds(sh_.opt.read_timeout_s));
+        http::async_read_header(stream_, buf_, *head_, beast::bind_front_handler(&Session::on_header, shared_from_this()));
+    }
+
+    void on_header(beast::error_code ec, std::size_t) {
+        if (ec) {  // end of stream, timeout, garbage
+            if (ec != http::error::end_of_stream && ec != beast::error::timeout) spdlog::warn("header: {}", ec.message());
+            return close();
+        }
+        const auto& h = head_->get();
+        req_ = HttpRequest{};
+        req_.method = std::string(h.method_string());
+        req_.target = std::string(h.target());
+        for (const auto& f : h) {
+            std::string k(f.name_string());
+            for (auto& c : k) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+            req_.headers[k] = std::string(f.value());
+        }
+        keep_alive_ = h.keep_alive();
+        const auto len = head_->content_length();
+        if (auto early = sh_.svc.precheck(req_, len ? *len : 0, len.has_value())) {
+            // The body (if any) is not read: answer and close.
+            const bool has_body = (len && *len > 0) || head_->chunked();
+            return respond(std::move(*early), keep_alive_ && !has_body);
+        }
+        if (sh_.svc.is_upload(req_.method, req_.target)) {
+            upload_path_ = sh_.svc.new_upload_path();
+            file_.emplace(std::move(*head_));
+            file_->body_limit(sh_.svc.config().max_upload_bytes);
+            file_->get().body().open(upload_path_.c_str(), beast::file_mode::write, ec);
+            if (ec) return respond(json_error(500, "upload", "cannot store the upload: " + ec.message()), false);
+            stream_.expires_after(std::chrono::seconds(std::max(sh_.opt.read_timeout_s, 300)));
+            http::async_read(stream_, buf_, *file_, beast::bind_front_handler(&Session::on_body, shared_from_this()));
+        } else {
+            str_.emplace(std::move(*head_));
+            str_->body_limit(sh_.svc.config().max_body_bytes);
+            http::async_read(stream_, buf_, *str_, beast::bind_front_handler(&Session::on_body, shared_from_this()));
+        }
+    }
+
+    void on_body(beast::error_code ec, std::size_t) {
+        if (ec == http::error::body_limit) {
+            drop_upload();
+            return respond(json_error(413, "body_too_large", "the body exceeds this endpoint's limit"), false);
+        }
+        if (ec) {
+            spdlog::warn("{} {}: {}", req_.method, req_.target, ec.message());
+            drop_upload();  // a client that went away mid-upload leaves nothing behind
+            return close();
+        }
+        if (file_) {
+            file_->get().body().close();
+            req_.body_file = upload_path_;
+        } else {
+            req_.body = std::move(str_->get().body());
+        }
+        HttpResponse res = sh_.svc.handle(req_);
+        drop_upload();  // the service moved it into place if it kept it
+        file_.reset();
+        str_.reset();
+        if (!res.events_run.empty()) return start_events(res.events_run);
+        respond(std::move(res), keep_alive_);
+    }
+
+    void drop_upload() {
+        if (upload_path_.empty()) return;
+        std::error_code fec;
+        std::filesystem::remove(upload_path_, fec);
+        upload_path_.clear();
+    }
+
+    void respond(HttpResponse&& r, bool keep) {
+        auto res = std::make_shared<http::response<http::string_body>>(static_cast<http::status>(r.status), 11);
+        res->set(http::field::server, "fringe/" FRINGE_VERSION);
+        res->set(http::field::content_type, r.content_type);
+        res->set("X-Content-Type-Options", "nosniff");
+        for (const auto& [k, v] : r.headers) res->insert(k, v);
+        res->keep_alive(keep);
+        res->body() = std::move(r.body);
+        res->prepare_payload();
+        res_ = res;  // alive until the write completes (Beast 1.74 has no message_generator)
+        stream_.expires_after(std::chrono::seconds(sh_.opt.read_timeout_s));
+        http::async_write(stream_, *res, beast::bind_front_handler(&Session::on_write, shared_from_this(), !keep));
+    }
+
+    void on_write(bool close_after, beast::error_code ec, std::size_t) {
+        res_.reset();
+        if (ec || close_after) return close();
+        read_header();
+    }
+
+    // ---- server-sent events: progress until the run ends, then close ----
+    void start_events(const std::string& id) {
+        ev_id_ = id;
+        out_ = "HTTP/1.1 200 OK\r\nServer: fringe/" FRINGE_VERSION "\r\nContent-Type: text/event-stream\r\nCache-Control: no-cache\r\n"
+               "X-Content-Type-Options: nosniff\r\nConnection: close\r\n\r\nretry: 1000\n\n";
+        last_write_ = std::chrono::steady_clock::now();
+        write_events(false);
+    }
+
+    void write_events(bool last) {
+        stream_.expires_after(std::chrono::seconds(10));
+        net::async_write(stream_, net::buffer(out_), [self = shared_from_this(), last](beast::error_code ec, std::size_t) {
+            self->out_.clear();
+            self->stream_.expires_never();
+            if (ec || last) return self->close();
+            self->last_write_ = std::chrono::steady_clock::now();
+            self->poll_events();
+        });
+    }
+
+    void poll_events() {
+        const auto s = sh_.svc.run_state(ev_id_);
+        if (!s) return close();
+        if (s->seq != last_seq_ || s->finished()) {
+            last_seq_ = s->seq;
+            out_ = Service::sse_event(*s);
+            return write_events(s->finished());
+        }
+        if (std::chrono::steady_clock::now() - last_write_ > std::chrono::seconds(15)) {
+            out_ = ": keep-alive\n\n";
+            return write_events(false);
+        }
+        timer_.expires_after(std::chrono::milliseconds(sh_.opt.event_poll_ms));
+        timer_.async_wait([self = shared_from_this()](beast::error_code ec) {
+            if (ec) return self->close();
+            self->poll_events();
+        });
+    }
+
+    void close() {
+        drop_upload();
+        beast::error_code ec;
+        stream_.socket().shutdown(tcp::socket::shutdown_both, ec);
+        stream_.socket().close(ec);
+    }
+
+    beast::tcp_stream stream_;
+    Shared& sh_;
+    net::steady_timer timer_;
+    beast::flat_buffer buf_;
+    std::optional<http::request_parser<http::empty_body>> head_;
+    std::optional<http::request_parser<http::string_body>> str_;
+    std::optional<http::request_parser<http::file_body>> file_;
+    HttpRequest req_;
+    bool keep_alive_ = true;
+    std::shared_ptr<void> res_;
+    std::string upload_path_;
+    std::string ev_id_, out_;
+    std::uint64_t last_seq_ = 0;
+    std::chrono::steady_clock::time_point last_write_;
+};
+
+}  // namespace
+
+bool is_loopback_bind(const std::string& bind) { return parse_bind(bind).address().is_loopback(); }
+
+struct HttpServer::Impl {
+    Shared sh;
+    net::io_context ioc;
+    tcp::acceptor acceptor;
+    net::signal_set signals;
+    std::once_flag stop_once;
+    std::thread stopper;
+    tcp::endpoint local;
+
+    Impl(Service& s, HttpServerOptions o)
+        : sh{s, std::move(o)}, ioc(static_cast<int>(std::max(1u, sh.opt.threads))), acceptor(net::make_strand(ioc)), signals(ioc) {
+        const auto ep = parse_bind(sh.opt.bind);
+        beast::error_code ec;
+        acceptor.open(ep.protocol(), ec);
+        if (!ec) acceptor.set_option(net::socket_base::reuse_address(true), ec);
+        if (!ec) acceptor.bind(ep, ec);
+        if (!ec) acceptor.listen(net::socket_base::max_listen_connections, ec);
+        if (ec) throw std::runtime_error("cannot listen on " + sh.opt.bind + ": " + ec.message());
+        local = acceptor.local_endpoint();
+    }
+
+    void accept() {
+        acceptor.async_accept(net::make_strand(ioc), [this](beast::error_code ec, tcp::socket s) {
+            if (ec == net::error::operation_aborted || !acceptor.is_open()) return;
+            if (!ec) {
+                s.set_option(tcp::no_delay(true), ec);
+                std::make_shared<Session>(std::move(s), sh)->start();
+            }
+            accept();
+        });
+    }
+
+    void stop() {
+        std::call_once(stop_once, [this] {
+            net::post(acceptor.get_executor(), [this] {
+                beast::error_code ec;
+                acceptor.close(ec);
+                signals.cancel(ec);
+            });
+            // Runs end after their current block and are stored before the sockets go.
+            stopper = std::thread([this] {
+                sh.svc.shutdown();
+                std::this_thread::sleep_for(std::chrono::milliseconds(2 * sh.opt.event_poll_ms + 50));  // last events out
+                ioc.stop();
+            });
+        });
+    }
+};
+
+HttpServer::HttpServer(Service& service, HttpServerOptions o) : impl_(std::make_unique<Impl>(service, std::move(o))) {}
+
+HttpServer::~HttpServer() {
+    stop();
+    if (impl_->stopper.joinable()) impl_->stopper.join();
+}
+
+unsigned short HttpServer::port() const { return impl_->local.port(); }
+
+std::string HttpServer::url() const {
+    const auto a = impl_->local.address();
+    std::string host = a.is_v6() ? "[" + a.to_string() + "]" : a.to_string();
+    if (a.is_unspecified()) host = a.is_v6() ? "[::1]" : "127.0.0.1";
+    return "http://" + host + ":" + std::to_string(port()) + "/";
+}
+
+void HttpServer::run() {
+    if (impl_->sh.opt.handle_signals) {
+        impl_->signals.add(SIGINT);
+        impl_->signals.add(SIGTERM);
+        impl_->signals.async_wait([this](beast::error_code ec, int sig) {
+            if (ec) return;
+            spdlog::info("signal {}: stopping (running runs end as interrupted, their reports kept)", sig);
+            stop();
+        });
+    }
+    impl_->accept();
+    std::vector<std::thread> extra;
+    for (unsigned i = 1; i < std::max(1u, impl_->sh.opt.threads); ++i) extra.emplace_back([this] { impl_->ioc.run(); });
+    impl_->ioc.run();
+    for (auto& t : extra) t.join();
+    if (impl_->stopper.joinable()) impl_->stopper.join();
+    impl_->sh.svc.shutdown();
+}
+
+void HttpServer::stop() { impl_->stop(); }
+
+}  // namespace fringe

@@ -1,0 +1,122 @@
+// The HTTP service's logic without a socket (STYLE.md, Beast's clean-shutdown example):
+// handle(request) -> response. server/http_server.cpp carries requests here from Beast;
+// tests call handle() directly and also go through a real socket.
+//
+// API under /api/v1 (docs/http-api.md): health, estimators, drivers, devices, fixtures,
+// runs (create, list, get, cancel, report.json|.xml|.html, traces, events), captures
+// (upload, list, evaluate). Errors are {"error":{"code","message","field"}}.
+#pragma once
+
+#include "run_manager.hpp"
+#include "store.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <cstdint>
+#include <list>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace fringe {
+
+struct ServiceConfig {
+    std::string data_dir;      // runs.db, captures/
+    std::string fixtures_dir;  // scenarios/, encoders/ (what {"fixture": NAME} and file references may name)
+    std::string web_dir;       // static UI; web/vendor/ holds uPlot
+    std::string token;         // bearer token for state changes (and for everything when not loopback-only)
+    bool token_for_reads = false;  // bound beyond loopback
+    std::size_t max_body_bytes = 1 << 20;             // JSON bodies
+    std::uint64_t max_upload_bytes = 256ull << 20;    // capture uploads, streamed to disk
+    unsigned workers = 2;
+    bool allow_external = false;  // the `external` estimator runs a shell command: off over HTTP unless asked for
+};
+
+struct HttpRequest {
+    std::string method, target;
+    std::map<std::string, std::string> headers;  // keys lower case
+    std::string body;
+    std::string body_file;  // a streamed upload already on disk (captures)
+};
+
+struct HttpResponse {
+    int status = 200;
+    std::string content_type = "application/json";
+    std::string body;
+    std::vector<std::pair<std::string, std::string>> headers;
+    std::string events_run;  // non-empty: stream this run's progress as server-sent events
+};
+
+HttpResponse json_error(int status, const std::string& code, const std::string& message, const std::string& field = "");
+
+class Service {
+public:
+    explicit Service(ServiceConfig cfg);
+    ~Service();
+    Service(const Service&) = delete;
+    Service& operator=(const Service&) = delete;
+
+    HttpResponse handle(const HttpRequest& req);
+
+    // Decided from the request line and headers, before any body is read: an answer that
+    // ends the request early (token missing, body too large, unknown route), or nullopt.
+    std::optional<HttpResponse> precheck(const HttpRequest& head, std::uint64_t content_length, bool has_length) const;
+    // POST /api/v1/captures streams its body to a file instead of memory.
+    bool is_upload(const std::string& method, const std::string& target) const;
+    std::string new_upload_path();  // in data_dir/captures, removed on failure
+
+    // Progress of a run for the events stream; nullopt if the id is unknown.
+    std::optional<RunSnapshot> run_state(const std::string& id);
+    static std::string sse_event(const RunSnapshot& s);
+
+    RunManager& runs() { return *runs_; }
+    const ServiceConfig& config() const { return cfg_; }
+    // Stops the queue: running runs end "interrupted" with their partial reports stored.
+    void shutdown();
+
+private:
+    HttpResponse route(const HttpRequest& req, const std::string& path, const std::map<std::string, std::string>& query);
+    HttpResponse create_run(const HttpRequest& req);
+    HttpResponse list_runs(const std::map<std::string, std::string>& query);
+    HttpResponse get_run(const std::string& id);
+    HttpResponse run_artifact(const std::string& id, const std::string& what, const std::map<std::string, std::string>& query);
+    HttpResponse upload_capture(const HttpRequest& req, const std::map<std::string, std::string>& query);
+    HttpResponse list_captures();
+    HttpResponse evaluate(const HttpRequest& req, const std::string& id);
+    HttpResponse fixtures();
+    HttpResponse fixture(const std::string& name);
+    HttpResponse devices();
+    HttpResponse static_file(const std::string& path) const;
+    std::optional<HttpResponse> check_token(const HttpRequest& req, bool state_change) const;
+    // Makes a client's scenario safe to run here: file references must stay inside
+    // fixtures_dir, capture: devices must name an uploaded capture, `external` needs
+    // allow_external. Throws ConfigError naming the field.
+    nlohmann::json sandbox_scenario(nlohmann::json j) const;
+    std::string capture_path(const std::string& id) const;  // "" if no such upload
+
+    struct Cached {
+        std::string json, json_full, xml, html, traces;
+    };
+    std::shared_ptr<const Cached> cached_report(const std::string& id);
+
+    ServiceConfig cfg_;
+    std::mutex store_mu_;
+    std::unique_ptr<RunStore> store_;
+    std::unique_ptr<RunManager> runs_;
+    std::map<std::string, std::pair<std::string, std::string>> static_;  // url path -> (content type, bytes)
+    std::mutex cache_mu_;
+    std::map<std::string, std::pair<std::shared_ptr<const Cached>, std::list<std::string>::iterator>> cache_;
+    std::list<std::string> lru_;
+    std::mutex upload_mu_;
+    std::uint64_t upload_counter_ = 0;
+};
+
+// Bearer token: read from path, or created there (mode 0600, 256 random bits, hex) when
+// absent. created is set when this call made it.
+std::string load_or_create_token(const std::string& path, bool* created);
+
+}  // namespace fringe
