@@ -197,7 +197,7 @@ Service::Service(ServiceConfig cfg) : cfg_(std::move(cfg)) {
             if (rel.rfind("node_modules", 0) == 0 || rel.find("/.") != std::string::npos || rel[0] == '.') continue;
             static_["/" + rel] = {content_type_for(e.path().extension().string()), read_file(e.path())};
         }
-        if (!static_.count("/vendor/uPlot.iife.min.js")) spdlog::warn("web/vendor/uPlot.iife.min.js is missing (scripts/setup vendors it from npm): plots will not draw");
+        if (!static_.count("/vendor/uPlot.esm.js")) spdlog::warn("web/vendor/uPlot.esm.js is missing (scripts/setup vendors it from npm): plots will not draw");
     }
 }
 
