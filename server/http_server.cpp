@@ -228,6 +228,7 @@ struct HttpServer::Impl {
     tcp::acceptor acceptor;
     net::signal_set signals;
     std::once_flag stop_once;
+    std::mutex stopper_mu;  // the stopper may end the io loop before its assignment completes
     std::thread stopper;
     tcp::endpoint local;
 
@@ -256,16 +257,19 @@ struct HttpServer::Impl {
 
     void stop() {
         std::call_once(stop_once, [this] {
+            {
+                // Runs end after their current block and are stored before the sockets go.
+                std::lock_guard<std::mutex> l(stopper_mu);
+                stopper = std::thread([this] {
+                    sh.svc.shutdown();
+                    std::this_thread::sleep_for(std::chrono::milliseconds(2 * sh.opt.event_poll_ms + 50));  // last events out
+                    ioc.stop();
+                });
+            }
             net::post(acceptor.get_executor(), [this] {
                 beast::error_code ec;
                 acceptor.close(ec);
                 signals.cancel(ec);
-            });
-            // Runs end after their current block and are stored before the sockets go.
-            stopper = std::thread([this] {
-                sh.svc.shutdown();
-                std::this_thread::sleep_for(std::chrono::milliseconds(2 * sh.opt.event_poll_ms + 50));  // last events out
-                ioc.stop();
             });
         });
     }
@@ -275,6 +279,7 @@ HttpServer::HttpServer(Service& service, HttpServerOptions o) : impl_(std::make_
 
 HttpServer::~HttpServer() {
     stop();
+    std::lock_guard<std::mutex> l(impl_->stopper_mu);
     if (impl_->stopper.joinable()) impl_->stopper.join();
 }
 
@@ -302,7 +307,10 @@ void HttpServer::run() {
     for (unsigned i = 1; i < std::max(1u, impl_->sh.opt.threads); ++i) extra.emplace_back([this] { impl_->ioc.run(); });
     impl_->ioc.run();
     for (auto& t : extra) t.join();
-    if (impl_->stopper.joinable()) impl_->stopper.join();
+    {
+        std::lock_guard<std::mutex> l(impl_->stopper_mu);
+        if (impl_->stopper.joinable()) impl_->stopper.join();
+    }
     impl_->sh.svc.shutdown();
 }
 

@@ -223,16 +223,20 @@ std::string report_html(const json& r) {
           << "</td><td>" << bget("per_sample_crb_rad") << "</td><td>" << bget("pcrb_rad") << "</td><td>" << bget("efficiency") << "</td></tr>\n";
     }
     h << "</table>\n<h2>Plots</h2><div class=\"plots\">\n";
-    const auto& tr = r["traces"];
-    h << svg_plot("Lissajous (ADC input)", "cos (V)", "sin (V)", {{"input", {&tr["cos_v"], &tr["sin_v"]}}}, true, true);
-    std::vector<std::pair<std::string, std::pair<const json*, const json*>>> by_angle, by_time;
-    for (const auto& [label, errs] : tr["error_rad"].items()) {
-        by_angle.push_back({label, {&tr["theta_true_wrapped_rad"], &errs}});
-        by_time.push_back({label, {&tr["t_s"], &errs}});
+    const auto& tr = r.contains("traces") ? r["traces"] : json::object();
+    if (!tr.contains("t_s") || tr["t_s"].empty()) {
+        h << "<p>No traces: the run processed no samples.</p>";
+    } else {
+        h << svg_plot("Lissajous (ADC input)", "cos (V)", "sin (V)", {{"input", {&tr["cos_v"], &tr["sin_v"]}}}, true, true);
+        std::vector<std::pair<std::string, std::pair<const json*, const json*>>> by_angle, by_time;
+        for (const auto& [label, errs] : tr["error_rad"].items()) {
+            by_angle.push_back({label, {&tr["theta_true_wrapped_rad"], &errs}});
+            by_time.push_back({label, {&tr["t_s"], &errs}});
+        }
+        h << svg_plot("Error vs electrical angle", "electrical angle (rad)", "error (rad)", by_angle, true);
+        h << svg_plot("Error vs time", "time (s)", "error (rad)", by_time, false);
+        h << svg_bars(r["estimators"]);
     }
-    h << svg_plot("Error vs electrical angle", "electrical angle (rad)", "error (rad)", by_angle, true);
-    h << svg_plot("Error vs time", "time (s)", "error (rad)", by_time, false);
-    h << svg_bars(r["estimators"]);
     h << "\n</div>\n<h2>Scenario as run</h2><pre>" << xml_escape(r["scenario"].dump(2)) << "</pre>\n</body></html>\n";
     return h.str();
 }

@@ -205,6 +205,7 @@ void RunManager::worker() {
 }
 
 void RunManager::shutdown() {
+    std::lock_guard<std::mutex> once(shutdown_mu_);  // concurrent callers wait for the first to finish
     std::vector<std::shared_ptr<Job>> queued;
     {
         std::lock_guard<std::mutex> l(mu_);

@@ -76,6 +76,7 @@ private:
     RunStore& store_;
     std::mutex& store_mu_;
     mutable std::mutex mu_;
+    std::mutex shutdown_mu_;
     mutable std::condition_variable cv_;         // work for the workers
     mutable std::condition_variable changed_;    // progress for the waiters
     std::deque<std::shared_ptr<Job>> queue_;

@@ -1,0 +1,453 @@
+// The HTTP service: Service::handle without a socket, then the same through a real socket on
+// 127.0.0.1 (HttpServer on a free port).
+#include "drivers/capture_file.hpp"
+#include "helpers.hpp"
+#include "server/http_server.hpp"
+#include "server/service.hpp"
+
+#include <catch2/catch.hpp>
+#include <nlohmann/json.hpp>
+
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <thread>
+
+using namespace fringe;
+using nlohmann::json;
+namespace fs = std::filesystem;
+
+namespace {
+
+struct TempDir {
+    fs::path path;
+    TempDir() {
+        path = fs::temp_directory_path() / ("fringe-svc-" + std::to_string(getpid()) + "-" + std::to_string(std::random_device{}()));
+        fs::create_directories(path);
+    }
+    ~TempDir() {
+        std::error_code ec;
+        fs::remove_all(path, ec);
+    }
+};
+
+constexpr const char* kToken = "0123456789abcdef0123456789abcdef";
+
+ServiceConfig config(const TempDir& d) {
+    ServiceConfig c;
+    c.data_dir = d.path.string();
+    c.fixtures_dir = FRINGE_SOURCE_DIR "/fixtures";
+    c.web_dir = FRINGE_SOURCE_DIR "/web";
+    c.token = kToken;
+    c.workers = 2;
+    c.max_body_bytes = 64 * 1024;
+    c.max_upload_bytes = 8 << 20;
+    return c;
+}
+
+HttpRequest req(const std::string& method, const std::string& target, const std::string& body = "", bool auth = true) {
+    HttpRequest r;
+    r.method = method;
+    r.target = target;
+    r.body = body;
+    if (auth) r.headers["authorization"] = std::string("Bearer ") + kToken;
+    return r;
+}
+
+json body_of(const HttpResponse& r) { return json::parse(r.body); }
+
+std::string wait_finished(Service& s, const std::string& id, int timeout_ms = 60000) {
+    const auto t0 = std::chrono::steady_clock::now();
+    std::uint64_t seq = 0;
+    while (std::chrono::steady_clock::now() - t0 < std::chrono::milliseconds(timeout_ms)) {
+        auto snap = s.runs().wait_change(id, seq, 200);
+        if (!snap) return "unknown";
+        if (snap->finished()) return snap->status;
+        seq = snap->seq;
+    }
+    return "timeout";
+}
+
+// A small capture with truth, written by the real writer.
+std::string capture_bytes(const TempDir& d, const std::string& ext) {
+    const auto enc = test::clean_ideal(1024);
+    const auto mot = test::constant_electrical(50.0, 1024);
+    Block b = test::generate(enc, mot, 20000.0, 4000);
+    const std::string path = (d.path / ("src" + ext)).string();
+    {
+        CaptureWriter w(path, CaptureColumns{true, true, false}, json{{"sample_rate_hz", 20000.0}, {"t0_s", 0.0}, {"encoder", enc}});
+        w.write(b);
+    }
+    std::ifstream f(path, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(f), {});
+}
+
+}  // namespace
+
+TEST_CASE("service: catalogue endpoints answer JSON", "[service]") {
+    TempDir d;
+    Service s(config(d));
+    auto h = s.handle(req("GET", "/api/v1/health", "", false));
+    CHECK(h.status == 200);
+    CHECK(body_of(h)["status"] == "ok");
+    auto e = body_of(s.handle(req("GET", "/api/v1/estimators", "", false)));
+    bool has_ekf = false;
+    for (const auto& x : e["estimators"]) has_ekf |= x["name"] == "ekf-diffraction";
+    CHECK(has_ekf);
+    auto f = body_of(s.handle(req("GET", "/api/v1/fixtures", "", false)));
+    bool fig10c = false;
+    for (const auto& x : f["fixtures"]) fig10c |= x["name"] == "fig10c-loopback" && x["runnable"] == true;
+    CHECK(fig10c);
+    CHECK(body_of(s.handle(req("GET", "/api/v1/drivers", "", false)))["drivers"].size() >= 2);
+    CHECK(body_of(s.handle(req("GET", "/api/v1/devices", "", false)))["devices"][0]["uri"] == "loopback:");
+    CHECK(body_of(s.handle(req("GET", "/api/v1/fixtures/fig10c-loopback", "", false)))["scenario"]["name"] == "fig10c-loopback");
+    auto idx = s.handle(req("GET", "/", "", false));
+    CHECK(idx.status == 200);
+    CHECK(idx.content_type.find("text/html") == 0);
+}
+
+TEST_CASE("service: errors are JSON with the right status", "[service]") {
+    TempDir d;
+    Service s(config(d));
+    auto err = [](const HttpResponse& r) { return json::parse(r.body)["error"]; };
+
+    SECTION("state changes need the token: 401 without, 403 wrong") {
+        auto r = s.handle(req("POST", "/api/v1/runs", R"({"fixture":"fig10c-loopback"})", false));
+        CHECK(r.status == 401);
+        CHECK(err(r)["code"] == "unauthorized");
+        bool www = false;
+        for (const auto& [k, v] : r.headers) www |= k == "WWW-Authenticate";
+        CHECK(www);
+        auto w = req("POST", "/api/v1/runs", R"({"fixture":"fig10c-loopback"})", false);
+        w.headers["authorization"] = "Bearer not-the-token-at-all-000000000";
+        CHECK(s.handle(w).status == 403);
+        w.headers["authorization"] = "Basic abc";
+        CHECK(s.handle(w).status == 403);
+        CHECK(s.handle(req("POST", "/api/v1/runs/x/cancel", "", false)).status == 401);
+    }
+    SECTION("reads need the token too when bound beyond loopback") {
+        auto c = config(d);
+        c.token_for_reads = true;
+        c.data_dir = (d.path / "other").string();
+        Service open(c);
+        CHECK(open.handle(req("GET", "/api/v1/health", "", false)).status == 401);
+        CHECK(open.handle(req("GET", "/api/v1/health")).status == 200);
+    }
+    SECTION("malformed JSON, unknown keys, wrong types") {
+        auto r = s.handle(req("POST", "/api/v1/runs", R"({"fixture": )"));
+        CHECK(r.status == 400);
+        CHECK(err(r)["message"].get<std::string>().find("malformed JSON") != std::string::npos);
+        r = s.handle(req("POST", "/api/v1/runs", R"({"fixture":"fig10c-loopback","colour":1})"));
+        CHECK(r.status == 400);
+        CHECK(err(r)["field"] == "colour");
+        r = s.handle(req("POST", "/api/v1/runs", R"({"fixture":"no-such"})"));
+        CHECK(r.status == 400);
+        CHECK(err(r)["field"] == "fixture");
+        r = s.handle(req("POST", "/api/v1/runs", R"({})"));
+        CHECK(r.status == 400);
+        json sc = body_of(s.handle(req("GET", "/api/v1/fixtures/fig10c-loopback")))["scenario"];
+        sc["bogus_key"] = 1;
+        r = s.handle(req("POST", "/api/v1/runs", json{{"scenario", sc}}.dump()));
+        CHECK(r.status == 400);
+        CHECK(err(r)["field"] == "scenario.bogus_key");
+        sc.erase("bogus_key");
+        sc["sample_rate_hz"] = "fast";
+        r = s.handle(req("POST", "/api/v1/runs", json{{"scenario", sc}}.dump()));
+        CHECK(r.status == 400);
+        CHECK(err(r)["field"] == "scenario.sample_rate_hz");
+        sc["sample_rate_hz"] = 100000;
+        sc["estimators"][0]["params"] = {{"nope", 1}};
+        r = s.handle(req("POST", "/api/v1/runs", json{{"scenario", sc}}.dump()));
+        CHECK(r.status == 400);
+        CHECK(err(r)["field"] == "scenario.estimators[0].params.nope");
+        sc["estimators"][0]["params"] = json::object();
+        sc["device"] = "loopback:?adc_bits=99";
+        r = s.handle(req("POST", "/api/v1/runs", json{{"scenario", sc}}.dump()));
+        CHECK(r.status == 400);
+        CHECK(err(r)["field"] == "scenario.device.adc_bits");
+    }
+    SECTION("oversized bodies are refused from the headers") {
+        auto early = s.precheck(req("POST", "/api/v1/runs"), 10 << 20, true);
+        REQUIRE(early);
+        CHECK(early->status == 413);
+        CHECK_FALSE(s.precheck(req("POST", "/api/v1/captures"), 1 << 20, true));  // uploads have their own limit
+        CHECK(s.precheck(req("POST", "/api/v1/captures"), 9 << 20, true)->status == 413);
+        CHECK(s.handle(req("POST", "/api/v1/runs", std::string(70 * 1024, ' '))).status == 413);
+    }
+    SECTION("bad ids, unknown runs, traversal, methods") {
+        CHECK(err(s.handle(req("GET", "/api/v1/runs/a$b")))["code"] == "bad_id");
+        CHECK(s.handle(req("GET", "/api/v1/runs/" + std::string(65, 'a'))).status == 400);
+        CHECK(s.handle(req("GET", "/api/v1/runs/20000101T000000Z-deadbeef")).status == 404);
+        CHECK(s.handle(req("GET", "/api/v1/runs/20000101T000000Z-deadbeef/report.json")).status == 404);
+        CHECK(s.handle(req("GET", "/../../etc/passwd")).status == 400);
+        CHECK(s.handle(req("GET", "/api/v1/runs/../../x")).status == 400);
+        auto enc = s.handle(req("GET", "/%2e%2e/%2e%2e/etc/passwd"));
+        CHECK(enc.status == 404);
+        CHECK(enc.body.find("root:") == std::string::npos);
+        CHECK(s.handle(req("GET", "/api/v1/nothing")).status == 404);
+        CHECK(s.handle(req("DELETE", "/api/v1/runs")).status == 405);
+        CHECK(s.handle(req("GET", "/api/v1/runs/20000101T000000Z-deadbeef/cancel")).status == 405);
+        CHECK(s.handle(req("POST", "/index.html")).status == 405);
+        CHECK(err(s.handle(req("GET", "/api/v1/runs?limit=0")))["field"] == "limit");
+        CHECK(err(s.handle(req("GET", "/api/v1/runs?outcome=GREAT")))["field"] == "outcome");
+        CHECK(err(s.handle(req("GET", "/api/v1/runs?colour=red")))["field"] == "colour");
+    }
+    SECTION("a client's scenario cannot reach files or commands outside the bench") {
+        json sc = body_of(s.handle(req("GET", "/api/v1/fixtures/fig10c-loopback")))["scenario"];
+        auto post = [&](const json& x) { return s.handle(req("POST", "/api/v1/runs", json{{"scenario", x}}.dump())); };
+        json a = sc;
+        a["encoder"] = "/etc/passwd";
+        CHECK(err(post(a))["field"] == "scenario.encoder");
+        a["encoder"] = "../../../../etc/passwd";
+        CHECK(err(post(a))["field"] == "scenario.encoder");
+        a["encoder"] = "../encoders/ideal.json";  // inside the fixtures: fine
+        CHECK(post(a).status == 201);
+        json b = sc;
+        b["device"] = "capture:/etc/passwd";
+        CHECK(err(post(b))["field"] == "scenario.device");
+        json c = sc;
+        c["estimators"] = json::array({{{"name", "external"}, {"params", {{"command", "touch /tmp/pwned"}}}}});
+        c["limits"] = json::array();
+        CHECK(err(post(c))["field"] == "scenario.estimators[0].name");
+    }
+}
+
+TEST_CASE("service: a run from a fixture, its reports, and cancel", "[service]") {
+    TempDir d;
+    Service s(config(d));
+    auto created = s.handle(req("POST", "/api/v1/runs", R"({"fixture":"fig10c-loopback","seed":5})"));
+    REQUIRE(created.status == 201);
+    const std::string id = body_of(created)["id"];
+    CHECK(wait_finished(s, id) == "done");
+    auto run = body_of(s.handle(req("GET", "/api/v1/runs/" + id, "", false)));
+    CHECK(run["status"] == "done");
+    CHECK(run["verdict"] == "PASS");
+    CHECK(run["progress"]["done"] == 100000);
+    auto rep = body_of(s.handle(req("GET", "/api/v1/runs/" + id + "/report.json", "", false)));
+    CHECK(rep["schema"] == "fringe.report");
+    CHECK(rep["seed"] == 5);
+    CHECK_FALSE(rep.contains("traces"));
+    CHECK(body_of(s.handle(req("GET", "/api/v1/runs/" + id + "/report.json?traces=1", "", false)))["traces"]["t_s"].size() > 100);
+    auto tr = body_of(s.handle(req("GET", "/api/v1/runs/" + id + "/traces", "", false)));
+    CHECK(tr["traces"]["error_rad"].contains("ekf-diffraction"));
+    CHECK(tr["estimators"].size() == 3);
+    auto xml = s.handle(req("GET", "/api/v1/runs/" + id + "/report.xml", "", false));
+    CHECK(xml.content_type == "application/xml");
+    CHECK(xml.body.find("<testsuites") != std::string::npos);
+    auto html = s.handle(req("GET", "/api/v1/runs/" + id + "/report.html?download=1", "", false));
+    CHECK(html.body.find("<svg") != std::string::npos);
+    bool attachment = false;
+    for (const auto& [k, v] : html.headers) attachment |= k == "Content-Disposition" && v.find("attachment") == 0;
+    CHECK(attachment);
+    auto list = body_of(s.handle(req("GET", "/api/v1/runs?outcome=PASS&scenario=fig10c-loopback", "", false)));
+    REQUIRE(list["runs"].size() == 1);
+    CHECK(list["runs"][0]["id"] == id);
+    CHECK(body_of(s.handle(req("GET", "/api/v1/runs?outcome=FAIL", "", false)))["runs"].empty());
+    CHECK(s.handle(req("POST", "/api/v1/runs/" + id + "/cancel")).status == 409);
+
+    // A long run: its report is not there while it runs (409); cancel ends it ABORTED.
+    auto longrun = s.handle(req("POST", "/api/v1/runs", R"({"fixture":"perf-1e7"})"));
+    const std::string lid = body_of(longrun)["id"];
+    auto snap = s.runs().wait_change(lid, 1, 5000);
+    CHECK(s.handle(req("GET", "/api/v1/runs/" + lid + "/report.json", "", false)).status == 409);
+    CHECK(s.handle(req("POST", "/api/v1/runs/" + lid + "/cancel")).status == 202);
+    CHECK(wait_finished(s, lid) == "aborted");
+    auto aborted = body_of(s.handle(req("GET", "/api/v1/runs/" + lid + "/report.json", "", false)));
+    CHECK(aborted["verdict"] == "ABORTED");
+    CHECK(aborted["samples"]["processed"].get<std::uint64_t>() < 10000000u);
+}
+
+TEST_CASE("service: runs on one board queue, simulated runs go in parallel", "[service]") {
+    CHECK(device_key("loopback:?adc_bits=12").empty());
+    CHECK(device_key("capture:/x.fcap").empty());
+    CHECK(device_key("modbus+tcp://10.0.0.5:502?unit=1") == "modbus+tcp://10.0.0.5:502");
+    CHECK(device_key("usb:1209:ec01?serial=A") == device_key("usb:1209:ec01?serial=B"));  // one physical bus id: conservative
+    TempDir d;
+    Service s(config(d));
+    // Two long loopback runs with two workers are both running at once.
+    const std::string a = body_of(s.handle(req("POST", "/api/v1/runs", R"({"fixture":"perf-1e7"})")))["id"];
+    const std::string b = body_of(s.handle(req("POST", "/api/v1/runs", R"({"fixture":"perf-1e7"})")))["id"];
+    bool both = false;
+    for (int i = 0; i < 100 && !both; ++i) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+        both = s.runs().snapshot(a)->status == "running" && s.runs().snapshot(b)->status == "running";
+    }
+    CHECK(both);
+    // A third waits for a worker.
+    const std::string c = body_of(s.handle(req("POST", "/api/v1/runs", R"({"fixture":"fig10c-loopback"})")))["id"];
+    CHECK(s.runs().snapshot(c)->status == "queued");
+    CHECK(s.handle(req("POST", "/api/v1/runs/" + c + "/cancel")).status == 202);
+    CHECK(s.runs().snapshot(c)->status == "aborted");
+    CHECK(body_of(s.handle(req("GET", "/api/v1/runs/" + c + "/report.json", "", false)))["error"] == "cancelled while queued");
+
+    // Shutdown: running runs are stored as interrupted with their partial reports.
+    s.shutdown();
+    for (const auto& id : {a, b}) {
+        auto r = body_of(s.handle(req("GET", "/api/v1/runs/" + id, "", false)));
+        CHECK(r["status"] == "interrupted");
+        auto rep = body_of(s.handle(req("GET", "/api/v1/runs/" + id + "/report.json", "", false)));
+        CHECK(rep["status"] == "interrupted");
+    }
+    CHECK(s.handle(req("POST", "/api/v1/runs", R"({"fixture":"fig10c-loopback"})")).status == 500);
+}
+
+TEST_CASE("service: capture upload and evaluation", "[service]") {
+    TempDir d;
+    Service s(config(d));
+    for (const std::string ext : {".fcap", ".csv"}) {
+        auto up = s.handle(req("POST", "/api/v1/captures", capture_bytes(d, ext)));
+        REQUIRE(up.status == 201);
+        auto info = body_of(up);
+        CHECK(info["samples"] == 4000);
+        CHECK(info["has_truth"] == true);
+        CHECK(info["format"] == ext.substr(1));
+        CHECK(info["sample_rate_hz"].get<double>() == Approx(20000.0));
+        const std::string id = info["id"];
+        auto ev = s.handle(req("POST", "/api/v1/captures/" + id + "/evaluate", R"({"estimator":"atan2","settle_s":0.01})"));
+        REQUIRE(ev.status == 200);
+        auto rep = body_of(ev);
+        // Noise-free ideal quadrature: atan2 is exact to rounding.
+        CHECK(rep["metrics"]["rms"]["rad"].get<double>() < 1e-9);
+        CHECK(s.handle(req("POST", "/api/v1/captures/" + id + "/evaluate", R"({"estimator":"nope"})")).status == 400);
+        CHECK(s.handle(req("POST", "/api/v1/captures/" + id + "/evaluate", R"({"estimator":"atan2","x":1})")).status == 400);
+    }
+    CHECK(body_of(s.handle(req("GET", "/api/v1/captures")))["captures"].size() == 2);
+    auto bad = s.handle(req("POST", "/api/v1/captures", "t,sin,cos\n0,0.1,0.2\n1e-5,nan,0.3\n"));
+    CHECK(bad.status == 400);
+    CHECK(body_of(bad)["error"]["message"] == "upload:3: column sin: NaN");
+    CHECK(body_of(s.handle(req("GET", "/api/v1/captures")))["captures"].size() == 2);  // the bad one is gone
+    CHECK(s.handle(req("POST", "/api/v1/captures/20000101T000000Z-deadbeef/evaluate", R"({"estimator":"atan2"})")).status == 404);
+}
+
+TEST_CASE("service: token file is created 0600 once and then reused", "[service]") {
+    TempDir d;
+    const std::string p = (d.path / "sub" / "token").string();
+    bool created = false;
+    const std::string t = load_or_create_token(p, &created);
+    CHECK(created);
+    CHECK(t.size() == 64);
+    struct stat st {};
+    REQUIRE(::stat(p.c_str(), &st) == 0);
+    CHECK((st.st_mode & 0777) == 0600);
+    CHECK(load_or_create_token(p, &created) == t);
+    CHECK_FALSE(created);
+}
+
+// ---- through a real socket -------------------------------------------------------------
+
+namespace {
+
+int connect_to(unsigned short port) {
+    const int fd = ::socket(AF_INET, SOCK_STREAM, 0);
+    sockaddr_in a{};
+    a.sin_family = AF_INET;
+    a.sin_port = htons(port);
+    a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+    timeval tv{10, 0};
+    ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
+    REQUIRE(::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0);
+    return fd;
+}
+
+void send_all(int fd, const std::string& s) {
+    std::size_t off = 0;
+    while (off < s.size()) {
+        const auto n = ::send(fd, s.data() + off, s.size() - off, MSG_NOSIGNAL);
+        if (n <= 0) return;
+        off += static_cast<std::size_t>(n);
+    }
+}
+
+// Reads one response (Content-Length bodies) or until EOF.
+std::string read_response(int fd, bool to_eof = false) {
+    std::string buf;
+    char tmp[65536];
+    for (;;) {
+        if (!to_eof) {
+            const auto he = buf.find("\r\n\r\n");
+            if (he != std::string::npos) {
+                const auto cl = buf.find("Content-Length: ");
+                if (cl != std::string::npos && cl < he) {
+                    const auto len = std::stoul(buf.substr(cl + 16));
+                    if (buf.size() >= he + 4 + len) return buf.substr(0, he + 4 + len);
+                }
+            }
+        }
+        const auto n = ::recv(fd, tmp, sizeof tmp, 0);
+        if (n <= 0) return buf;
+        buf.append(tmp, static_cast<std::size_t>(n));
+    }
+}
+
+}  // namespace
+
+TEST_CASE("http server: real socket on 127.0.0.1", "[service][socket]") {
+    TempDir d;
+    Service s(config(d));
+    HttpServerOptions o;
+    o.bind = "127.0.0.1:0";
+    o.handle_signals = false;
+    HttpServer server(s, o);
+    std::thread t([&] { server.run(); });
+    const auto port = server.port();
+    CHECK(port != 0);
+
+    SECTION("keep-alive: two requests on one connection") {
+        const int fd = connect_to(port);
+        send_all(fd, "GET /api/v1/health HTTP/1.1\r\nHost: x\r\n\r\n");
+        auto r1 = read_response(fd);
+        CHECK(r1.rfind("HTTP/1.1 200", 0) == 0);
+        CHECK(r1.find("\"status\":\"ok\"") != std::string::npos);
+        send_all(fd, "GET /api/v1/runs/a$b HTTP/1.1\r\nHost: x\r\n\r\n");
+        auto r2 = read_response(fd);
+        CHECK(r2.rfind("HTTP/1.1 400", 0) == 0);
+        CHECK(r2.find("bad_id") != std::string::npos);
+        ::close(fd);
+    }
+    SECTION("a body over the limit is refused before it is read") {
+        const int fd = connect_to(port);
+        send_all(fd, std::string("POST /api/v1/runs HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer ") + kToken +
+                         "\r\nContent-Type: application/json\r\nContent-Length: 50000000\r\n\r\n{");
+        auto r = read_response(fd, true);
+        CHECK(r.rfind("HTTP/1.1 413", 0) == 0);
+        ::close(fd);
+    }
+    SECTION("no token: 401 over the wire") {
+        const int fd = connect_to(port);
+        send_all(fd, "POST /api/v1/runs HTTP/1.1\r\nHost: x\r\nContent-Length: 2\r\n\r\n{}");
+        CHECK(read_response(fd, true).rfind("HTTP/1.1 401", 0) == 0);
+        ::close(fd);
+    }
+    SECTION("create a run, follow its events to the end, fetch the report") {
+        int fd = connect_to(port);
+        const std::string body = R"({"fixture":"fig10c-loopback"})";
+        send_all(fd, std::string("POST /api/v1/runs HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer ") + kToken +
+                         "\r\nContent-Type: application/json\r\nContent-Length: " + std::to_string(body.size()) + "\r\n\r\n" + body);
+        auto r = read_response(fd);
+        REQUIRE(r.rfind("HTTP/1.1 201", 0) == 0);
+        const std::string id = json::parse(r.substr(r.find("\r\n\r\n") + 4))["id"];
+        ::close(fd);
+        fd = connect_to(port);
+        send_all(fd, "GET /api/v1/runs/" + id + "/events HTTP/1.1\r\nHost: x\r\nAccept: text/event-stream\r\n\r\n");
+        const auto ev = read_response(fd, true);  // the server closes after the end event
+        ::close(fd);
+        CHECK(ev.find("Content-Type: text/event-stream") != std::string::npos);
+        CHECK(ev.find("event: end") != std::string::npos);
+        CHECK(ev.find("\"verdict\":\"PASS\"") != std::string::npos);
+        fd = connect_to(port);
+        send_all(fd, "GET /api/v1/runs/" + id + "/report.xml HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+        auto x = read_response(fd, true);
+        ::close(fd);
+        CHECK(x.rfind("HTTP/1.1 200", 0) == 0);
+        CHECK(x.find("<testsuites") != std::string::npos);
+    }
+    server.stop();
+    t.join();
+}
