@@ -12,6 +12,9 @@ namespace fringe {
 using nlohmann::json;
 
 namespace {
+std::int64_t unix_ms() {
+    return std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
 constexpr std::size_t kKeepFinished = 256;  // finished runs kept in memory; older ones come from the store
 }
 
@@ -19,7 +22,7 @@ void to_json(json& j, const RunSnapshot& s) {
     j = json{{"id", s.id}, {"scenario", s.scenario}, {"dut", s.dut}, {"created_at", s.created_at}, {"status", s.status},
              {"device", s.device},
              {"progress", {{"done", s.done}, {"total", s.total}, {"fraction", s.total ? static_cast<double>(s.done) / static_cast<double>(s.total) : 0.0}}},
-             {"seq", s.seq}};
+             {"seq", s.seq}, {"updated_unix_ms", s.updated_unix_ms}};
     j["verdict"] = s.verdict.empty() ? json(nullptr) : json(s.verdict);
     j["error"] = s.error.empty() ? json(nullptr) : json(s.error);
 }
@@ -48,6 +51,7 @@ std::string RunManager::submit(Scenario sc) {
     job->snap.status = "queued";
     job->snap.total = sc.samples();
     job->snap.seq = 1;
+    job->snap.updated_unix_ms = unix_ms();
     job->key = device_key(sc.device);
     job->sc = std::move(sc);
     {
@@ -79,6 +83,7 @@ RunManager::CancelResult RunManager::cancel(const std::string& id) {
         job->snap.verdict = "ABORTED";
         job->snap.error = "cancelled while queued";
         ++job->snap.seq;
+        job->snap.updated_unix_ms = unix_ms();
         json report{{"schema", "fringe.report"}, {"schema_version", 1}, {"id", id}, {"started_at", job->snap.created_at},
                     {"finished_at", iso_now()}, {"scenario", job->sc}, {"seed", job->sc.seed}, {"status", "aborted"},
                     {"verdict", "ABORTED"}, {"error", "cancelled while queued"}, {"estimators", json::array()},
@@ -140,6 +145,7 @@ void RunManager::worker() {
             if (!job->key.empty()) ++busy_keys_[job->key];
             job->snap.status = "running";
             ++job->snap.seq;
+        job->snap.updated_unix_ms = unix_ms();
         }
         changed_.notify_all();
         {
@@ -155,6 +161,7 @@ void RunManager::worker() {
                 job->snap.done = done;
                 job->snap.total = total;
                 ++job->snap.seq;
+                job->snap.updated_unix_ms = unix_ms();
             }
             changed_.notify_all();
         };
@@ -190,6 +197,7 @@ void RunManager::worker() {
             job->snap.error = report["error"].is_string() ? report["error"].get<std::string>() : "";
             job->snap.done = report["samples"].value("processed", job->snap.done);
             ++job->snap.seq;
+        job->snap.updated_unix_ms = unix_ms();
             job->sc = Scenario{};  // the report has it now
             finished_order_.push_back(job->snap.id);
             while (finished_order_.size() > kKeepFinished) {
@@ -223,6 +231,7 @@ void RunManager::shutdown() {
             job->snap.verdict = "ABORTED";
             job->snap.error = "interrupted: the service shut down before the run started";
             ++job->snap.seq;
+        job->snap.updated_unix_ms = unix_ms();
         }
     }
     cv_.notify_all();

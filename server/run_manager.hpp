@@ -30,6 +30,7 @@ struct RunSnapshot {
     std::string id, scenario, dut, created_at, status, verdict, error, device;
     std::uint64_t done = 0, total = 0;
     std::uint64_t seq = 0;  // increases on every change: progress events compare it
+    std::int64_t updated_unix_ms = 0;  // wall clock of the last change (event latency is measured against it)
     bool finished() const { return status != "queued" && status != "running"; }
 };
 void to_json(nlohmann::json& j, const RunSnapshot& s);

@@ -131,6 +131,17 @@ try {
     method: 'POST', headers: { Authorization: `Bearer ${token}`, 'Content-Type': 'application/json' },
     body: JSON.stringify({ fixture: 'perf-1e7' }),
   })).json();
+  // Event latency as a browser sees it: arrival time minus the server's time of the change.
+  const lat = page.evaluate((id) => new Promise((resolve) => {
+    const es = new EventSource(`/api/v1/runs/${id}/events`);
+    const ms = [];
+    es.addEventListener('progress', (ev) => {
+      const s = JSON.parse(ev.data);
+      if (s.status === 'running' && s.progress.done > 0) ms.push(Date.now() - s.updated_unix_ms);
+      if (ms.length >= 20) { es.close(); resolve(ms); }
+    });
+    es.addEventListener('end', () => { es.close(); resolve(ms); });
+  }), longRun.id);
   await page.goto(`${url}#/run/${longRun.id}`);
   await page.waitForFunction(() => {
     const s = document.querySelector('#run-state');
@@ -138,6 +149,10 @@ try {
   }, null, { timeout: 30000 });
   await page.screenshot({ path: join(artifacts, 'progress.png') });
   check(true, 'live progress shown while the run is running');
+  const latencies = await lat;
+  latencies.sort((x, y) => x - y);
+  check(latencies.length >= 10 && latencies[latencies.length - 1] < 250,
+    `progress events reach the browser within 250 ms (n ${latencies.length}, median ${latencies[latencies.length >> 1]} ms, max ${latencies[latencies.length - 1]} ms)`);
   await page.click('#cancel');
   await page.waitForSelector('.banner[data-verdict="ABORTED"]', { timeout: 30000 });
   check(true, 'cancel from the page ends the run as ABORTED with a report');

@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# fringe serve through the real executable on 127.0.0.1: the stdlib Python client gets the
+# same verdicts (exit 0 PASS, 1 FAIL); SIGTERM mid-run stores the run as interrupted with its
+# partial report and exits 0; kill -9 mid-run, restart: the run is interrupted, completed
+# reports are intact, the token is reused.
+set -euo pipefail
+FRINGE="$1"; SRC="$(cd "$2" && pwd)"
+PY=/usr/bin/python3
+dir=$(mktemp -d); pid=
+trap 'kill -9 $pid 2>/dev/null || true; rm -rf "$dir"' EXIT
+fail() { echo "FAIL: $*" >&2; [ -f "$dir/serve.log" ] && cat "$dir/serve.log" >&2; exit 1; }
+
+start() {  # start the server on a free port; sets pid and URL
+  : > "$dir/serve.log"
+  "$FRINGE" serve --bind 127.0.0.1:0 --data "$dir/data" > "$dir/serve.out" 2> "$dir/serve.log" &
+  pid=$!
+  for _ in $(seq 100); do
+    URL=$(sed -n 's/.*serving \(http:[^ ]*\) .*/\1/p' "$dir/serve.out")
+    [ -n "$URL" ] && return 0
+    sleep 0.1
+  done
+  fail "fringe serve did not start"
+}
+api() { curl -sS --max-time 10 "$@"; }
+status_of() { api "${URL}api/v1/runs/$1" | $PY -c 'import json,sys; r=json.load(sys.stdin); print(r["status"], r["verdict"] or "")'; }
+
+start
+grep -q "API token (printed this once" "$dir/serve.out" || fail "first start prints the token"
+[ "$(stat -c %a "$dir/data/token")" = 600 ] || fail "token file mode"
+T="$dir/data/token"
+
+$PY "$SRC/scripts/fringe_remote.py" "$URL" fig10c-loopback --token-file "$T" --junit "$dir/j.xml" > "$dir/ok.txt" || fail "fig10c over HTTP should PASS"
+grep -q "PASS (done)" "$dir/ok.txt" || fail "verdict line: $(cat "$dir/ok.txt")"
+grep -q "<testsuites" "$dir/j.xml" || fail "JUnit from the script"
+set +e
+$PY "$SRC/scripts/fringe_remote.py" "$URL" ci-failing --token-file "$T" > "$dir/f.txt"; rc=$?
+set -e
+[ $rc -eq 1 ] || fail "ci-failing over HTTP should exit 1, got $rc"
+grep -q "FAIL" "$dir/f.txt" || fail "FAIL verdict line"
+done_id=$(api "${URL}api/v1/runs?outcome=PASS" | $PY -c 'import json,sys; print(json.load(sys.stdin)["runs"][0]["id"])')
+api "${URL}api/v1/runs/$done_id/report.json" > "$dir/before.json"
+
+# curl, as in the README
+code=$(api -o /dev/null -w '%{http_code}' -X POST -H "Authorization: Bearer wrong-token-0000000000" -d '{"fixture":"fig10c-loopback"}' "${URL}api/v1/runs")
+[ "$code" = 403 ] || fail "wrong token should be 403, got $code"
+
+# SIGTERM mid-run: the run is stored as interrupted with a partial report; exit 0.
+id=$(api -X POST -H "Authorization: Bearer $(cat "$T")" -d '{"fixture":"perf-1e7"}' "${URL}api/v1/runs" | $PY -c 'import json,sys; print(json.load(sys.stdin)["id"])')
+for _ in $(seq 100); do [ "$(status_of "$id")" = "running " ] && break; sleep 0.05; done
+sleep 0.3
+kill -TERM $pid
+set +e; wait $pid; rc=$?; set -e
+[ $rc -eq 0 ] || fail "serve should exit 0 on SIGTERM, got $rc"
+start
+grep -q "API token: in" "$dir/serve.out" || fail "second start reuses the token without printing it"
+[ "$(status_of "$id")" = "interrupted ABORTED" ] || fail "SIGTERM: run should be interrupted, is $(status_of "$id")"
+api "${URL}api/v1/runs/$id/report.json" | $PY -c '
+import json,sys; r=json.load(sys.stdin)
+assert r["status"] == "interrupted" and 0 < r["samples"]["processed"] < r["samples"]["planned"], r["samples"]' || fail "partial report"
+
+# kill -9 mid-run, restart: interrupted, and the completed report is byte-identical.
+id2=$(api -X POST -H "Authorization: Bearer $(cat "$T")" -d '{"fixture":"perf-1e7"}' "${URL}api/v1/runs" | $PY -c 'import json,sys; print(json.load(sys.stdin)["id"])')
+for _ in $(seq 100); do [ "$(status_of "$id2")" = "running " ] && break; sleep 0.05; done
+kill -9 $pid; wait $pid 2>/dev/null || true
+start
+[ "$(status_of "$id2")" = "interrupted ABORTED" ] || fail "kill -9: run should be interrupted, is $(status_of "$id2")"
+api "${URL}api/v1/runs/$id2/report.json" | grep -q '"not_finished"' || fail "a killed run has no report (409)"
+api "${URL}api/v1/runs/$done_id/report.json" > "$dir/after.json"
+cmp -s "$dir/before.json" "$dir/after.json" || fail "completed report changed across a kill -9"
+kill -TERM $pid; wait $pid
+echo "cli.serve: ok"
