@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# Load figures for fringe serve on 127.0.0.1 (README "Performance"): wrk against the GET
+# report endpoints, and 100 concurrent live-progress (SSE) clients on one running run with
+# the event latency they see. Bounded in time; stops what it starts.
+#   perf/load_serve.sh build/server/fringe [seconds]
+set -euo pipefail
+FRINGE="${1:-build/server/fringe}"; SECS="${2:-10}"
+PY=/usr/bin/python3
+command -v wrk >/dev/null || { echo "wrk missing: scripts/setup --test" >&2; exit 2; }
+dir=$(mktemp -d); pid=
+trap 'kill $pid 2>/dev/null || true; rm -rf "$dir"' EXIT
+"$FRINGE" serve --bind 127.0.0.1:0 --data "$dir" --threads "${THREADS:-2}" > "$dir/out" 2> "$dir/log" &
+pid=$!
+for _ in $(seq 100); do URL=$(sed -n 's/.*serving \(http:[^ ]*\) .*/\1/p' "$dir/out"); [ -n "$URL" ] && break; sleep 0.1; done
+T=$(cat "$dir/token")
+id=$(curl -s -X POST -H "Authorization: Bearer $T" -d '{"fixture":"fig10c-loopback"}' "${URL}api/v1/runs" | $PY -c 'import json,sys; print(json.load(sys.stdin)["id"])')
+for _ in $(seq 100); do curl -s "${URL}api/v1/runs/$id" | grep -q '"status":"done"' && break; sleep 0.1; done
+echo "fringe serve $URL, $(nproc) cores shared by server and load; run $id"
+for ep in report.json report.xml traces; do
+  bytes=$(curl -s "${URL}api/v1/runs/$id/$ep" | wc -c)
+  out=$(timeout $((SECS + 20)) wrk -t1 -c32 -d"${SECS}s" --latency "${URL}api/v1/runs/$id/$ep")
+  rps=$(echo "$out" | awk '/Requests\/sec/ {print $2}')
+  p50=$(echo "$out" | awk '$1=="50%" {print $2}'); p99=$(echo "$out" | awk '$1=="99%" {print $2}')
+  errs=$(echo "$out" | awk '/Non-2xx|Socket errors/ {print}' | tr '\n' ' ')
+  printf 'GET %-12s %7s bytes: %9s req/s, p50 %s, p99 %s %s\n' "$ep" "$bytes" "$rps" "$p50" "$p99" "$errs"
+done
+
+# 100 SSE clients on one long run.
+long=$(curl -s -X POST -H "Authorization: Bearer $T" -d '{"fixture":"perf-1e7"}' "${URL}api/v1/runs" | $PY -c 'import json,sys; print(json.load(sys.stdin)["id"])')
+$PY - "$URL" "$long" "$T" <<'PY'
+import http.client, json, sys, threading, time, urllib.parse, urllib.request
+url, run, token = sys.argv[1], sys.argv[2], sys.argv[3]
+u = urllib.parse.urlparse(url)
+N, HOLD_S = 100, 3.0
+lat, counts, ended, errors = [], [0] * N, [False] * N, []
+lock = threading.Lock()
+def client(i):
+    try:
+        c = http.client.HTTPConnection(u.hostname, u.port, timeout=30)
+        c.request("GET", f"/api/v1/runs/{run}/events")
+        r = c.getresponse()
+        assert r.status == 200, r.status
+        ev = None
+        for raw in r:
+            line = raw.decode().rstrip("\n")
+            if line.startswith("event: "):
+                ev = line[7:]
+            elif line.startswith("data: "):
+                s = json.loads(line[6:])
+                with lock:
+                    counts[i] += 1
+                    if ev == "progress" and s["progress"]["done"] > 0:
+                        lat.append(time.time() * 1000 - s["updated_unix_ms"])
+                if ev == "end":
+                    ended[i] = True
+                    return
+    except Exception as e:
+        with lock: errors.append(repr(e))
+ts = [threading.Thread(target=client, args=(i,), daemon=True) for i in range(N)]
+for t in ts: t.start()
+time.sleep(HOLD_S)
+held = sum(1 for c in counts if c > 0)
+req = urllib.request.Request(f"{url}api/v1/runs/{run}/cancel", method="POST", data=b"", headers={"Authorization": "Bearer " + token})
+urllib.request.urlopen(req, timeout=10).read()
+for t in ts: t.join(timeout=20)
+lat.sort()
+p = lambda q: lat[min(len(lat) - 1, int(q * len(lat)))] if lat else float("nan")
+print(f"SSE: {held}/{N} clients receiving after {HOLD_S:.0f} s, {sum(ended)}/{N} got the end event, "
+      f"{len(lat)} progress events, latency p50 {p(0.5):.0f} ms, p99 {p(0.99):.0f} ms, max {lat[-1] if lat else float('nan'):.0f} ms, errors {len(errors)}")
+sys.exit(0 if held == N and sum(ended) == N and not errors else 1)
+PY
