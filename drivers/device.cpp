@@ -6,6 +6,7 @@ namespace fringe::dev {
 
 void register_loopback(std::vector<DriverInfo>& r);
 void register_capture(std::vector<DriverInfo>& r);
+void register_modbus(std::vector<DriverInfo>& r);
 
 const char* to_string(StreamStatus s) {
     switch (s) {
@@ -33,6 +34,7 @@ const std::vector<DriverInfo>& drivers() {
         std::vector<DriverInfo> r;
         register_loopback(r);
         register_capture(r);
+        register_modbus(r);
         return r;
     }();
     return all;

@@ -1,5 +1,8 @@
 // The fringe command line. Exit codes: 0 success/pass, 1 fail, 2 error.
+#include "drivers/board_sim.hpp"
 #include "drivers/capture_file.hpp"
+#include "drivers/device.hpp"
+#include "drivers/modbus_board.hpp"
 #include "estimator/estimator.hpp"
 #include "server/evaluate.hpp"
 #include "server/http_server.hpp"
@@ -226,7 +229,7 @@ std::atomic<bool> g_cancel{false};
 extern "C" void on_interrupt(int) { g_cancel.store(true); }
 
 struct RunCliOptions {
-    std::string scenario, report, junit, html, data, record;
+    std::string scenario, report, junit, html, data, record, device;
     std::int64_t seed = -1;
     bool no_db = false, quiet = false;
 };
@@ -234,6 +237,7 @@ struct RunCliOptions {
 int run_run(const RunCliOptions& o) {
     Scenario sc = load_scenario(o.scenario);
     if (o.seed >= 0) sc.seed = static_cast<std::uint64_t>(o.seed);
+    if (!o.device.empty()) sc.device = o.device;
     validate_run(sc);
     std::unique_ptr<RunStore> store;
     RunOptions ro;
@@ -336,6 +340,80 @@ int run_sweep_cli(const SweepOptions& o) {
     return kExitOk;
 }
 
+struct BoardSimCli {
+    dev::BoardSimOptions o;
+    std::vector<std::string> params;
+};
+
+std::atomic<bool> g_sim_stop{false};
+void on_sim_signal(int) { g_sim_stop = true; }
+
+int run_board_sim_cli(BoardSimCli& c) {
+    if (!c.params.empty()) {
+        const auto& info = est::find(c.o.estimator);
+        c.o.params = parse_param_assignments(info.params, c.params);
+    }
+    c.o.stop = &g_sim_stop;
+    std::signal(SIGINT, on_sim_signal);
+    std::signal(SIGTERM, on_sim_signal);
+    c.o.on_listening = [&](const std::string& where) {
+        std::printf("board-sim %s (%s) listening on %s\n", c.o.board.c_str(), c.o.estimator.c_str(), where.c_str());
+        std::fflush(stdout);
+    };
+    const long long n = dev::run_board_sim(c.o);
+    std::printf("board-sim: %lld requests answered%s\n", n, g_sim_stop ? "" : " (stopped by a fault option)");
+    return kExitOk;
+}
+
+struct DevicesOptions {
+    std::vector<std::string> probe;
+    bool as_json = false;
+};
+
+int run_devices(const DevicesOptions& o) {
+    json out{{"drivers", dev::drivers()}, {"boards", json::array()}, {"reachable", json::array()}};
+    for (const auto& name : dev::board_names()) {
+        try {
+            const auto b = dev::load_board(name);
+            out["boards"].push_back({{"name", b.name}, {"kind", b.kind}, {"description", b.description}, {"dut_position", b.has_dut_position()}});
+        } catch (const std::exception& e) {
+            out["boards"].push_back({{"name", name}, {"problem", e.what()}});
+        }
+    }
+    out["reachable"].push_back({{"uri", "loopback:"}, {"ok", true}, {"description", "simulated converter chain"}});
+    int rc = kExitOk;
+    for (const auto& uri : o.probe) {
+        try {
+            auto d = dev::open(uri);
+            out["reachable"].push_back({{"uri", uri}, {"ok", true}, {"info", d->info()}});
+        } catch (const std::exception& e) {
+            out["reachable"].push_back({{"uri", uri}, {"ok", false}, {"error", e.what()}});
+            rc = kExitError;
+        }
+    }
+    if (o.as_json) {
+        std::printf("%s\n", out.dump(2).c_str());
+        return rc;
+    }
+    std::printf("drivers:\n");
+    for (const auto& d : dev::drivers()) {
+        std::printf("  %-12s %s\n", d.scheme.c_str(), d.summary.c_str());
+        for (const auto& p : d.settings) {
+            json pj = p;
+            std::printf("      %-16s %-8s default %s  %s\n", p.name.c_str(), p.unit.empty() ? "-" : p.unit.c_str(),
+                        p.default_value.is_null() ? "derived" : p.default_value.dump().c_str(), p.description.c_str());
+        }
+    }
+    std::printf("board profiles (%s):\n", dev::boards_dir().c_str());
+    for (const auto& b : out["boards"])
+        std::printf("  %-20s %s\n", b["name"].get<std::string>().c_str(), b.contains("problem") ? b["problem"].get<std::string>().c_str() : b["description"].get<std::string>().c_str());
+    std::printf("reachable:\n");
+    for (const auto& r : out["reachable"])
+        std::printf("  %-40s %s\n", r["uri"].get<std::string>().c_str(),
+                    r["ok"].get<bool>() ? (r.contains("info") ? r["info"]["board_id"].get<std::string>().c_str() : "ok") : r["error"].get<std::string>().c_str());
+    return rc;
+}
+
 struct ServeOptions {
     std::string bind = "127.0.0.1:8080", data, token_file, fixtures = FRINGE_SOURCE_DIR "/fixtures", web = FRINGE_SOURCE_DIR "/web";
     unsigned workers = 0, threads = 2;
@@ -415,6 +493,7 @@ int main(int argc, char** argv) {
     rn->add_option("--data", run_o.data, "Data directory for the run history (default $FRINGE_DATA or ~/.local/share/fringe)");
     rn->add_option("--seed", run_o.seed, "Override the scenario's seed")->check(CLI::NonNegativeNumber);
     rn->add_flag("--no-db", run_o.no_db, "Do not record the run in the history");
+    rn->add_option("--device", run_o.device, "Override the scenario's device URI (e.g. modbus+tcp://127.0.0.1:1502?board=dut-interpolator)");
     rn->add_option("--record", run_o.record, "Record the device input with aligned truth to this capture (.csv or .fcap)");
     rn->add_flag("-q,--quiet", run_o.quiet, "No summary or progress");
 
@@ -448,6 +527,30 @@ int main(int argc, char** argv) {
     sv->add_option("--max-upload-mb", serve_o.max_upload_mb, "Largest capture upload, MiB")->check(CLI::PositiveNumber)->capture_default_str();
     sv->add_flag("--allow-external", serve_o.allow_external, "Allow the external estimator (runs a command on this host) in HTTP requests");
 
+    BoardSimCli sim;
+    auto* bs = app.add_subcommand("board-sim", "An emulated Modbus board (libmodbus server) for tests and demos");
+    bs->add_option("--modbus", sim.o.listen, "tcp://127.0.0.1:PORT (0: a free port, printed) or rtu:/dev/ttyX")->required();
+    bs->add_option("--board", sim.o.board, "Board profile name (fixtures/boards) or path")->capture_default_str();
+    bs->add_option("--unit", sim.o.unit, "Modbus unit id (RTU)")->capture_default_str();
+    bs->add_option("--baud", sim.o.baud, "RTU baud rate")->capture_default_str();
+    bs->add_option("--estimator", sim.o.estimator, "On-board estimator of a DUT board (any registered)")->capture_default_str();
+    bs->add_option("--param", sim.params, "On-board estimator parameter key=value (repeatable)");
+    bs->add_option("--offset-sin-v", sim.o.offset_sin_v, "Analog path flaw: sin offset, V");
+    bs->add_option("--offset-cos-v", sim.o.offset_cos_v, "Analog path flaw: cos offset, V");
+    bs->add_option("--gain-mismatch", sim.o.gain_mismatch, "Analog path flaw: sin gain 1+g/2, cos gain 1-g/2");
+    bs->add_option("--noise-v", sim.o.noise_v, "ADC input noise, V rms per conversion");
+    bs->add_option("--adc-bits", sim.o.adc_bits, "ADC resolution (0: ideal)")->capture_default_str();
+    bs->add_option("--adc-range-v", sim.o.adc_range_v, "ADC full scale, V")->capture_default_str();
+    bs->add_option("--seed", sim.o.seed, "Noise seed")->capture_default_str();
+    bs->add_option("--exception-every", sim.o.exception_every, "Fault: every Nth request answers with a Modbus exception");
+    bs->add_option("--delay-ms", sim.o.delay_ms, "Fault: delay every reply");
+    bs->add_option("--drop-after", sim.o.drop_after, "Fault: after N requests close every connection and stop");
+
+    DevicesOptions dev_o;
+    auto* dv = app.add_subcommand("devices", "List drivers with their settings, board profiles, and what is reachable");
+    dv->add_option("--probe", dev_o.probe, "Also open this device URI and report it (repeatable)");
+    dv->add_flag("--json", dev_o.as_json, "As JSON");
+
     try {
         app.parse(argc, argv);
     } catch (const CLI::ParseError& e) {
@@ -461,6 +564,8 @@ int main(int argc, char** argv) {
         if (*rs) return run_runs(runs_o);
         if (*sw) return run_sweep_cli(sw_o);
         if (*sv) return run_serve(serve_o);
+        if (*bs) return run_board_sim_cli(sim);
+        if (*dv) return run_devices(dev_o);
     } catch (const ConfigError& e) {
         spdlog::error("{}", e.what());
         return kExitError;

@@ -13,6 +13,7 @@
 #include <cmath>
 #include <ctime>
 #include <deque>
+#include <limits>
 #include <random>
 
 #ifndef FRINGE_VERSION
@@ -142,6 +143,7 @@ void validate_run(const Scenario& sc) {
         if (l.estimator != "*") {
             bool found = false;
             for (const auto& e : sc.estimators) found |= e.label == l.estimator;
+            found |= l.estimator == "dut";  // a DUT board's own position (step mode)
             if (!found) throw ConfigError(path + ".estimator", "no estimator labelled '" + l.estimator + "' in this scenario");
         }
     }
@@ -180,6 +182,12 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             lane->e = est::make(spec.name, cfg);
             lanes.push_back(std::move(lane));
         }
+        // A board that reports its own interpolated position is scored like an estimator, "dut".
+        static const EstimatorSpec dut_spec{"dut", "dut", nlohmann::json::object(), std::nullopt};
+        if (dinfo.dut_position) lanes.push_back(std::make_unique<Lane>(&dut_spec, sc.settle_s));
+        // Step mode (Modbus boards): one static pair per sample, settle, read back.
+        const bool step_mode = !dinfo.streaming && dinfo.step_mode;
+        std::vector<double> dut_th;
         Generator gen(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed, sc.t0_s);
         std::optional<CaptureWriter> recorder;
         if (!o.record_path.empty()) {
@@ -189,7 +197,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             recorder.emplace(o.record_path, CaptureColumns{true, true, false}, meta);
         }
         CaptureData rec;
-        device->start(sc.sample_rate_hz);
+        if (!step_mode) device->start(sc.sample_rate_hz);
         // Truth for each input frame: the generated sample latency_samples earlier. The first
         // latency_samples input frames predate the signal and are not scored.
         struct Truth { double t, th, om; bool known; };
@@ -200,7 +208,21 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
         std::vector<std::uint8_t> known;
         for (std::uint64_t k = 0; k < total;) {
             if (o.cancel && o.cancel->load()) { status = "aborted"; error = "cancelled"; break; }
-            const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(o.block, total - k));
+            const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(step_mode ? 16 : o.block, total - k));
+            std::size_t m = 0;
+            bool eof = false;
+            if (step_mode) {
+                b.resize(n, sc.encoder.index.enabled);
+                gen.generate(k, b);
+                in_s.resize(n); in_c.resize(n); t_s.resize(n); th_true.resize(n); om_true.resize(n); known.resize(n); dut_th.resize(n);
+                for (std::size_t i = 0; i < n; ++i) {
+                    const dev::StepResult r = device->step(b.sin_v[i], b.cos_v[i], -1.0, 0);  // the device's settle and averaging
+                    in_s[i] = r.sin_v; in_c[i] = r.cos_v;
+                    dut_th[i] = r.dut_theta_rad ? *r.dut_theta_rad : std::numeric_limits<double>::quiet_NaN();
+                    t_s[i] = b.t_s[i]; th_true[i] = b.theta_rad[i]; om_true[i] = b.omega_rad_s[i]; known[i] = 1;
+                }
+                m = n;
+            } else {
             std::size_t want = n;
             if (dinfo.needs_output) {
                 b.resize(n, sc.encoder.index.enabled);
@@ -215,7 +237,6 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             }
             in_s.resize(want); in_c.resize(want); t_s.resize(want); th_true.resize(want); om_true.resize(want); known.resize(want);
             std::size_t got = 0;
-            bool eof = false;
             while (got < want) {
                 const auto r = device->read(std::span(in_s).subspan(got), std::span(in_c).subspan(got), 1000);
                 if (r.status == dev::StreamStatus::Overflow || r.dropped) {
@@ -244,11 +265,12 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
                 got += r.frames;
             }
             if (status != "done") break;
-            const std::size_t m = got;
+            m = got;
             for (std::size_t i = 0; i < m; ++i) {
                 const Truth tr = pending.front();
                 pending.pop_front();
                 t_s[i] = tr.t; th_true[i] = tr.th; om_true[i] = tr.om; known[i] = tr.known;
+            }
             }
             if (recorder) {
                 rec.t_s.assign(t_s.begin(), t_s.begin() + static_cast<std::ptrdiff_t>(m));
@@ -260,6 +282,15 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             }
             for (auto& lane : lanes) {
                 lane->th.resize(m); lane->om.resize(m); lane->valid.resize(m);
+                if (!lane->e) {  // the DUT's own position: no rate
+                    for (std::size_t i = 0; i < m; ++i) {
+                        lane->th[i] = dut_th[i];
+                        lane->om[i] = std::numeric_limits<double>::quiet_NaN();
+                        lane->valid[i] = std::isfinite(dut_th[i]) && known[i];
+                    }
+                    lane->scorer.add(m, t_s.data(), th_true.data(), om_true.data(), lane->th.data(), nullptr, lane->valid.data());
+                    continue;
+                }
                 lane->e->process({std::span(in_s).first(m), std::span(in_c).first(m)},
                                  {std::span(lane->th), std::span(lane->om), std::span(lane->valid)});
                 for (std::size_t i = 0; i < m; ++i) lane->valid[i] = lane->valid[i] && known[i];
@@ -281,7 +312,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             if (o.progress) o.progress(k, total);
             if (eof) break;
         }
-        device->stop();
+        if (!step_mode) device->stop();
         if (recorder) recorder->close();
     } catch (const dev::DeviceError& e) {
         status = "error";

@@ -1,0 +1,207 @@
+#include "board_sim.hpp"
+
+#include "estimator/estimator.hpp"
+#include "modbus_board.hpp"
+
+#include <modbus/modbus.h>
+
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/select.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <memory>
+#include <random>
+#include <set>
+#include <stdexcept>
+#include <thread>
+
+namespace fringe::dev {
+
+namespace {
+
+constexpr double kTwoPi = 6.283185307179586476925286766559;
+
+struct Sim {
+    const BoardSimOptions& o;
+    BoardProfile board;
+    modbus_mapping_t* map = nullptr;
+    std::mt19937_64 rng;
+    std::normal_distribution<double> gauss{0.0, 1.0};
+    std::unique_ptr<est::Estimator> dut;
+    double analog_s = 0, analog_c = 0;  // the analog signals at the ADC input, V
+
+    explicit Sim(const BoardSimOptions& opt) : o(opt), board(load_board(opt.board)), rng(opt.seed) {
+        int hold = 1, in = 1;
+        for (const auto& [role, r] : board.regs) (r.table == RegTable::Holding ? hold : in) = std::max(r.table == RegTable::Holding ? hold : in, r.address + r.words());
+        map = modbus_mapping_new(0, 0, hold, in);
+        if (!map) throw std::runtime_error(std::string("board-sim: ") + modbus_strerror(errno));
+        if (board.has_dut_position()) {
+            est::EstimatorConfig cfg;
+            cfg.sample_rate_hz = 1000.0;  // quasi-static: one conversion per step
+            cfg.params = o.params;
+            dut = est::make(o.estimator, cfg);
+        }
+        put("status", 1);
+        put("error_flags", 0);
+    }
+    ~Sim() { modbus_mapping_free(map); }
+
+    std::uint16_t* slot(const RegisterDef& r) {
+        return r.table == RegTable::Holding ? map->tab_registers + r.address : map->tab_input_registers + r.address;
+    }
+    void put(const std::string& role, double v) {
+        if (const auto* r = board.find(role)) {
+            const auto w = encode_register(*r, v);
+            std::copy(w.begin(), w.end(), slot(*r));
+        }
+    }
+    double get(const std::string& role) {
+        const auto* r = board.find(role);
+        return r ? decode_register(*r, slot(*r)) : 0.0;
+    }
+    double convert(double v) {  // one ADC conversion of an analog level, V
+        v += o.noise_v * gauss(rng);
+        if (o.adc_bits <= 0) return v;
+        const double q = 2 * o.adc_range_v / std::ldexp(1.0, o.adc_bits);
+        return std::clamp(std::round(v / q), -std::ldexp(1.0, o.adc_bits - 1), std::ldexp(1.0, o.adc_bits - 1) - 1) * q;
+    }
+    void on_write() {
+        // The drive registers hold what the DAC outputs; the analog path adds the board's flaws.
+        analog_s = (1 + o.gain_mismatch / 2) * get("sin_out") + o.offset_sin_v;
+        analog_c = (1 - o.gain_mismatch / 2) * get("cos_out") + o.offset_cos_v;
+        if (dut) {
+            const double s = convert(analog_s), c = convert(analog_c);
+            double th = 0, om = 0;
+            std::uint8_t valid = 0;
+            dut->process({std::span(&s, 1), std::span(&c, 1)}, {std::span(&th, 1), std::span(&om, 1), std::span(&valid, 1)});
+            const double periods = th / kTwoPi;
+            const double whole = std::floor(periods);
+            put("position_count", whole);
+            put("position_fraction", periods - whole);
+            put("position_rad", th);
+            // bit 0: signal amplitude below 5 % of the ADC range; bit 1: estimator not locked.
+            const int flags = (std::hypot(s, c) < 0.05 * o.adc_range_v ? 1 : 0) | (valid ? 0 : 2);
+            put("error_flags", flags);
+        }
+    }
+    void on_read_inputs() {  // a fresh conversion for every read
+        put("sin_in", convert(analog_s));
+        put("cos_in", convert(analog_c));
+    }
+};
+
+// One request: faults, then the reply (and the board's reaction to writes).
+bool serve_one(Sim& sim, modbus_t* ctx, const std::uint8_t* query, int len, long long& count) {
+    const BoardSimOptions& o = sim.o;
+    ++count;
+    if (o.drop_after >= 0 && count > o.drop_after) return false;
+    if (o.delay_ms > 0) std::this_thread::sleep_for(std::chrono::milliseconds(o.delay_ms));
+    if (o.exception_every > 0 && count % o.exception_every == 0) {
+        modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE);
+        return true;
+    }
+    const int hl = modbus_get_header_length(ctx);
+    const int fc = query[hl];
+    if (fc == MODBUS_FC_READ_INPUT_REGISTERS) sim.on_read_inputs();
+    modbus_reply(ctx, query, len, sim.map);
+    if (fc == MODBUS_FC_WRITE_SINGLE_REGISTER || fc == MODBUS_FC_WRITE_MULTIPLE_REGISTERS || fc == MODBUS_FC_WRITE_AND_READ_REGISTERS) sim.on_write();
+    return true;
+}
+
+}  // namespace
+
+long long run_board_sim(const BoardSimOptions& o) {
+    Sim sim(o);
+    long long count = 0;
+    std::uint8_t query[MODBUS_TCP_MAX_ADU_LENGTH > MODBUS_RTU_MAX_ADU_LENGTH ? MODBUS_TCP_MAX_ADU_LENGTH : MODBUS_RTU_MAX_ADU_LENGTH];
+    auto stopped = [&] { return o.stop && o.stop->load(); };
+
+    if (o.listen.rfind("rtu:", 0) == 0) {
+        const std::string dev = o.listen.substr(4);
+        modbus_t* ctx = modbus_new_rtu(dev.c_str(), o.baud, 'N', 8, 1);
+        if (!ctx) throw std::runtime_error("board-sim: " + dev + ": " + modbus_strerror(errno));
+        modbus_set_slave(ctx, o.unit);
+        if (modbus_connect(ctx) == -1) {
+            const std::string msg = modbus_strerror(errno);
+            modbus_free(ctx);
+            throw std::runtime_error("board-sim: " + dev + ": " + msg);
+        }
+        if (o.on_listening) o.on_listening(dev);
+        const int fd = modbus_get_socket(ctx);
+        while (!stopped()) {
+            fd_set rd;
+            FD_ZERO(&rd);
+            FD_SET(fd, &rd);
+            timeval tv{0, 100000};
+            if (select(fd + 1, &rd, nullptr, nullptr, &tv) <= 0) continue;
+            const int rc = modbus_receive(ctx, query);
+            if (rc > 0 && !serve_one(sim, ctx, query, rc, count)) break;
+            // rc == 0: a request for another unit; rc == -1: a garbled frame (CRC): keep serving
+        }
+        modbus_close(ctx);
+        modbus_free(ctx);
+        return count;
+    }
+
+    if (o.listen.rfind("tcp://", 0) != 0) throw std::runtime_error("board-sim: --modbus expects tcp://HOST:PORT or rtu:/dev/ttyX, got '" + o.listen + "'");
+    const std::string hp = o.listen.substr(6);
+    const auto colon = hp.rfind(':');
+    const std::string host = colon == std::string::npos ? hp : hp.substr(0, colon);
+    const int port = colon == std::string::npos ? 502 : std::stoi(hp.substr(colon + 1));
+    modbus_t* ctx = modbus_new_tcp(host.c_str(), port);
+    if (!ctx) throw std::runtime_error(std::string("board-sim: ") + modbus_strerror(errno));
+    const int server = modbus_tcp_listen(ctx, 16);
+    if (server == -1) {
+        const std::string msg = modbus_strerror(errno);
+        modbus_free(ctx);
+        throw std::runtime_error("board-sim: listen on " + o.listen + ": " + msg);
+    }
+    sockaddr_in addr{};
+    socklen_t alen = sizeof addr;
+    getsockname(server, reinterpret_cast<sockaddr*>(&addr), &alen);
+    if (o.on_listening) o.on_listening("tcp://" + host + ":" + std::to_string(ntohs(addr.sin_port)));
+    std::set<int> clients;
+    bool dropped = false;
+    while (!stopped() && !dropped) {
+        fd_set rd;
+        FD_ZERO(&rd);
+        FD_SET(server, &rd);
+        int maxfd = server;
+        for (int c : clients) {
+            FD_SET(c, &rd);
+            maxfd = std::max(maxfd, c);
+        }
+        timeval tv{0, 100000};
+        if (select(maxfd + 1, &rd, nullptr, nullptr, &tv) <= 0) continue;
+        if (FD_ISSET(server, &rd)) {
+            const int c = accept(server, nullptr, nullptr);
+            if (c >= 0) clients.insert(c);
+        }
+        for (auto it = clients.begin(); it != clients.end();) {
+            const int c = *it;
+            if (!FD_ISSET(c, &rd)) { ++it; continue; }
+            modbus_set_socket(ctx, c);
+            const int rc = modbus_receive(ctx, query);
+            if (rc > 0) {
+                if (!serve_one(sim, ctx, query, rc, count)) { dropped = true; break; }
+                ++it;
+            } else if (rc == -1) {  // closed or broken
+                close(c);
+                it = clients.erase(it);
+            } else {
+                ++it;
+            }
+        }
+    }
+    for (int c : clients) close(c);
+    close(server);
+    modbus_free(ctx);
+    return count;
+}
+
+}  // namespace fringe::dev

@@ -1,0 +1,242 @@
+// Modbus boards over libmodbus (TCP and RTU): step mode only (a static sin/cos pair, settle,
+// read back with averaging), the register map from a board profile (modbus_board.hpp).
+// Native errors keep libmodbus's own text and name the board and register; timeouts and
+// lost connections are retried a bounded number of times (reconnecting), Modbus exceptions
+// are not.
+#include "device.hpp"
+#include "modbus_board.hpp"
+#include "signal_gen/config.hpp"
+
+#include <modbus/modbus.h>
+
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <thread>
+
+namespace fringe::dev {
+
+namespace {
+
+constexpr double kTwoPi = 6.283185307179586476925286766559;
+
+bool connection_error(int e) {
+    return e == ECONNRESET || e == EPIPE || e == EBADF || e == ECONNREFUSED || e == ENOTCONN || e == ECONNABORTED || e == EIO;
+}
+
+class ModbusDevice final : public Device {
+public:
+    ModbusDevice(const std::string& uri, const std::string& scheme, const std::string& path, const nlohmann::json& s)
+        : uri_(uri), rtu_(scheme == "modbus+rtu") {
+        const Params p(s);
+        board_ = load_board(p.string("board"));
+        unit_ = static_cast<int>(p.integer("unit"));
+        timeout_ms_ = static_cast<int>(p.integer("timeout_ms"));
+        retries_ = static_cast<int>(p.integer("retries"));
+        settle_s_ = p.optional_number("settle_s").value_or(board_.settle_s);
+        average_ = p.optional_number("average") ? static_cast<int>(*p.optional_number("average")) : board_.average;
+        if (rtu_) {
+            if (path.empty() || path[0] != '/') throw ConfigError("device", "modbus+rtu needs a serial device path: modbus+rtu:/dev/ttyUSB0?baud=115200");
+            const std::string parity = p.string("parity");
+            ctx_ = modbus_new_rtu(path.c_str(), static_cast<int>(p.integer("baud")), parity[0], static_cast<int>(p.integer("data_bits")),
+                                  static_cast<int>(p.integer("stop_bits")));
+            endpoint_ = path;
+        } else {
+            std::string hp = path.rfind("//", 0) == 0 ? path.substr(2) : path;
+            const auto colon = hp.rfind(':');
+            host_ = colon == std::string::npos ? hp : hp.substr(0, colon);
+            int port = 502;
+            if (colon != std::string::npos) {
+                try {
+                    port = std::stoi(hp.substr(colon + 1));
+                } catch (const std::exception&) {
+                    port = -1;
+                }
+            }
+            if (host_.empty() || port <= 0 || port > 65535) throw ConfigError("device", "modbus+tcp needs host:port: modbus+tcp://192.168.1.50:502?board=NAME");
+            ctx_ = modbus_new_tcp(host_.c_str(), port);
+            endpoint_ = host_ + ":" + std::to_string(port);
+        }
+        if (!ctx_) throw DeviceError(uri_, std::string("libmodbus: ") + modbus_strerror(errno));
+        modbus_set_slave(ctx_, unit_);
+        modbus_set_response_timeout(ctx_, static_cast<std::uint32_t>(timeout_ms_ / 1000), static_cast<std::uint32_t>((timeout_ms_ % 1000) * 1000));
+        connect();
+        for (const char* role : {"sin_in", "cos_in", "position_count", "position_fraction", "position_rad", "status", "error_flags"})
+            if (const auto* r = board_.find(role); r && r->readable) readback_.push_back(r);
+        batches_ = plan_reads(readback_);
+        regs_.resize(2 * in_base_);  // holding image, then input image
+    }
+    ~ModbusDevice() override {
+        if (ctx_) {
+            modbus_close(ctx_);
+            modbus_free(ctx_);
+        }
+    }
+
+    DeviceInfo info() const override {
+        DeviceInfo i;
+        i.driver = "modbus";
+        i.uri = uri_;
+        i.description = board_.description.empty() ? "Modbus board " + board_.name : board_.description;
+        i.board_id = board_.name + "@" + endpoint_ + "#" + std::to_string(unit_);
+        i.streaming = false;
+        i.step_mode = true;
+        i.dut_position = board_.has_dut_position();
+        i.settings = {{"board", board_.name}, {"unit", unit_}, {"timeout_ms", timeout_ms_}, {"retries", retries_},
+                      {"settle_s", settle_s_}, {"average", average_}, {"board_profile", board_.path}};
+        return i;
+    }
+
+    void start(double) override {}
+    StreamResult write(std::span<const double>, std::span<const double>) override {
+        return {StreamStatus::Error, 0, 0, 0, "a Modbus board has no output stream: run it in step mode"};
+    }
+    StreamResult read(std::span<double>, std::span<double>, int) override {
+        return {StreamStatus::Error, 0, 0, 0, "a Modbus board has no input stream: run it in step mode"};
+    }
+    void stop() override {}
+
+    StepResult step(double sin_v, double cos_v, double settle_s, int average) override {
+        if (settle_s < 0) settle_s = settle_s_;
+        if (average <= 0) average = average_;
+        write_pair(sin_v, cos_v);
+        if (settle_s > 0) std::this_thread::sleep_for(std::chrono::duration<double>(settle_s));
+        StepResult out;
+        double ss = 0, cs = 0;
+        std::optional<double> dut;
+        bool dut_bad = false;
+        for (int a = 0; a < average; ++a) {
+            read_all();
+            if (const auto* r = board_.find("sin_in")) ss += decode_register(*r, &regs_[key(*r)]);
+            if (const auto* r = board_.find("cos_in")) cs += decode_register(*r, &regs_[key(*r)]);
+        }
+        out.sin_v = ss / average;
+        out.cos_v = cs / average;
+        // The DUT position of the last reading (angles are not averaged across a wrap).
+        if (const auto* f = board_.find("error_flags")) dut_bad = decode_register(*f, &regs_[key(*f)]) != 0;
+        if (const auto* r = board_.find("position_rad")) dut = decode_register(*r, &regs_[key(*r)]);
+        else if (board_.has_dut_position())
+            dut = kTwoPi * (decode_register(*board_.find("position_count"), &regs_[key(*board_.find("position_count"))]) +
+                            decode_register(*board_.find("position_fraction"), &regs_[key(*board_.find("position_fraction"))]));
+        if (dut && !dut_bad) out.dut_theta_rad = dut;
+        else if (dut) ++flagged_;
+        return out;
+    }
+
+private:
+    // One register image: holding registers at their address, input registers after them.
+    std::size_t key(const RegisterDef& r) const { return r.table == RegTable::Input ? in_base_ + static_cast<std::size_t>(r.address) : static_cast<std::size_t>(r.address); }
+
+    void connect() {
+        if (modbus_connect(ctx_) == -1)
+            throw DeviceError(uri_, "board " + board_.name + " at " + endpoint_ + ": connect: " + modbus_strerror(errno));
+        connected_ = true;
+    }
+
+    // Runs op with bounded retries; reconnects after a lost connection. Throws naming the
+    // board, the register and libmodbus's message.
+    template <class Op>
+    void with_retries(const std::string& what, Op op) {
+        for (int attempt = 0;; ++attempt) {
+            if (!connected_) {
+                if (modbus_connect(ctx_) == 0) connected_ = true;
+            }
+            if (connected_ && op() != -1) return;
+            const int e = errno;
+            const bool exception = e > MODBUS_ENOBASE && e < MODBUS_ENOBASE + 20;  // a Modbus exception reply
+            if (exception || attempt >= retries_)
+                throw DeviceError(uri_, "board " + board_.name + " at " + endpoint_ + ": " + what + ": " + modbus_strerror(e) +
+                                            (exception ? "" : " (after " + std::to_string(attempt + 1) + " attempts)"));
+            if (connection_error(e) || !connected_) {
+                modbus_close(ctx_);
+                connected_ = false;
+            } else {
+                modbus_flush(ctx_);
+            }
+        }
+    }
+
+    void write_pair(double s, double c) {
+        const auto& rs = *board_.find("sin_out");
+        const auto& rc = *board_.find("cos_out");
+        auto ws = encode_register(rs, s), wc = encode_register(rc, c);
+        if (rc.address == rs.address + rs.words()) {  // adjacent: one request
+            ws.insert(ws.end(), wc.begin(), wc.end());
+            with_retries("write sin_out,cos_out @" + std::to_string(rs.address),
+                         [&] { return modbus_write_registers(ctx_, rs.address, static_cast<int>(ws.size()), ws.data()); });
+        } else {
+            with_retries("write sin_out @" + std::to_string(rs.address), [&] { return modbus_write_registers(ctx_, rs.address, static_cast<int>(ws.size()), ws.data()); });
+            with_retries("write cos_out @" + std::to_string(rc.address), [&] { return modbus_write_registers(ctx_, rc.address, static_cast<int>(wc.size()), wc.data()); });
+        }
+    }
+
+    void read_all() {
+        for (const auto& b : batches_) {
+            std::uint16_t* dst = &regs_[b.table == RegTable::Input ? in_base_ + static_cast<std::size_t>(b.address) : static_cast<std::size_t>(b.address)];
+            std::string names;
+            for (const auto* r : b.regs) names += (names.empty() ? "" : ",") + r->role;
+            const std::string what = std::string("read ") + (b.table == RegTable::Input ? "input" : "holding") + " " + names + " @" +
+                                     std::to_string(b.address) + "+" + std::to_string(b.count);
+            with_retries(what, [&] {
+                const int n = b.table == RegTable::Input ? modbus_read_input_registers(ctx_, b.address, b.count, dst)
+                                                         : modbus_read_registers(ctx_, b.address, b.count, dst);
+                if (n != -1 && n != b.count) {
+                    errno = EMBBADDATA;
+                    return -1;
+                }
+                return n;
+            });
+        }
+    }
+
+    std::string uri_, host_, endpoint_;
+    bool rtu_;
+    BoardProfile board_;
+    int unit_ = 1, timeout_ms_ = 500, retries_ = 2, average_ = 1;
+    double settle_s_ = 0;
+    modbus_t* ctx_ = nullptr;
+    bool connected_ = false;
+    std::vector<const RegisterDef*> readback_;
+    std::vector<ReadBatch> batches_;
+    static constexpr std::size_t in_base_ = 65536 + 2;
+    std::vector<std::uint16_t> regs_;
+    std::uint64_t flagged_ = 0;
+};
+
+std::vector<ParamInfo> common_settings() {
+    return {
+        {"board", "", ParamType::String, "generic-aio", -kInf, kInf, {}, "board profile: a name in fixtures/boards/ (or $FRINGE_BOARDS), or a path"},
+        {"unit", "", ParamType::Integer, 1, 0, 247, {}, "Modbus unit (slave) id"},
+        {"timeout_ms", "ms", ParamType::Integer, 500, 1, 60000, {}, "response timeout per request"},
+        {"retries", "", ParamType::Integer, 2, 0, 20, {}, "retries after a timeout or a lost connection (not after an exception reply)"},
+        {"settle_s", "s", ParamType::Number, nullptr, 0, 60, {}, "wait after writing a step before reading back (default: the board profile's)"},
+        {"average", "", ParamType::Integer, nullptr, 1, 1000, {}, "readings averaged per step (default: the board profile's)"},
+    };
+}
+
+}  // namespace
+
+void register_modbus(std::vector<DriverInfo>& r) {
+    DriverInfo tcp;
+    tcp.scheme = "modbus+tcp";
+    tcp.summary = "Modbus TCP board (libmodbus), step mode: modbus+tcp://host:port?unit=1&board=NAME";
+    tcp.settings = common_settings();
+    tcp.open = [](const std::string& uri, const std::string& path, const nlohmann::json& s) -> std::unique_ptr<Device> {
+        return std::make_unique<ModbusDevice>(uri, "modbus+tcp", path, s);
+    };
+    r.push_back(std::move(tcp));
+    DriverInfo rtu;
+    rtu.scheme = "modbus+rtu";
+    rtu.summary = "Modbus RTU board on a serial port (libmodbus), step mode: modbus+rtu:/dev/ttyUSB0?baud=115200&board=NAME";
+    rtu.settings = common_settings();
+    rtu.settings.push_back({"baud", "Bd", ParamType::Integer, 115200, 300, 4000000, {}, "baud rate"});
+    rtu.settings.push_back({"parity", "", ParamType::Choice, "N", -kInf, kInf, {"N", "E", "O"}, "parity"});
+    rtu.settings.push_back({"data_bits", "bit", ParamType::Integer, 8, 5, 8, {}, "data bits"});
+    rtu.settings.push_back({"stop_bits", "bit", ParamType::Integer, 1, 1, 2, {}, "stop bits"});
+    rtu.open = [](const std::string& uri, const std::string& path, const nlohmann::json& s) -> std::unique_ptr<Device> {
+        return std::make_unique<ModbusDevice>(uri, "modbus+rtu", path, s);
+    };
+    r.push_back(std::move(rtu));
+}
+
+}  // namespace fringe::dev

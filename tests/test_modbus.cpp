@@ -1,0 +1,278 @@
+// Modbus: board profiles, register codec, read batching, and the driver against the emulated
+// board (libmodbus server in a thread) over real TCP on 127.0.0.1, with its faults.
+#include "drivers/board_sim.hpp"
+#include "drivers/device.hpp"
+#include "drivers/modbus_board.hpp"
+#include "signal_gen/config.hpp"
+
+#include <catch2/catch.hpp>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <mutex>
+#include <thread>
+
+using namespace fringe;
+using namespace fringe::dev;
+using nlohmann::json;
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+// board-sim on a free port in a thread; stops on destruction.
+struct SimThread {
+    BoardSimOptions o;
+    std::atomic<bool> stop{false};
+    std::thread t;
+    std::mutex mu;
+    std::condition_variable cv;
+    std::string where;
+    long long answered = -1;
+    std::string failure;
+    explicit SimThread(BoardSimOptions opt) : o(std::move(opt)) {
+        o.listen = "tcp://127.0.0.1:0";
+        o.stop = &stop;
+        o.on_listening = [this](const std::string& w) {
+            std::lock_guard<std::mutex> l(mu);
+            where = w;
+            cv.notify_all();
+        };
+        t = std::thread([this] {
+            try {
+                answered = run_board_sim(o);
+            } catch (const std::exception& e) {
+                std::lock_guard<std::mutex> l(mu);
+                failure = e.what();
+                where = "failed";
+                cv.notify_all();
+            }
+        });
+        std::unique_lock<std::mutex> l(mu);
+        cv.wait_for(l, std::chrono::seconds(5), [&] { return !where.empty(); });
+    }
+    ~SimThread() {
+        stop = true;
+        t.join();
+    }
+    std::string uri(const std::string& query) const {
+        return "modbus+tcp://" + where.substr(6) + "?" + query;
+    }
+};
+
+}  // namespace
+
+TEST_CASE("modbus: board profiles load strictly", "[modbus]") {
+    const auto aio = load_board("generic-aio");
+    CHECK(aio.kind == "analog-io");
+    CHECK(aio.find("sin_out")->writable);
+    CHECK_FALSE(aio.has_dut_position());
+    const auto dut = load_board("dut-interpolator");
+    CHECK(dut.has_dut_position());
+    CHECK(dut.find("position_count")->type == RegType::S32);
+
+    json j = {{"name", "x"}, {"registers", {{"sin_out", {{"address", 0}}}, {"cos_out", {{"address", 1}}}, {"sin_in", {{"address", 0}, {"table", "input"}}},
+                                             {"cos_in", {{"address", 1}, {"table", "input"}}}}}};
+    CHECK_NOTHROW(board_from_json(j, ""));
+    auto bad = j;
+    bad["registers"]["sin_out"]["colour"] = 1;
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("registers.sin_out.colour"));
+    bad = j;
+    bad["registers"]["tacho"] = {{"address", 3}};
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("registers.tacho: unknown register role"));
+    bad = j;
+    bad["registers"]["sin_in"]["access"] = "rw";
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("input registers are read-only"));
+    bad = j;
+    bad["registers"]["sin_out"]["type"] = "f64";
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("registers.sin_out.type"));
+    bad = j;
+    bad["kind"] = "dut";
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("position_count"));
+    CHECK_THROWS_WITH(load_board("no-such-board"), Catch::Contains("generic-aio"));
+}
+
+TEST_CASE("modbus: register codec round trips, word order and clamping", "[modbus]") {
+    RegisterDef r;
+    SECTION("s16 volts, rounding and rails") {
+        r.type = RegType::S16;
+        r.scale = 1.25 / 32768;
+        for (double v : {0.0, 0.5, -0.5, 1.0, -1.25}) CHECK(decode_register(r, encode_register(r, v).data()) == Approx(v).margin(r.scale / 2));
+        CHECK(encode_register(r, 5.0)[0] == 32767);
+        CHECK(static_cast<std::int16_t>(encode_register(r, -5.0)[0]) == -32768);
+        CHECK(encode_register(r, std::nan(""))[0] == 0);
+    }
+    SECTION("u32 big and little word order") {
+        r.type = RegType::U32;
+        auto w = encode_register(r, 0x12345678);
+        CHECK(w[0] == 0x1234);
+        CHECK(w[1] == 0x5678);
+        r.low_word_first = true;
+        w = encode_register(r, 0x12345678);
+        CHECK(w[0] == 0x5678);
+        CHECK(w[1] == 0x1234);
+        CHECK(decode_register(r, w.data()) == 0x12345678);
+    }
+    SECTION("s32 negative counts and f32 exact values") {
+        r.type = RegType::S32;
+        CHECK(decode_register(r, encode_register(r, -123456).data()) == -123456);
+        r.type = RegType::F32;
+        for (double v : {0.0, -0.75, 1.0 / 1024, 3.5e5}) CHECK(decode_register(r, encode_register(r, v).data()) == v);  // exact in float
+        CHECK(decode_register(r, encode_register(r, 0.1).data()) == static_cast<double>(0.1f));
+    }
+    SECTION("scale and offset") {
+        r.type = RegType::U16;
+        r.scale = 0.001;
+        r.offset = -10;
+        CHECK(encode_register(r, 0.0)[0] == 10000);
+        CHECK(decode_register(r, encode_register(r, 2.5).data()) == Approx(2.5));
+    }
+}
+
+TEST_CASE("modbus: reads are batched per table, at most 125 registers each", "[modbus]") {
+    std::vector<RegisterDef> defs;
+    for (int a : {0, 1, 2, 200, 260, 324, 500}) {
+        RegisterDef d;
+        d.address = a;
+        d.table = RegTable::Input;
+        defs.push_back(d);
+    }
+    RegisterDef h;
+    h.address = 3;
+    h.type = RegType::U32;
+    defs.push_back(h);
+    std::vector<const RegisterDef*> ptrs;
+    for (const auto& d : defs) ptrs.push_back(&d);
+    const auto b = plan_reads(ptrs);
+    REQUIRE(b.size() == 4);
+    CHECK(b[0].table == RegTable::Holding);
+    CHECK(b[0].count == 2);  // the u32 spans two registers
+    CHECK((b[1].address == 0 && b[1].count == 3));
+    CHECK((b[2].address == 200 && b[2].count == 125));  // 200..324 exactly 125
+    CHECK((b[3].address == 500 && b[3].count == 1));
+    for (const auto& x : b) CHECK(x.count <= 125);
+    CHECK(plan_reads(ptrs, 1000).size() == 2);
+}
+
+TEST_CASE("modbus: the driver against board-sim over TCP", "[modbus][socket]") {
+    SECTION("analog I/O module: what is written reads back through the ADC") {
+        BoardSimOptions o;
+        o.board = "generic-aio";
+        o.adc_bits = 16;
+        SimThread sim(o);
+        REQUIRE(sim.where.rfind("tcp://", 0) == 0);
+        auto dev = open(sim.uri("board=generic-aio&settle_s=0"));
+        const auto info = dev->info();
+        CHECK(info.driver == "modbus");
+        CHECK(info.step_mode);
+        CHECK_FALSE(info.streaming);
+        CHECK_FALSE(info.dut_position);
+        const double lsb = 2.5 / 65536;
+        for (double th = 0; th < 2 * kPi; th += 0.7) {
+            const auto r = dev->step(std::sin(th), std::cos(th), 0.0, 1);
+            // DAC register (1.25/32768 V) then a 16-bit ADC over +-1.25 V: within 1 LSB each
+            CHECK(std::fabs(r.sin_v - std::sin(th)) <= 1.01 * lsb);
+            CHECK(std::fabs(r.cos_v - std::cos(th)) <= 1.01 * lsb);
+            CHECK_FALSE(r.dut_theta_rad);
+        }
+        CHECK(dev->write(std::vector<double>{1.0}, std::vector<double>{1.0}).status == StreamStatus::Error);
+    }
+    SECTION("averaging reduces the ADC noise by sqrt(N)") {
+        BoardSimOptions o;
+        o.noise_v = 1e-3;
+        o.adc_bits = 0;
+        SimThread sim(o);
+        auto dev = open(sim.uri("board=generic-aio&settle_s=0"));
+        auto spread = [&](int avg) {
+            double s2 = 0;
+            const int n = 200;
+            for (int i = 0; i < n; ++i) {
+                const double d = dev->step(0.3, -0.2, 0.0, avg).sin_v - 0.3;
+                s2 += d * d;
+            }
+            return std::sqrt(s2 / n);
+        };
+        const double one = spread(1), sixteen = spread(16);
+        CHECK(one == Approx(1e-3).epsilon(0.25));
+        CHECK(sixteen == Approx(1e-3 / 4).epsilon(0.3));
+    }
+    SECTION("DUT board: its on-board atan2 position, count and fraction") {
+        BoardSimOptions o;
+        o.board = "dut-interpolator";
+        o.adc_bits = 0;
+        SimThread sim(o);
+        auto dev = open(sim.uri("board=dut-interpolator&settle_s=0"));
+        CHECK(dev->info().dut_position);
+        // Walk two electrical periods forward: the position counts whole periods.
+        double last = 0;
+        for (int k = 0; k <= 128; ++k) {
+            const double th = 2 * kPi * k / 64.0;
+            const auto r = dev->step(std::sin(th), std::cos(th), 0.0, 1);
+            REQUIRE(r.dut_theta_rad);
+            // f32 drive registers and a 1/65536-period fraction: within 2*pi/65536
+            CHECK(std::fabs(*r.dut_theta_rad - th) < 2 * kPi / 65536 * 1.01);
+            last = *r.dut_theta_rad;
+        }
+        CHECK(last == Approx(4 * kPi).margin(1e-4));
+    }
+    SECTION("DUT flaws show as the classic error: an offset gives a 1x error of o/A") {
+        BoardSimOptions o;
+        o.board = "dut-interpolator";
+        o.adc_bits = 0;
+        o.offset_sin_v = 0.01;
+        SimThread sim(o);
+        auto dev = open(sim.uri("board=dut-interpolator&settle_s=0"));
+        double emax = 0;
+        for (int k = 0; k < 64; ++k) {
+            const double th = 2 * kPi * k / 64.0;
+            const auto r = dev->step(std::sin(th), std::cos(th), 0.0, 1);
+            emax = std::max(emax, std::fabs(std::remainder(*r.dut_theta_rad - th, 2 * kPi)));
+        }
+        CHECK(emax == Approx(0.01).epsilon(0.02));
+    }
+    SECTION("a Modbus exception names the board, the register and libmodbus's message; no retry") {
+        BoardSimOptions o;
+        o.exception_every = 3;
+        SimThread sim(o);
+        auto dev = open(sim.uri("board=generic-aio&settle_s=0&retries=5"));
+        // request 1 write, 2 read, 3 write -> exception
+        CHECK_NOTHROW(dev->step(0.1, 0.2, 0.0, 1));
+        CHECK_THROWS_WITH(dev->step(0.1, 0.2, 0.0, 1),
+                          Catch::Contains("board generic-aio") && Catch::Contains("write sin_out,cos_out @0") &&
+                              Catch::Contains("Slave device or server failure"));
+    }
+    SECTION("a reply slower than the timeout is retried, then reported") {
+        BoardSimOptions o;
+        o.delay_ms = 80;
+        SimThread sim(o);
+        auto dev = open(sim.uri("board=generic-aio&settle_s=0&timeout_ms=20&retries=1"));
+        const auto t0 = std::chrono::steady_clock::now();
+        CHECK_THROWS_WITH(dev->step(0.1, 0.2, 0.0, 1), Catch::Contains("timed out") && Catch::Contains("after 2 attempts"));
+        CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(2));
+    }
+    SECTION("a board that goes away mid-run is a device error naming it") {
+        BoardSimOptions o;
+        o.drop_after = 10;
+        SimThread sim(o);
+        auto dev = open(sim.uri("board=generic-aio&settle_s=0&timeout_ms=200&retries=2"));
+        int ok = 0;
+        try {
+            for (int i = 0; i < 100; ++i) {
+                dev->step(0.1, 0.2, 0.0, 1);
+                ++ok;
+            }
+            FAIL("no error after the board dropped");
+        } catch (const DeviceError& e) {
+            CHECK(ok == 5);  // 2 requests per step
+            CHECK(std::string(e.what()).find("board generic-aio at 127.0.0.1:") != std::string::npos);
+        }
+    }
+    SECTION("bad settings are configuration errors naming the key") {
+        CHECK_THROWS_WITH(open("modbus+tcp://127.0.0.1:1?board=generic-aio&unit=999"), Catch::Contains("device.unit"));
+        CHECK_THROWS_WITH(open("modbus+tcp://127.0.0.1:1?board=nope"), Catch::Contains("device.board"));
+        CHECK_THROWS_WITH(open("modbus+tcp://127.0.0.1:1?board=generic-aio&colour=red"), Catch::Contains("device.colour"));
+        CHECK_THROWS_AS(open("modbus+tcp://127.0.0.1:1?board=generic-aio&timeout_ms=50&retries=0"), DeviceError);  // refused
+    }
+}
