@@ -64,6 +64,23 @@ public:
         for (const char* role : {"sin_in", "cos_in", "position_count", "position_fraction", "position_rad", "status", "error_flags"})
             if (const auto* r = board_.find(role); r && r->readable) readback_.push_back(r);
         batches_ = plan_reads(readback_);
+        sin_in_ = board_.find("sin_in");
+        cos_in_ = board_.find("cos_in");
+        pos_count_ = board_.find("position_count");
+        pos_frac_ = board_.find("position_fraction");
+        pos_rad_ = board_.find("position_rad");
+        flags_ = board_.find("error_flags");
+        // What each request is called in errors, built once (not per step).
+        for (const auto& b : batches_) {
+            std::string names;
+            for (const auto* r : b.regs) names += (names.empty() ? "" : ",") + r->role;
+            batch_what_.push_back(std::string("read ") + (b.table == RegTable::Input ? "input" : "holding") + " " + names + " @" +
+                                  std::to_string(b.address) + "+" + std::to_string(b.count));
+        }
+        const auto* rs = sin_out_ = board_.find("sin_out");
+        const auto* rc = cos_out_ = board_.find("cos_out");
+        write_what_ = {"write sin_out,cos_out @" + std::to_string(rs->address), "write sin_out @" + std::to_string(rs->address),
+                       "write cos_out @" + std::to_string(rc->address)};
         regs_.resize(2 * in_base_);  // holding image, then input image
     }
     ~ModbusDevice() override {
@@ -107,17 +124,16 @@ public:
         bool dut_bad = false;
         for (int a = 0; a < average; ++a) {
             read_all();
-            if (const auto* r = board_.find("sin_in")) ss += decode_register(*r, &regs_[key(*r)]);
-            if (const auto* r = board_.find("cos_in")) cs += decode_register(*r, &regs_[key(*r)]);
+            if (sin_in_) ss += decode_register(*sin_in_, &regs_[key(*sin_in_)]);
+            if (cos_in_) cs += decode_register(*cos_in_, &regs_[key(*cos_in_)]);
         }
         out.sin_v = ss / average;
         out.cos_v = cs / average;
         // The DUT position of the last reading (angles are not averaged across a wrap).
-        if (const auto* f = board_.find("error_flags")) dut_bad = decode_register(*f, &regs_[key(*f)]) != 0;
-        if (const auto* r = board_.find("position_rad")) dut = decode_register(*r, &regs_[key(*r)]);
-        else if (board_.has_dut_position())
-            dut = kTwoPi * (decode_register(*board_.find("position_count"), &regs_[key(*board_.find("position_count"))]) +
-                            decode_register(*board_.find("position_fraction"), &regs_[key(*board_.find("position_fraction"))]));
+        if (flags_) dut_bad = decode_register(*flags_, &regs_[key(*flags_)]) != 0;
+        if (pos_rad_) dut = decode_register(*pos_rad_, &regs_[key(*pos_rad_)]);
+        else if (pos_count_ && pos_frac_)
+            dut = kTwoPi * (decode_register(*pos_count_, &regs_[key(*pos_count_)]) + decode_register(*pos_frac_, &regs_[key(*pos_frac_)]));
         if (dut && !dut_bad) out.dut_theta_rad = dut;
         else if (dut) ++flagged_;
         return out;
@@ -136,7 +152,7 @@ private:
     // Runs op with bounded retries; reconnects after a lost connection. Throws naming the
     // board, the register and libmodbus's message.
     template <class Op>
-    void with_retries(const std::string& what, Op op) {
+    void with_retries(const std::string& what, Op&& op) {
         for (int attempt = 0;; ++attempt) {
             if (!connected_) {
                 if (modbus_connect(ctx_) == 0) connected_ = true;
@@ -157,27 +173,23 @@ private:
     }
 
     void write_pair(double s, double c) {
-        const auto& rs = *board_.find("sin_out");
-        const auto& rc = *board_.find("cos_out");
+        const auto& rs = *sin_out_;
+        const auto& rc = *cos_out_;
         auto ws = encode_register(rs, s), wc = encode_register(rc, c);
         if (rc.address == rs.address + rs.words()) {  // adjacent: one request
             ws.insert(ws.end(), wc.begin(), wc.end());
-            with_retries("write sin_out,cos_out @" + std::to_string(rs.address),
-                         [&] { return modbus_write_registers(ctx_, rs.address, static_cast<int>(ws.size()), ws.data()); });
+            with_retries(write_what_[0], [&] { return modbus_write_registers(ctx_, rs.address, static_cast<int>(ws.size()), ws.data()); });
         } else {
-            with_retries("write sin_out @" + std::to_string(rs.address), [&] { return modbus_write_registers(ctx_, rs.address, static_cast<int>(ws.size()), ws.data()); });
-            with_retries("write cos_out @" + std::to_string(rc.address), [&] { return modbus_write_registers(ctx_, rc.address, static_cast<int>(wc.size()), wc.data()); });
+            with_retries(write_what_[1], [&] { return modbus_write_registers(ctx_, rs.address, static_cast<int>(ws.size()), ws.data()); });
+            with_retries(write_what_[2], [&] { return modbus_write_registers(ctx_, rc.address, static_cast<int>(wc.size()), wc.data()); });
         }
     }
 
     void read_all() {
-        for (const auto& b : batches_) {
+        for (std::size_t bi = 0; bi < batches_.size(); ++bi) {
+            const auto& b = batches_[bi];
             std::uint16_t* dst = &regs_[b.table == RegTable::Input ? in_base_ + static_cast<std::size_t>(b.address) : static_cast<std::size_t>(b.address)];
-            std::string names;
-            for (const auto* r : b.regs) names += (names.empty() ? "" : ",") + r->role;
-            const std::string what = std::string("read ") + (b.table == RegTable::Input ? "input" : "holding") + " " + names + " @" +
-                                     std::to_string(b.address) + "+" + std::to_string(b.count);
-            with_retries(what, [&] {
+            with_retries(batch_what_[bi], [&] {
                 const int n = b.table == RegTable::Input ? modbus_read_input_registers(ctx_, b.address, b.count, dst)
                                                          : modbus_read_registers(ctx_, b.address, b.count, dst);
                 if (n != -1 && n != b.count) {
@@ -198,6 +210,9 @@ private:
     bool connected_ = false;
     std::vector<const RegisterDef*> readback_;
     std::vector<ReadBatch> batches_;
+    std::vector<std::string> batch_what_, write_what_;
+    const RegisterDef *sin_out_ = nullptr, *cos_out_ = nullptr;
+    const RegisterDef *sin_in_ = nullptr, *cos_in_ = nullptr, *pos_count_ = nullptr, *pos_frac_ = nullptr, *pos_rad_ = nullptr, *flags_ = nullptr;
     static constexpr std::size_t in_base_ = 65536 + 2;
     std::vector<std::uint16_t> regs_;
     std::uint64_t flagged_ = 0;

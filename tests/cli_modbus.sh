@@ -1,0 +1,116 @@
+#!/usr/bin/env bash
+# Modbus end to end with real transports and third-party peers, all on 127.0.0.1 or a pty:
+#  - fringe run (step mode) against board-sim over TCP and over RTU on a socat pty pair;
+#  - mbpoll (Debian) writing and reading board-sim's registers;
+#  - pymodbus (Debian's python3-pymodbus) as the analog module fringe drives in step mode;
+#  - a board that drops mid-run ends the run as ERROR naming it.
+set -euo pipefail
+FRINGE="$1"; SRC="$(cd "$2" && pwd)"
+PY=/usr/bin/python3
+dir=$(mktemp -d); pids=()
+trap 'for p in "${pids[@]}"; do kill $p 2>/dev/null || true; done; rm -rf "$dir"' EXIT
+fail() { echo "FAIL: $*" >&2; for f in "$dir"/*.log; do echo "== $f" >&2; cat "$f" >&2; done; exit 1; }
+S="$SRC/fixtures/scenarios/modbus-step-sweep.json"
+
+sim() {  # sim NAME ARGS...: start board-sim, set SIM_URL (tcp) from its output
+  local name=$1; shift
+  timeout 120 "$FRINGE" board-sim "$@" > "$dir/$name.log" 2>&1 &
+  pids+=($!)
+  for _ in $(seq 100); do
+    SIM_AT=$(sed -n 's/.* listening on \(.*\)$/\1/p' "$dir/$name.log")
+    [ -n "$SIM_AT" ] && return 0
+    sleep 0.05
+  done
+  fail "board-sim $name did not start"
+}
+port_of() { echo "${1##*:}"; }
+
+# 1. TCP: the fixture against an emulated DUT board.
+sim dut --modbus tcp://127.0.0.1:0 --board dut-interpolator --noise-v 2e-4 --seed 3
+P=$(port_of "$SIM_AT")
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.0.0.1:$P?board=dut-interpolator" --report "$dir/tcp.json" --junit "$dir/tcp.xml" \
+  || fail "modbus-step-sweep over TCP should pass"
+$PY - "$dir/tcp.json" <<'PY'
+import json, sys
+r = json.load(open(sys.argv[1]))
+assert r["verdict"] == "PASS" and r["status"] == "done", (r["verdict"], r["error"])
+assert r["samples"]["processed"] == 128, r["samples"]
+est = {e["label"]: e for e in r["estimators"]}
+dut = est["dut"]["metrics"]
+# The on-board atan2 on the paper's diffraction signal: MODEL.md 5 gives 1.8e-2 rad rms.
+assert 0.015 < dut["rms"]["rad"] < 0.021, dut["rms"]
+assert dut["slipped_samples"] == 0 and dut["scored"] == 128, dut
+assert r["device"]["driver"] == "modbus" and r["device"]["board_id"].startswith("dut-interpolator@127.0.0.1:"), r["device"]
+PY
+grep -q 'classname="modbus-step-sweep.dut" name="rms_rad"' "$dir/tcp.xml" || fail "JUnit has the dut measurement"
+
+# 2. mbpoll (third-party client) against a fresh board-sim: write the drive floats, read the position.
+sim mb --modbus tcp://127.0.0.1:0 --board dut-interpolator --adc-bits 0
+P=$(port_of "$SIM_AT")
+timeout 10 mbpoll -q -m tcp -p "$P" -0 -r 100 -t 4:float -B -- 127.0.0.1 0.0 -1.0 > "$dir/mbw.log" 2>&1 || fail "mbpoll write"
+timeout 10 mbpoll -q -m tcp -p "$P" -0 -r 0 -c 5 -t 3 -1 127.0.0.1 > "$dir/mbr.log" 2>&1 || fail "mbpoll read"
+# theta = atan2(0, -1) = pi: count 0 (registers 0,1), fraction 0.5 -> 32768 (register 2), status 1, flags 0
+for want in "\[0\]:[[:space:]]*0$" "\[1\]:[[:space:]]*0$" "\[2\]:[[:space:]]*32768 (-32768)$" "\[3\]:[[:space:]]*1$" "\[4\]:[[:space:]]*0$"; do
+  grep -q "$want" "$dir/mbr.log" || fail "mbpoll read: expected $want in $(cat "$dir/mbr.log")"
+done
+timeout 10 mbpoll -q -m tcp -p "$P" -0 -r 100 -c 2 -t 4:float -B -1 127.0.0.1 > "$dir/mbf.log" 2>&1 || fail "mbpoll float read"
+grep -q "\[102\]:[[:space:]]*-1$" "$dir/mbf.log" || fail "mbpoll reads back cos_out = -1: $(cat "$dir/mbf.log")"
+
+# 3. RTU over a socat pty pair.
+socat -d -d pty,raw,echo=0,link="$dir/ttyA" pty,raw,echo=0,link="$dir/ttyB" 2> "$dir/socat.log" &
+pids+=($!)
+for _ in $(seq 100); do [ -e "$dir/ttyA" ] && [ -e "$dir/ttyB" ] && break; sleep 0.05; done
+sim rtu --modbus "rtu:$dir/ttyA" --board dut-interpolator --unit 7 --noise-v 2e-4
+"$FRINGE" run "$S" --no-db -q --device "modbus+rtu:$dir/ttyB?board=dut-interpolator&unit=7&baud=115200" --report "$dir/rtu.json" \
+  || fail "modbus-step-sweep over RTU should pass"
+$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["verdict"]=="PASS" and r["samples"]["processed"]==128, r["error"]' "$dir/rtu.json" \
+  || fail "RTU report"
+set +e
+"$FRINGE" run "$S" --no-db -q --device "modbus+rtu:$dir/ttyB?board=dut-interpolator&unit=9&timeout_ms=100&retries=1" --report "$dir/rtu9.json"; rc=$?
+set -e
+[ $rc -eq 2 ] || fail "a unit id nobody answers should end as ERROR (exit 2), got $rc"
+grep -q "timed out" "$dir/rtu9.json" || fail "unit 9: the error names the timeout"
+
+# 4. pymodbus as the analog module, driven in step mode (limits on atan2 only: it has no DUT position).
+PP=$($PY -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
+timeout 120 $PY "$SRC/tests/pymodbus_aio.py" "$PP" 262 > "$dir/pymodbus.log" 2>&1 &
+pids+=($!)
+for _ in $(seq 100); do grep -q listening "$dir/pymodbus.log" && break; sleep 0.1; done
+$PY - "$S" "$dir/aio.json" <<'PY'
+import json, sys
+sc = json.load(open(sys.argv[1]))
+sc["encoder"] = sys.argv[1].rsplit("/", 2)[0] + "/encoders/paper-d2-analog.json"
+sc["name"] = "pymodbus-aio"
+sc["limits"] = [{"estimator": "atan2", "metric": "slipped_samples", "max": 0}]
+json.dump(sc, open(sys.argv[2], "w"))
+PY
+"$FRINGE" run "$dir/aio.json" --no-db -q --device "modbus+tcp://127.0.0.1:$PP?board=generic-aio" --report "$dir/py.json" || fail "run against pymodbus"
+$PY - "$dir/py.json" "$dir/tcp.json" <<'PY'
+import cmath, json, sys
+r = json.load(open(sys.argv[1]))
+assert r["verdict"] == "PASS" and r["samples"]["processed"] == 128, r["error"]
+def h1(path):
+    rep = json.load(open(path))
+    h = {e["label"]: e for e in rep["estimators"]}["atan2"]["metrics"]["harmonics"][0]
+    return cmath.rect(h["amplitude"]["rad"], h["phase_rad"])
+# The peer adds 262 counts (0.01 V) to sin. An offset o adds a 1x error of amplitude o/A
+# (A = 1.093 V, the fundamental) to what atan2 shows on the same signals through board-sim.
+extra = abs(h1(sys.argv[1]) - h1(sys.argv[2]))
+assert abs(extra - 0.01 / 1.093) < 0.1 * 0.01 / 1.093, extra
+PY
+
+# 5. The board goes away mid-run: ERROR, naming the board.
+sim drop --modbus tcp://127.0.0.1:0 --board dut-interpolator --drop-after 60
+P=$(port_of "$SIM_AT")
+set +e
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.0.0.1:$P?board=dut-interpolator&timeout_ms=200&retries=1" --report "$dir/drop.json"; rc=$?
+set -e
+[ $rc -eq 2 ] || fail "a lost board should end the run as ERROR (exit 2), got $rc"
+$PY - "$dir/drop.json" <<'PY'
+import json, sys
+r = json.load(open(sys.argv[1]))
+assert r["verdict"] == "ERROR", r["verdict"]
+assert "board dut-interpolator at 127.0.0.1:" in r["error"], r["error"]
+assert r["samples"]["processed"] < 128, r["samples"]
+PY
+echo "cli.modbus: ok"
