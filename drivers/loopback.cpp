@@ -152,7 +152,7 @@ public:
     StepResult step(double s, double c, double settle_s, int average) override {
         // Static pair: the filters settle (run settle_s of samples), then average ADC reads.
         if (!running_) start(fs_ > 0 ? fs_ : 100e3);
-        const auto settle = static_cast<std::size_t>(std::ceil(settle_s * fs_)) + static_cast<std::size_t>(latency_);
+        const auto settle = static_cast<std::size_t>(std::ceil(std::max(settle_s, 0.0) * fs_)) + static_cast<std::size_t>(latency_);
         const std::size_t n = settle + static_cast<std::size_t>(std::max(average, 1));
         std::vector<double> vs(n, s), vc(n, c), rs(n), rc(n);
         write(vs, vc);

@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Runs the driver conformance tests (tests/conformance.cpp) against one backend, setting up
+# what it needs: loopback | capture | modbus-tcp | modbus-rtu.
+#   conformance.sh BACKEND FRINGE CONFORMANCE_BINARY SRC
+set -euo pipefail
+BACKEND="$1"; FRINGE="$2"; BIN="$3"; SRC="$(cd "$4" && pwd)"
+dir=$(mktemp -d); pids=()
+trap 'for p in "${pids[@]}"; do kill $p 2>/dev/null || true; done; rm -rf "$dir"' EXIT
+sim() {
+  timeout 120 "$FRINGE" board-sim "$@" > "$dir/sim.log" 2>&1 &
+  pids+=($!)
+  for _ in $(seq 100); do
+    AT=$(sed -n 's/.* listening on \(.*\)$/\1/p' "$dir/sim.log"); [ -n "$AT" ] && return 0; sleep 0.05
+  done
+  cat "$dir/sim.log" >&2; exit 1
+}
+case "$BACKEND" in
+  loopback) URI="loopback:?adc_bits=16&latency_samples=3&aa_cutoff_hz=45000" ;;
+  capture)
+    "$FRINGE" gen "$SRC/fixtures/scenarios/paper-duty1p6.json" -o "$dir/c.fcap" --samples 3000 -q
+    URI="capture:$dir/c.fcap" ;;
+  modbus-tcp)
+    sim --modbus tcp://127.0.0.1:0 --board generic-aio
+    URI="modbus+tcp://${AT#tcp://}?board=generic-aio&settle_s=0" ;;
+  modbus-rtu)
+    socat pty,raw,echo=0,link="$dir/ttyA" pty,raw,echo=0,link="$dir/ttyB" 2>/dev/null &
+    pids+=($!)
+    for _ in $(seq 100); do [ -e "$dir/ttyA" ] && [ -e "$dir/ttyB" ] && break; sleep 0.05; done
+    sim --modbus "rtu:$dir/ttyA" --board dut-interpolator --unit 3 --adc-bits 0
+    URI="modbus+rtu:$dir/ttyB?board=dut-interpolator&unit=3&settle_s=0" ;;
+  *) echo "unknown backend $BACKEND" >&2; exit 2 ;;
+esac
+FRINGE_TEST_URI="$URI" "$BIN"
