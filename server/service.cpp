@@ -2,6 +2,7 @@
 
 #include "drivers/capture_file.hpp"
 #include "drivers/device.hpp"
+#include "drivers/modbus_board.hpp"
 #include "estimator/estimator.hpp"
 #include "evaluate.hpp"
 #include "report_formats.hpp"
@@ -646,7 +647,18 @@ HttpResponse Service::devices() {
     for (const auto& s : runs_->live())
         if (s.status == "running" && !device_key(s.device).empty()) busy[device_key(s.device)] = true;
     for (auto& d : list) d["busy"] = busy.count(device_key(d["uri"].get<std::string>())) > 0;
-    return json_ok({{"devices", list}});
+    // Configured board profiles: the URI to use once the board's address is known.
+    json boards = json::array();
+    for (const auto& name : dev::board_names()) {
+        try {
+            const auto b = dev::load_board(name);
+            boards.push_back({{"name", b.name}, {"kind", b.kind}, {"description", b.description}, {"dut_position", b.has_dut_position()},
+                              {"uri_template", "modbus+tcp://HOST:PORT?board=" + b.name}});
+        } catch (const std::exception& e) {
+            boards.push_back({{"name", name}, {"problem", e.what()}});
+        }
+    }
+    return json_ok({{"devices", list}, {"boards", boards}});
 }
 
 // ---- captures -------------------------------------------------------------------------

@@ -106,7 +106,11 @@ TEST_CASE("service: catalogue endpoints answer JSON", "[service]") {
     for (const auto& x : f["fixtures"]) fig10c |= x["name"] == "fig10c-loopback" && x["runnable"] == true;
     CHECK(fig10c);
     CHECK(body_of(s.handle(req("GET", "/api/v1/drivers", "", false)))["drivers"].size() >= 2);
-    CHECK(body_of(s.handle(req("GET", "/api/v1/devices", "", false)))["devices"][0]["uri"] == "loopback:");
+    auto devs = body_of(s.handle(req("GET", "/api/v1/devices", "", false)));
+    CHECK(devs["devices"][0]["uri"] == "loopback:");
+    bool dut_board = false;
+    for (const auto& b : devs["boards"]) dut_board |= b["name"] == "dut-interpolator" && b["dut_position"] == true;
+    CHECK(dut_board);
     CHECK(body_of(s.handle(req("GET", "/api/v1/fixtures/fig10c-loopback", "", false)))["scenario"]["name"] == "fig10c-loopback");
     auto idx = s.handle(req("GET", "/", "", false));
     CHECK(idx.status == 200);
