@@ -7,6 +7,7 @@ namespace fringe::dev {
 void register_loopback(std::vector<DriverInfo>& r);
 void register_capture(std::vector<DriverInfo>& r);
 void register_modbus(std::vector<DriverInfo>& r);
+void register_usb(std::vector<DriverInfo>& r);
 
 const char* to_string(StreamStatus s) {
     switch (s) {
@@ -35,6 +36,7 @@ const std::vector<DriverInfo>& drivers() {
         register_loopback(r);
         register_capture(r);
         register_modbus(r);
+        register_usb(r);
         return r;
     }();
     return all;

@@ -1,0 +1,359 @@
+// USB streaming boards (docs/usb-protocol.md) over libusb-1.0: vendor control requests for
+// info, rate, start, stop, status; bulk OUT frames of DAC samples and bulk IN frames of ADC
+// samples with sequence numbers, several asynchronous transfers in flight each way, sized
+// from the sample rate. Sample loss is counted exactly from the IN sequence numbers; the
+// board's underflow flag, stalls, timeouts and unplugging become stream statuses, never
+// silence. Native errors keep libusb's names.
+#include "device.hpp"
+#include "signal_gen/config.hpp"
+#include "usb_protocol.hpp"
+
+#include <libusb.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <deque>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace fringe::dev {
+
+namespace {
+
+using clk = std::chrono::steady_clock;
+
+std::string usb_err(int rc) { return std::string(libusb_error_name(rc)) + " (" + libusb_strerror(static_cast<libusb_error>(rc)) + ")"; }
+
+class UsbDevice final : public Device {
+public:
+    UsbDevice(const std::string& uri, const std::string& path, const nlohmann::json& s) : uri_(uri) {
+        const Params p(s);
+        unsigned vid = 0, pid = 0;
+        if (path.empty()) {
+            vid = usbp::kTestVid;
+            pid = usbp::kTestPid;
+        } else if (std::sscanf(path.c_str(), "%x:%x", &vid, &pid) != 2 || vid > 0xffff || pid > 0xffff) {
+            throw ConfigError("device", "usb: expects usb:VID:PID in hex (e.g. usb:1209:ec01), got 'usb:" + path + "'");
+        }
+        want_serial_ = p.string("serial");
+        transfers_ = static_cast<int>(p.integer("transfers"));
+        frame_samples_setting_ = static_cast<int>(p.integer("frame_samples"));
+        timeout_ms_ = static_cast<int>(p.integer("timeout_ms"));
+        char id[16];
+        std::snprintf(id, sizeof id, "%04x:%04x", vid, pid);
+        vidpid_ = id;
+        if (const int rc = libusb_init(&ctx_); rc != 0) throw DeviceError(uri_, "libusb_init: " + usb_err(rc));
+        libusb_device** list = nullptr;
+        const auto n = libusb_get_device_list(ctx_, &list);
+        std::string seen;
+        for (ssize_t i = 0; i < n && !h_; ++i) {
+            libusb_device_descriptor d{};
+            if (libusb_get_device_descriptor(list[i], &d) != 0 || d.idVendor != vid || d.idProduct != pid) continue;
+            libusb_device_handle* h = nullptr;
+            if (const int rc = libusb_open(list[i], &h); rc != 0) {
+                seen += " " + vidpid_ + ": open: " + usb_err(rc) + ";";
+                continue;
+            }
+            usbp::Info info{};
+            const int got = libusb_control_transfer(h, 0xC0, usbp::GetInfo, 0, 0, reinterpret_cast<unsigned char*>(&info), sizeof info, 1000);
+            const std::string serial(info.serial, strnlen(info.serial, sizeof info.serial));
+            if (got != static_cast<int>(sizeof info) || info.protocol != usbp::kProtocolVersion) {
+                seen += " " + vidpid_ + ": GET_INFO " + (got < 0 ? usb_err(got) : "short or wrong protocol") + ";";
+                libusb_close(h);
+                continue;
+            }
+            if (!want_serial_.empty() && serial != want_serial_) {
+                seen += " serial " + serial + ";";
+                libusb_close(h);
+                continue;
+            }
+            h_ = h;
+            info_ = info;
+        }
+        libusb_free_device_list(list, 1);
+        if (!h_) {
+            libusb_exit(ctx_);
+            ctx_ = nullptr;
+            throw DeviceError(uri_, "no fringe USB board " + vidpid_ + (want_serial_.empty() ? "" : " with serial " + want_serial_) + " found" +
+                                        (seen.empty() ? "" : ":" + seen));
+        }
+        if (const int rc = libusb_claim_interface(h_, usbp::kInterface); rc != 0) {
+            libusb_close(h_);
+            libusb_exit(ctx_);
+            ctx_ = nullptr;
+            h_ = nullptr;
+            throw DeviceError(uri_, "claim interface 0: " + usb_err(rc));
+        }
+        range_v_ = info_.range_mv / 1000.0;
+        name_ = std::string(info_.name, strnlen(info_.name, sizeof info_.name));
+        serial_ = std::string(info_.serial, strnlen(info_.serial, sizeof info_.serial));
+    }
+
+    ~UsbDevice() override {
+        if (running_) stop_quietly();
+        for (auto& x : xfers_) libusb_free_transfer(x->t);
+        if (h_) {
+            libusb_release_interface(h_, usbp::kInterface);
+            libusb_close(h_);
+        }
+        if (ctx_) libusb_exit(ctx_);
+    }
+
+    DeviceInfo info() const override {
+        DeviceInfo i;
+        i.driver = "usb";
+        i.uri = uri_;
+        i.description = name_ + " (USB " + vidpid_ + ", " + std::to_string(info_.adc_bits) + "-bit ADC, " + std::to_string(info_.dac_bits) + "-bit DAC)";
+        i.board_id = name_ + "#" + serial_;
+        i.streaming = true;
+        i.dut_position = (info_.flags & 1) != 0;
+        i.settings = {{"serial", serial_}, {"transfers", transfers_}, {"frame_samples", frame_samples_}, {"timeout_ms", timeout_ms_},
+                      {"adc_bits", info_.adc_bits}, {"dac_bits", info_.dac_bits}, {"range_v", range_v_}, {"max_rate_hz", info_.max_rate_hz}};
+        return i;
+    }
+
+    void start(double fs) override {
+        if (running_) throw DeviceError(uri_, "already streaming");
+        if (fs <= 0 || fs > info_.max_rate_hz) throw DeviceError(uri_, "sample rate " + std::to_string(fs) + " Hz outside 0.." + std::to_string(info_.max_rate_hz));
+        // Frames of about 5 ms: few enough transfers per second, short enough latency.
+        frame_samples_ = frame_samples_setting_ > 0 ? frame_samples_setting_ : static_cast<int>(std::clamp(fs / 200.0, 64.0, 16384.0));
+        frame_samples_ = std::min<int>(frame_samples_, info_.max_frame_samples);
+        usbp::RateRequest rr{static_cast<std::uint32_t>(std::lround(fs)), static_cast<std::uint16_t>(frame_samples_), 0};
+        control_out(usbp::SetRate, &rr, sizeof rr, "SET_RATE");
+        dut_ = (info_.flags & 1) != 0;
+        for (auto& x : xfers_) libusb_free_transfer(x->t);
+        xfers_.clear();
+        const std::size_t in_bytes = usbp::frame_bytes(static_cast<std::size_t>(frame_samples_), dut_);
+        const std::size_t out_bytes = usbp::frame_bytes(static_cast<std::size_t>(frame_samples_), false);
+        for (int k = 0; k < 2 * transfers_; ++k) {
+            auto x = std::make_unique<Xfer>();
+            x->self = this;
+            x->in = k < transfers_;
+            x->buf.resize(x->in ? in_bytes : out_bytes);
+            x->t = libusb_alloc_transfer(0);
+            xfers_.push_back(std::move(x));
+        }
+        in_s_.clear();
+        in_c_.clear();
+        next_in_seq_ = 0;
+        out_seq_ = 0;
+        delivered_ = 0;
+        dropped_pending_ = 0;
+        underflow_ = false;
+        fault_.clear();
+        control_out(usbp::Start, nullptr, 0, "START");
+        running_ = true;
+        for (auto& x : xfers_)
+            if (x->in) submit(*x);
+    }
+
+    StreamResult write(std::span<const double> s, std::span<const double> c) override {
+        if (!running_) return {StreamStatus::Error, 0, 0, 0, "not streaming (start first)"};
+        std::size_t done = 0;
+        const auto deadline = clk::now() + std::chrono::milliseconds(timeout_ms_);
+        while (done < s.size()) {
+            if (!fault_.empty()) return {fault_status_, done, 0, 0, fault_};
+            Xfer* free = nullptr;
+            for (auto& x : xfers_)
+                if (!x->in && !x->busy) { free = x.get(); break; }
+            if (!free) {
+                if (clk::now() > deadline)
+                    return {StreamStatus::Timeout, done, 0, 0, "no OUT transfer completed within " + std::to_string(timeout_ms_) + " ms (the board stopped taking samples)"};
+                pump(10);
+                continue;
+            }
+            const std::size_t n = std::min<std::size_t>(static_cast<std::size_t>(frame_samples_), s.size() - done);
+            usbp::FrameHeader hdr{usbp::kMagic, out_seq_++, static_cast<std::uint16_t>(n), 0, 0};
+            std::memcpy(free->buf.data(), &hdr, sizeof hdr);
+            auto* p = free->buf.data() + sizeof hdr;
+            for (std::size_t i = 0; i < n; ++i) {
+                const std::int16_t a = to_code(s[done + i]), b = to_code(c[done + i]);
+                std::memcpy(p + 4 * i, &a, 2);
+                std::memcpy(p + 4 * i + 2, &b, 2);
+            }
+            free->len = static_cast<int>(usbp::frame_bytes(n, false));
+            submit(*free);
+            if (!fault_.empty()) return {fault_status_, done, 0, 0, fault_};
+            done += n;
+        }
+        return {StreamStatus::Ok, done, 0, 0, ""};
+    }
+
+    StreamResult read(std::span<double> s, std::span<double> c, int timeout_ms) override {
+        if (!running_) return {StreamStatus::Error, 0, 0, 0, "not streaming (start first)"};
+        const auto deadline = clk::now() + std::chrono::milliseconds(std::max(timeout_ms, 0));
+        for (;;) {
+            // What went wrong is reported before what arrived after it.
+            if (dropped_pending_) {
+                const std::uint64_t d = dropped_pending_;
+                dropped_pending_ = 0;
+                return {StreamStatus::Overflow, 0, delivered_, d, std::to_string(d) + " samples lost: IN frames " + lost_frames_ + " never arrived"};
+            }
+            if (underflow_) {
+                underflow_ = false;
+                return {StreamStatus::Underflow, 0, delivered_, 0, "the board ran out of DAC samples (IN frame flagged underflow)"};
+            }
+            if (!in_s_.empty()) break;
+            if (!fault_.empty()) return {fault_status_, 0, delivered_, 0, fault_};
+            if (clk::now() >= deadline) return {StreamStatus::Timeout, 0, delivered_, 0, "no IN frame within " + std::to_string(timeout_ms) + " ms"};
+            pump(10);
+        }
+        const std::size_t n = std::min(s.size(), in_s_.size());
+        const double q = range_v_ / 32768.0;
+        for (std::size_t i = 0; i < n; ++i) {
+            s[i] = in_s_[i] * q;
+            c[i] = in_c_[i] * q;
+        }
+        in_s_.erase(in_s_.begin(), in_s_.begin() + static_cast<std::ptrdiff_t>(n));
+        in_c_.erase(in_c_.begin(), in_c_.begin() + static_cast<std::ptrdiff_t>(n));
+        StreamResult r{StreamStatus::Ok, n, delivered_, 0, ""};
+        delivered_ += n;
+        return r;
+    }
+
+    void stop() override {
+        if (running_) stop_quietly();
+    }
+
+private:
+    struct Xfer {
+        UsbDevice* self = nullptr;
+        libusb_transfer* t = nullptr;
+        std::vector<unsigned char> buf;
+        int len = 0;
+        bool in = false, busy = false;
+    };
+
+    std::int16_t to_code(double v) const {
+        const double code = std::nearbyint(v / range_v_ * 32768.0);
+        return static_cast<std::int16_t>(std::clamp(std::isfinite(code) ? code : 0.0, -32768.0, 32767.0));
+    }
+
+    void control_out(std::uint8_t req, const void* data, std::uint16_t len, const char* what) {
+        const int rc = libusb_control_transfer(h_, 0x40, req, 0, 0, static_cast<unsigned char*>(const_cast<void*>(data)), len, 1000);
+        if (rc < 0) throw DeviceError(uri_, std::string(what) + ": " + usb_err(rc));
+    }
+
+    void submit(Xfer& x) {
+        if (x.in) {
+            libusb_fill_bulk_transfer(x.t, h_, usbp::kEpIn, x.buf.data(), static_cast<int>(x.buf.size()), &UsbDevice::on_done, &x, 0);
+        } else {
+            libusb_fill_bulk_transfer(x.t, h_, usbp::kEpOut, x.buf.data(), x.len, &UsbDevice::on_done, &x, static_cast<unsigned>(timeout_ms_));
+        }
+        const int rc = libusb_submit_transfer(x.t);
+        if (rc != 0) {
+            fail(StreamStatus::Error, std::string("submit ") + (x.in ? "IN" : "OUT") + ": " + (rc == LIBUSB_ERROR_NO_DEVICE ? "device unplugged, " : "") + usb_err(rc));
+            return;
+        }
+        x.busy = true;
+    }
+
+    void fail(StreamStatus st, const std::string& msg) {
+        if (fault_.empty()) {
+            fault_ = msg;
+            fault_status_ = st;
+        }
+    }
+
+    static void LIBUSB_CALL on_done(libusb_transfer* t) {
+        auto* x = static_cast<Xfer*>(t->user_data);
+        x->busy = false;
+        x->self->completed(*x);
+    }
+
+    void completed(Xfer& x) {
+        const auto* t = x.t;
+        const char* ep = x.in ? "IN endpoint 0x81" : "OUT endpoint 0x01";
+        switch (t->status) {
+            case LIBUSB_TRANSFER_COMPLETED: break;
+            case LIBUSB_TRANSFER_CANCELLED: return;
+            case LIBUSB_TRANSFER_STALL: fail(StreamStatus::Error, std::string("stall on ") + ep); return;
+            case LIBUSB_TRANSFER_NO_DEVICE: fail(StreamStatus::Error, "device unplugged (" + std::string(ep) + ")"); return;
+            case LIBUSB_TRANSFER_TIMED_OUT: fail(StreamStatus::Timeout, std::string("transfer timed out on ") + ep); return;
+            default: fail(StreamStatus::Error, std::string("transfer error on ") + ep + ": " + libusb_error_name(t->status)); return;
+        }
+        if (!x.in) return;
+        if (t->actual_length < static_cast<int>(sizeof(usbp::FrameHeader))) {
+            fail(StreamStatus::Error, "short IN frame (" + std::to_string(t->actual_length) + " bytes)");
+            return;
+        }
+        usbp::FrameHeader h;
+        std::memcpy(&h, x.buf.data(), sizeof h);
+        const bool dut = (h.flags & usbp::kFlagDut) != 0;
+        if (h.magic != usbp::kMagic || static_cast<std::size_t>(t->actual_length) < usbp::frame_bytes(h.samples, dut)) {
+            fail(StreamStatus::Error, "malformed IN frame (seq " + std::to_string(h.seq) + ")");
+            return;
+        }
+        if (h.seq != next_in_seq_) {
+            const std::uint32_t gap = h.seq - next_in_seq_;
+            dropped_pending_ += static_cast<std::uint64_t>(gap) * static_cast<std::uint64_t>(frame_samples_);
+            lost_frames_ = std::to_string(next_in_seq_) + (gap > 1 ? ".." + std::to_string(h.seq - 1) : "");
+        }
+        next_in_seq_ = h.seq + 1;
+        if (h.flags & usbp::kFlagUnderflow) underflow_ = true;
+        const auto* p = x.buf.data() + sizeof h;
+        for (std::size_t i = 0; i < h.samples; ++i) {
+            std::int16_t a, b;
+            std::memcpy(&a, p + 4 * i, 2);
+            std::memcpy(&b, p + 4 * i + 2, 2);
+            in_s_.push_back(a);
+            in_c_.push_back(b);
+        }
+        if (running_) submit(x);
+    }
+
+    void pump(int ms) {
+        timeval tv{0, ms * 1000};
+        const int rc = libusb_handle_events_timeout_completed(ctx_, &tv, nullptr);
+        if (rc != 0 && rc != LIBUSB_ERROR_INTERRUPTED) fail(StreamStatus::Error, "libusb events: " + usb_err(rc));
+    }
+
+    void stop_quietly() {
+        running_ = false;
+        if (fault_.empty() || fault_status_ != StreamStatus::Error) {
+            const int rc = libusb_control_transfer(h_, 0x40, usbp::Stop, 0, 0, nullptr, 0, 1000);
+            (void)rc;  // a board that is gone cannot be stopped; the transfers below still end
+        }
+        for (auto& x : xfers_)
+            if (x->busy) libusb_cancel_transfer(x->t);
+        const auto until = clk::now() + std::chrono::seconds(1);
+        while (clk::now() < until && std::any_of(xfers_.begin(), xfers_.end(), [](const auto& x) { return x->busy; })) pump(10);
+    }
+
+    std::string uri_, vidpid_, want_serial_, name_, serial_;
+    libusb_context* ctx_ = nullptr;
+    libusb_device_handle* h_ = nullptr;
+    usbp::Info info_{};
+    double range_v_ = 1.25;
+    int transfers_ = 8, frame_samples_setting_ = 0, frame_samples_ = 0, timeout_ms_ = 1000;
+    bool dut_ = false, running_ = false, underflow_ = false;
+    std::vector<std::unique_ptr<Xfer>> xfers_;
+    std::deque<std::int16_t> in_s_, in_c_;
+    std::uint32_t next_in_seq_ = 0, out_seq_ = 0;
+    std::uint64_t delivered_ = 0, dropped_pending_ = 0;
+    std::string lost_frames_, fault_;
+    StreamStatus fault_status_ = StreamStatus::Ok;
+};
+
+}  // namespace
+
+void register_usb(std::vector<DriverInfo>& r) {
+    DriverInfo d;
+    d.scheme = "usb";
+    d.summary = "USB streaming board (docs/usb-protocol.md) over libusb: usb:VID:PID[?serial=...]; default VID:PID 1209:ec01";
+    d.settings = {
+        {"serial", "", ParamType::String, "", -kInf, kInf, {}, "only the board with this serial (from GET_INFO); empty: the first found"},
+        {"transfers", "", ParamType::Integer, 8, 2, 64, {}, "bulk transfers in flight each way"},
+        {"frame_samples", "samples", ParamType::Integer, 0, 0, 16384, {}, "sample pairs per frame (0: about 5 ms at the stream rate)"},
+        {"timeout_ms", "ms", ParamType::Integer, 1000, 10, 60000, {}, "how long a write may wait for the board to take samples"},
+    };
+    d.open = [](const std::string& uri, const std::string& path, const nlohmann::json& s) -> std::unique_ptr<Device> {
+        return std::make_unique<UsbDevice>(uri, path, s);
+    };
+    r.push_back(std::move(d));
+}
+
+}  // namespace fringe::dev

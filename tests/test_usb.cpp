@@ -1,0 +1,176 @@
+// The USB driver against the emulated board (libumockdev), run under umockdev's preload:
+// identification, a streamed loopback, exact drop counts, underflow, stall, silence, unplug.
+// Registered in ctest with LD_PRELOAD=libumockdev-preload.so.0 (label usb).
+#include "drivers/device.hpp"
+#include "drivers/usb_emulator.hpp"
+#include "signal_gen/config.hpp"
+
+#include <catch2/catch.hpp>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <thread>
+#include <vector>
+
+using namespace fringe;
+using namespace fringe::dev;
+using clk = std::chrono::steady_clock;
+
+namespace {
+constexpr double kPi = 3.14159265358979323846;
+
+struct Stream {
+    std::vector<double> s, c;
+    explicit Stream(std::size_t n, double f = 0.01) : s(n), c(n) {
+        for (std::size_t k = 0; k < n; ++k) {
+            s[k] = 0.9 * std::sin(2 * kPi * f * static_cast<double>(k));
+            c[k] = 0.9 * std::cos(2 * kPi * f * static_cast<double>(k));
+        }
+    }
+};
+
+// Writes everything, one block ahead of what it reads back (a real-time board must never run
+// dry); returns the first non-Ok status (or Ok with all frames).
+StreamResult loop(Device& d, const Stream& in, std::vector<double>& rs, std::vector<double>& rc, std::size_t block = 8192) {
+    rs.assign(in.s.size(), 0);
+    rc.assign(in.s.size(), 0);
+    std::size_t got = 0, put = 0;
+    while (got < in.s.size()) {
+        while (put < in.s.size() && put < got + 2 * block) {
+            const std::size_t n = std::min(block, in.s.size() - put);
+            const auto w = d.write(std::span(in.s).subspan(put, n), std::span(in.c).subspan(put, n));
+            if (w.status != StreamStatus::Ok) return w;
+            put += n;
+        }
+        const std::size_t want = std::min(block, put - got);
+        const auto r = d.read(std::span(rs).subspan(got, want), std::span(rc).subspan(got, want), 1000);
+        if (r.status != StreamStatus::Ok) return r;
+        got += r.frames;
+    }
+    return {StreamStatus::Ok, got, 0, 0, ""};
+}
+}  // namespace
+
+TEST_CASE("usb: the emulated board identifies itself and selects by serial", "[usb]") {
+    UsbEmulator emu(parse_usb_emulator_options("serial=B0042"));
+    auto d = open("usb:1209:ec01");
+    const auto i = d->info();
+    CHECK(i.driver == "usb");
+    CHECK(i.streaming);
+    CHECK(i.board_id == "fringe-usb-sim#B0042");
+    CHECK(open("usb:1209:ec01?serial=B0042")->info().board_id == "fringe-usb-sim#B0042");
+    CHECK_THROWS_WITH(open("usb:1209:ec01?serial=NOPE"), Catch::Contains("no fringe USB board 1209:ec01 with serial NOPE"));
+    CHECK_THROWS_WITH(open("usb:dead:beef"), Catch::Contains("no fringe USB board dead:beef"));
+    CHECK_THROWS_WITH(open("usb:xyz"), Catch::Contains("usb:VID:PID"));
+    CHECK_THROWS_AS(d->start(50e6), DeviceError);  // beyond max_rate_hz
+}
+
+TEST_CASE("usb: a streamed loopback returns what was written, in order", "[usb]") {
+    UsbEmulator emu(parse_usb_emulator_options("adc_bits=16"));
+    auto d = open("usb:1209:ec01?transfers=6");
+    d->start(200000.0);
+    Stream in(60000);
+    std::vector<double> rs, rc;
+    const auto r = loop(*d, in, rs, rc);
+    d->stop();
+    REQUIRE(r.status == StreamStatus::Ok);
+    double emax = 0;
+    for (std::size_t k = 0; k < in.s.size(); ++k) emax = std::max({emax, std::fabs(rs[k] - in.s[k]), std::fabs(rc[k] - in.c[k])});
+    CHECK(emax <= 1.25 / 32768);  // int16 codes both ways: within one code
+    const auto st = emu.status();
+    CHECK(st.in_dropped == 0);
+    CHECK(st.underflows <= 1);  // the last partial frame may run dry before stop
+}
+
+TEST_CASE("usb: frames the board drops are counted exactly", "[usb]") {
+    UsbEmulator emu(parse_usb_emulator_options("drop_at=5,drop_count=3"));
+    auto d = open("usb:1209:ec01?frame_samples=1000");
+    d->start(200000.0);
+    Stream in(40000);
+    std::vector<double> rs, rc;
+    const auto r = loop(*d, in, rs, rc);
+    d->stop();
+    REQUIRE(r.status == StreamStatus::Overflow);
+    CHECK(r.dropped == 3000);   // 3 frames of 1000 sample pairs
+    CHECK(r.first_index == 5000);
+    CHECK(r.message.find("IN frames 5..7") != std::string::npos);
+}
+
+TEST_CASE("usb: a host that does not keep up loses frames, and knows how many", "[usb]") {
+    UsbEmulator emu(parse_usb_emulator_options(""));
+    auto d = open("usb:1209:ec01?frame_samples=500&transfers=2");
+    d->start(1000000.0);
+    Stream in(4000);
+    REQUIRE(d->write(in.s, in.c).status == StreamStatus::Ok);
+    std::this_thread::sleep_for(std::chrono::milliseconds(60));  // ~120 frames due, 2 transfers waiting
+    std::vector<double> rs(100000), rc(100000);
+    StreamResult r;
+    for (int i = 0; i < 50; ++i) {
+        r = d->read(rs, rc, 200);
+        if (r.status != StreamStatus::Ok) break;
+    }
+    d->stop();
+    CHECK(r.status == StreamStatus::Overflow);
+    CHECK(r.dropped > 0);
+    CHECK(r.dropped % 500 == 0);
+    CHECK(emu.status().in_dropped >= r.dropped / 500);
+}
+
+TEST_CASE("usb: running out of DAC samples is an underflow", "[usb]") {
+    UsbEmulator emu(parse_usb_emulator_options(""));
+    auto d = open("usb:1209:ec01?frame_samples=1000");
+    d->start(100000.0);
+    Stream in(2000);
+    REQUIRE(d->write(in.s, in.c).status == StreamStatus::Ok);  // two frames, then nothing
+    std::vector<double> rs(5000), rc(5000);
+    StreamResult r;
+    std::size_t got = 0;
+    for (int i = 0; i < 10; ++i) {
+        r = d->read(rs, rc, 500);
+        if (r.status != StreamStatus::Ok) break;
+        got += r.frames;
+    }
+    d->stop();
+    CHECK(got == 2000);  // what was written came back first
+    CHECK(r.status == StreamStatus::Underflow);
+    CHECK(emu.status().underflows >= 1);
+}
+
+TEST_CASE("usb: stall, silence and unplug are errors, unplug within 1 s", "[usb]") {
+    std::vector<double> rs, rc;
+    SECTION("stall") {
+        UsbEmulator emu(parse_usb_emulator_options("stall_after=4"));
+        auto d = open("usb:1209:ec01?frame_samples=1000");
+        d->start(100000.0);
+        const auto r = loop(*d, Stream(20000), rs, rc);
+        CHECK(r.status == StreamStatus::Error);
+        CHECK(r.message == "stall on IN endpoint 0x81");
+    }
+    SECTION("the board goes silent") {
+        UsbEmulator emu(parse_usb_emulator_options("silent_after=3"));
+        auto d = open("usb:1209:ec01?frame_samples=1000&timeout_ms=200");
+        d->start(100000.0);
+        const auto r = loop(*d, Stream(20000), rs, rc);
+        CHECK((r.status == StreamStatus::Timeout));
+    }
+    SECTION("unplugged mid-stream") {
+        UsbEmulator emu(parse_usb_emulator_options(""));
+        auto d = open("usb:1209:ec01?frame_samples=1000");
+        d->start(100000.0);
+        Stream in(1000000);
+        std::atomic<clk::rep> unplugged_at{0};
+        std::thread pull([&] {
+            std::this_thread::sleep_for(std::chrono::milliseconds(100));
+            emu.unplug();
+            unplugged_at = clk::now().time_since_epoch().count();
+        });
+        const auto r = loop(*d, in, rs, rc, 4000);
+        const auto t_err = clk::now();
+        pull.join();
+        CHECK(r.status == StreamStatus::Error);
+        CHECK(r.message.find("device unplugged") != std::string::npos);
+        const double after_s = std::chrono::duration<double>(t_err.time_since_epoch() - clk::duration(unplugged_at.load())).count();
+        CHECK(after_s < 1.0);
+    }
+}
