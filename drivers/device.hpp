@@ -76,6 +76,9 @@ public:
     virtual void start(double sample_rate_hz) = 0;
     // Queue output frames (V). Non-blocking for simulated devices.
     virtual StreamResult write(std::span<const double> sin_v, std::span<const double> cos_v) = 0;
+    // The last write has been made. A device that sends whole frames (USB) sends the
+    // remainder now as the stream's final, short frame; others have nothing to do.
+    virtual void end_of_output() {}
     // Read up to sin_v.size() input frames (V).
     virtual StreamResult read(std::span<double> sin_v, std::span<double> cos_v, int timeout_ms) = 0;
     virtual void stop() = 0;

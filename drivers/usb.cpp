@@ -143,6 +143,8 @@ public:
         delivered_ = 0;
         dropped_pending_ = 0;
         underflow_ = false;
+        ended_ = false;
+        out_codes_.clear();
         fault_.clear();
         control_out(usbp::Start, nullptr, 0, "START");
         running_ = true;
@@ -150,36 +152,25 @@ public:
             if (x->in) submit(*x);
     }
 
+    // Whole frames only: a short frame tells the board the output has ended (end_of_output).
     StreamResult write(std::span<const double> s, std::span<const double> c) override {
         if (!running_) return {StreamStatus::Error, 0, 0, 0, "not streaming (start first)"};
-        std::size_t done = 0;
-        const auto deadline = clk::now() + std::chrono::milliseconds(timeout_ms_);
-        while (done < s.size()) {
-            if (!fault_.empty()) return {fault_status_, done, 0, 0, fault_};
-            Xfer* free = nullptr;
-            for (auto& x : xfers_)
-                if (!x->in && !x->busy) { free = x.get(); break; }
-            if (!free) {
-                if (clk::now() > deadline)
-                    return {StreamStatus::Timeout, done, 0, 0, "no OUT transfer completed within " + std::to_string(timeout_ms_) + " ms (the board stopped taking samples)"};
-                pump(10);
-                continue;
-            }
-            const std::size_t n = std::min<std::size_t>(static_cast<std::size_t>(frame_samples_), s.size() - done);
-            usbp::FrameHeader hdr{usbp::kMagic, out_seq_++, static_cast<std::uint16_t>(n), 0, 0};
-            std::memcpy(free->buf.data(), &hdr, sizeof hdr);
-            auto* p = free->buf.data() + sizeof hdr;
-            for (std::size_t i = 0; i < n; ++i) {
-                const std::int16_t a = to_code(s[done + i]), b = to_code(c[done + i]);
-                std::memcpy(p + 4 * i, &a, 2);
-                std::memcpy(p + 4 * i + 2, &b, 2);
-            }
-            free->len = static_cast<int>(usbp::frame_bytes(n, false));
-            submit(*free);
-            if (!fault_.empty()) return {fault_status_, done, 0, 0, fault_};
-            done += n;
+        if (ended_) return {StreamStatus::Error, 0, 0, 0, "write after end_of_output"};
+        for (std::size_t i = 0; i < s.size(); ++i) {
+            out_codes_.push_back(to_code(s[i]));
+            out_codes_.push_back(to_code(c[i]));
         }
-        return {StreamStatus::Ok, done, 0, 0, ""};
+        const auto fs = static_cast<std::size_t>(frame_samples_);
+        while (out_codes_.size() >= 2 * fs) {
+            if (auto r = send_frame(fs); r.status != StreamStatus::Ok) return r;
+        }
+        return {StreamStatus::Ok, s.size(), 0, 0, ""};
+    }
+
+    void end_of_output() override {
+        if (!running_ || ended_) return;
+        ended_ = true;
+        if (!out_codes_.empty()) send_frame(out_codes_.size() / 2);
     }
 
     StreamResult read(std::span<double> s, std::span<double> c, int timeout_ms) override {
@@ -219,6 +210,29 @@ public:
     }
 
 private:
+    StreamResult send_frame(std::size_t n) {
+        const auto deadline = clk::now() + std::chrono::milliseconds(timeout_ms_);
+        for (;;) {
+            if (!fault_.empty()) return {fault_status_, 0, 0, 0, fault_};
+            Xfer* free = nullptr;
+            for (auto& x : xfers_)
+                if (!x->in && !x->busy) { free = x.get(); break; }
+            if (free) {
+                usbp::FrameHeader hdr{usbp::kMagic, out_seq_++, static_cast<std::uint16_t>(n), 0, 0};
+                std::memcpy(free->buf.data(), &hdr, sizeof hdr);
+                std::memcpy(free->buf.data() + sizeof hdr, out_codes_.data(), 4 * n);
+                out_codes_.erase(out_codes_.begin(), out_codes_.begin() + static_cast<std::ptrdiff_t>(2 * n));
+                free->len = static_cast<int>(usbp::frame_bytes(n, false));
+                submit(*free);
+                if (!fault_.empty()) return {fault_status_, 0, 0, 0, fault_};
+                return {StreamStatus::Ok, n, 0, 0, ""};
+            }
+            if (clk::now() > deadline)
+                return {StreamStatus::Timeout, 0, 0, 0, "no OUT transfer completed within " + std::to_string(timeout_ms_) + " ms (the board stopped taking samples)"};
+            pump(10);
+        }
+    }
+
     struct Xfer {
         UsbDevice* self = nullptr;
         libusb_transfer* t = nullptr;
@@ -332,6 +346,8 @@ private:
     bool dut_ = false, running_ = false, underflow_ = false;
     std::vector<std::unique_ptr<Xfer>> xfers_;
     std::deque<std::int16_t> in_s_, in_c_;
+    std::vector<std::int16_t> out_codes_;  // interleaved sin, cos codes not yet sent as a whole frame
+    bool ended_ = false;
     std::uint32_t next_in_seq_ = 0, out_seq_ = 0;
     std::uint64_t delivered_ = 0, dropped_pending_ = 0;
     std::string lost_frames_, fault_;

@@ -88,6 +88,7 @@ struct UsbEmulator::Impl {
     // stream state
     bool running = false, unplugged = false, stalled = false;
     bool clock_started = false;  // the sample clock starts with the first OUT frame after START
+    bool out_ended = false;      // a short OUT frame ended the output: convert the rest, then stop
     std::uint32_t rate_hz = 100000;
     std::uint16_t frame_samples = 512;
     clk::time_point t0;
@@ -137,6 +138,7 @@ struct UsbEmulator::Impl {
                 continue;
             }
             if (fifo_s.size() + h.samples > fifo_cap()) break;
+            if (h.samples < frame_samples) out_ended = true;
             const auto* p = r.buf->data + sizeof h;
             for (std::size_t i = 0; i < h.samples; ++i) {
                 std::int16_t a, b;
@@ -168,11 +170,14 @@ struct UsbEmulator::Impl {
                 return;
             }
             if (o.stall_after >= 0 && static_cast<long long>(produced) >= o.stall_after) stalled = true;
+            if (out_ended && fifo_s.empty()) return;  // the stream is over
+            // After the output ended, the last frame holds what is left.
+            const std::size_t nf = out_ended ? std::min<std::size_t>(frame_samples, fifo_s.size()) : frame_samples;
             const std::uint32_t seq = static_cast<std::uint32_t>(produced++);
             ++st.in_frames;
             bool under = false;
-            std::vector<std::int16_t> s(frame_samples), c(frame_samples);
-            for (std::size_t i = 0; i < frame_samples; ++i) {
+            std::vector<std::int16_t> s(nf), c(nf);
+            for (std::size_t i = 0; i < nf; ++i) {
                 if (fifo_s.empty()) {
                     under = true;  // nothing to convert: the DAC holds zero
                     s[i] = c[i] = 0;
@@ -196,15 +201,15 @@ struct UsbEmulator::Impl {
                 finish(r, -EPIPE, 0);
                 continue;
             }
-            const std::size_t bytes = usbp::frame_bytes(frame_samples, false);
+            const std::size_t bytes = usbp::frame_bytes(nf, false);
             if (static_cast<std::size_t>(r.u()->buffer_length) < bytes) {
                 finish(r, -EOVERFLOW, 0);
                 continue;
             }
-            usbp::FrameHeader h{usbp::kMagic, seq, frame_samples, static_cast<std::uint16_t>(under ? usbp::kFlagUnderflow : 0), 0};
+            usbp::FrameHeader h{usbp::kMagic, seq, static_cast<std::uint16_t>(nf), static_cast<std::uint16_t>(under ? usbp::kFlagUnderflow : 0), 0};
             std::memcpy(r.buf->data, &h, sizeof h);
             auto* p = r.buf->data + sizeof h;
-            for (std::size_t i = 0; i < frame_samples; ++i) {
+            for (std::size_t i = 0; i < nf; ++i) {
                 const std::int16_t a = adc(s[i]), b = adc(c[i]);
                 std::memcpy(p + 4 * i, &a, 2);
                 std::memcpy(p + 4 * i + 2, &b, 2);
@@ -253,6 +258,7 @@ struct UsbEmulator::Impl {
             case usbp::Start:
                 running = true;
                 clock_started = false;
+                out_ended = false;
                 stalled = false;
                 produced = 0;
                 st = usbp::Status{};
@@ -281,7 +287,8 @@ struct UsbEmulator::Impl {
         switch (request) {
             case USBDEVFS_GET_CAPABILITIES: {
                 UMockdevIoctlData* d = umockdev_ioctl_data_resolve(arg, 0, sizeof(guint32), nullptr);
-                const guint32 caps = USBDEVFS_CAP_BULK_CONTINUATION | USBDEVFS_CAP_NO_PACKET_SIZE_LIM | USBDEVFS_CAP_REAP_AFTER_DISCONNECT | USBDEVFS_CAP_ZERO_PACKET;
+                // Scatter-gather: libusb sends each transfer as one URB, so one URB is one frame.
+                const guint32 caps = USBDEVFS_CAP_BULK_SCATTER_GATHER | USBDEVFS_CAP_NO_PACKET_SIZE_LIM | USBDEVFS_CAP_REAP_AFTER_DISCONNECT | USBDEVFS_CAP_ZERO_PACKET;
                 std::memcpy(d->data, &caps, sizeof caps);
                 g_object_unref(d);
                 umockdev_ioctl_client_complete(client, 0, 0);

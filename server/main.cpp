@@ -17,6 +17,11 @@
 #include "signal_gen/fastmath.hpp"
 #include "signal_gen/generator.hpp"
 
+#ifdef FRINGE_WITH_USB_EMULATOR
+#include "drivers/usb_emulator.hpp"
+#include <cstring>
+#endif
+
 #include <CLI/CLI.hpp>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
@@ -454,6 +459,27 @@ int run_serve(const ServeOptions& o) {
 }  // namespace
 
 int main(int argc, char** argv) {
+#ifdef FRINGE_WITH_USB_EMULATOR
+    // fringe-usb-sim: the fringe CLI with an emulated USB board in this process (umockdev;
+    // options from $FRINGE_USB_EMULATOR, e.g. "drop_at=40,unplug_after=200"). umockdev's
+    // preload must be there from the start: re-exec with it.
+    if (const char* pre = std::getenv("LD_PRELOAD"); !pre || !std::strstr(pre, "libumockdev-preload")) {
+        setenv("LD_PRELOAD", "libumockdev-preload.so.0", 1);
+        const char* asan = std::getenv("ASAN_OPTIONS");
+        setenv("ASAN_OPTIONS", (std::string(asan ? asan : "") + ":verify_asan_link_order=0").c_str(), 1);
+        execv("/proc/self/exe", argv);
+        std::perror("fringe-usb-sim: re-exec under umockdev's preload");
+        return 2;
+    }
+    std::unique_ptr<dev::UsbEmulator> usb_emulator;
+    try {
+        const char* spec = std::getenv("FRINGE_USB_EMULATOR");
+        usb_emulator = std::make_unique<dev::UsbEmulator>(dev::parse_usb_emulator_options(spec ? spec : ""));
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "error: %s\n", e.what());
+        return 2;
+    }
+#endif
     auto logger = spdlog::stderr_color_mt("fringe");
     spdlog::set_default_logger(logger);
     spdlog::set_pattern("%^%l%$: %v");

@@ -149,6 +149,15 @@ void validate_run(const Scenario& sc) {
     }
 }
 
+json unstarted_report(const Scenario& sc, const std::string& id, const std::string& started_at, const std::string& status,
+                      const std::string& verdict, const std::string& error) {
+    return json{{"schema", "fringe.report"}, {"schema_version", 1}, {"fringe_version", FRINGE_VERSION}, {"id", id},
+                {"started_at", started_at}, {"finished_at", iso_now()}, {"wall_s", 0.0}, {"scenario", sc}, {"seed", sc.seed},
+                {"device", nullptr}, {"status", status}, {"verdict", verdict}, {"error", error},
+                {"samples", {{"planned", sc.samples()}, {"processed", 0}}}, {"estimators", json::array()},
+                {"measurements", json::array()}, {"traces", json::object()}};
+}
+
 json execute_run(const Scenario& sc, const RunOptions& o) {
     validate_run(sc);
     json report;
@@ -206,6 +215,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
         Block b;
         std::vector<double> in_s, in_c, t_s, th_true, om_true;
         std::vector<std::uint8_t> known;
+        std::uint64_t k_out = 0;  // samples generated and written so far
         for (std::uint64_t k = 0; k < total;) {
             if (o.cancel && o.cancel->load()) { status = "aborted"; error = "cancelled"; break; }
             const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(step_mode ? 16 : o.block, total - k));
@@ -224,17 +234,23 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
                 m = n;
             } else {
             std::size_t want = n;
-            if (dinfo.needs_output) {
-                b.resize(n, sc.encoder.index.enabled);
-                gen.generate(k, b);
+            // Output runs one block ahead of input: a real-time board (USB) must never run dry
+            // while the host reads. Truth is queued as it is written.
+            while (dinfo.needs_output && k_out < std::min<std::uint64_t>(total, k + 2 * o.block)) {
+                const std::size_t nw = static_cast<std::size_t>(std::min<std::uint64_t>(o.block, total - k_out));
+                b.resize(nw, sc.encoder.index.enabled);
+                gen.generate(k_out, b);
                 const auto w = device->write(b.sin_v, b.cos_v);
                 if (w.status != dev::StreamStatus::Ok) {
                     status = "error";
-                    error = std::string("output ") + dev::to_string(w.status) + " at sample " + std::to_string(k) + ": " + w.message;
+                    error = std::string("output ") + dev::to_string(w.status) + " at sample " + std::to_string(k_out + w.frames) + ": " + w.message;
                     break;
                 }
-                for (std::size_t i = 0; i < n; ++i) pending.push_back({b.t_s[i], b.theta_rad[i], b.omega_rad_s[i], true});
+                for (std::size_t i = 0; i < nw; ++i) pending.push_back({b.t_s[i], b.theta_rad[i], b.omega_rad_s[i], true});
+                k_out += nw;
+                if (k_out == total) device->end_of_output();
             }
+            if (status != "done") break;
             in_s.resize(want); in_c.resize(want); t_s.resize(want); th_true.resize(want); om_true.resize(want); known.resize(want);
             std::size_t got = 0;
             while (got < want) {

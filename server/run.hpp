@@ -42,6 +42,11 @@ void validate_run(const Scenario& sc);
 // the run with status "error" or "aborted" and a report saying why.
 nlohmann::json execute_run(const Scenario& sc, const RunOptions& o = {});
 
+// The report of a run that ended before it produced a sample (cancelled while queued, or the
+// engine could not start): the same keys as execute_run's, so every rendering works.
+nlohmann::json unstarted_report(const Scenario& sc, const std::string& id, const std::string& started_at, const std::string& status,
+                                const std::string& verdict, const std::string& error);
+
 // Exit code for a report: 0 PASS/MARGINAL, 1 FAIL, 2 ERROR/ABORTED.
 int exit_code(const nlohmann::json& report);
 

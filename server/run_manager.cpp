@@ -84,10 +84,7 @@ RunManager::CancelResult RunManager::cancel(const std::string& id) {
         job->snap.error = "cancelled while queued";
         ++job->snap.seq;
         job->snap.updated_unix_ms = unix_ms();
-        json report{{"schema", "fringe.report"}, {"schema_version", 1}, {"id", id}, {"started_at", job->snap.created_at},
-                    {"finished_at", iso_now()}, {"scenario", job->sc}, {"seed", job->sc.seed}, {"status", "aborted"},
-                    {"verdict", "ABORTED"}, {"error", "cancelled while queued"}, {"estimators", json::array()},
-                    {"measurements", json::array()}, {"samples", {{"planned", job->snap.total}, {"processed", 0}}}};
+        const json report = unstarted_report(job->sc, id, job->snap.created_at, "aborted", "ABORTED", "cancelled while queued");
         finished_order_.push_back(id);
         l.unlock();
         {
@@ -169,10 +166,7 @@ void RunManager::worker() {
         try {
             report = execute_run(job->sc, ro);
         } catch (const std::exception& e) {  // validation passed at submit; anything here is a bug or the environment
-            report = json{{"schema", "fringe.report"}, {"schema_version", 1}, {"id", job->snap.id}, {"started_at", job->snap.created_at},
-                          {"finished_at", iso_now()}, {"scenario", job->sc}, {"seed", job->sc.seed}, {"status", "error"},
-                          {"verdict", "ERROR"}, {"error", e.what()}, {"estimators", json::array()}, {"measurements", json::array()},
-                          {"samples", {{"planned", job->snap.total}, {"processed", 0}}}};
+            report = unstarted_report(job->sc, job->snap.id, job->snap.created_at, "error", "ERROR", e.what());
         }
         bool interrupted;
         {
