@@ -110,7 +110,7 @@ public:
         i.board_id = name_ + "#" + serial_;
         i.streaming = true;
         i.dut_position = (info_.flags & 1) != 0;
-        i.settings = {{"serial", serial_}, {"transfers", transfers_}, {"frame_samples", frame_samples_}, {"timeout_ms", timeout_ms_},
+        i.settings = {{"serial", serial_}, {"transfers", transfers_}, {"frame_samples", frame_samples_ ? frame_samples_ : frame_samples_setting_}, {"timeout_ms", timeout_ms_},
                       {"adc_bits", info_.adc_bits}, {"dac_bits", info_.dac_bits}, {"range_v", range_v_}, {"max_rate_hz", info_.max_rate_hz}};
         return i;
     }

@@ -10,14 +10,23 @@
 
 #include <cmath>
 #include <cstdlib>
+#include <memory>
 #include <string>
 #include <vector>
 
 using namespace fringe;
 using namespace fringe::dev;
 
+#ifdef FRINGE_WITH_USB_EMULATOR
+#include "drivers/usb_emulator.hpp"
+#endif
+
 namespace {
 constexpr double kPi = 3.14159265358979323846;
+#ifdef FRINGE_WITH_USB_EMULATOR
+// The usb backend: the emulated board lives in this process (run under umockdev's preload).
+const std::unique_ptr<UsbEmulator> g_usb = std::getenv("FRINGE_TEST_USB_EMULATOR") ? std::make_unique<UsbEmulator>(UsbEmulatorOptions{}) : nullptr;
+#endif
 std::string uri() {
     const char* u = std::getenv("FRINGE_TEST_URI");
     return u ? u : "loopback:";
@@ -66,7 +75,10 @@ TEST_CASE("conformance: a known signal goes through", "[conformance]") {
             c[k] = 0.9 * std::cos(2 * kPi * static_cast<double>(k) / 200.0);
         }
         d->start(100000.0);
-        if (i.needs_output) REQUIRE(d->write(s, c).status == StreamStatus::Ok);
+        if (i.needs_output) {
+            REQUIRE(d->write(s, c).status == StreamStatus::Ok);
+            d->end_of_output();
+        }
         std::size_t got = 0;
         bool truth = false;
         std::vector<double> th(n), om(n);

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Runs the driver conformance tests (tests/conformance.cpp) against one backend, setting up
-# what it needs: loopback | capture | modbus-tcp | modbus-rtu.
+# what it needs: loopback | capture | modbus-tcp | modbus-rtu | usb (emulated board, umockdev).
 #   conformance.sh BACKEND FRINGE CONFORMANCE_BINARY SRC
 set -euo pipefail
 BACKEND="$1"; FRINGE="$2"; BIN="$3"; SRC="$(cd "$4" && pwd)"
@@ -28,6 +28,10 @@ case "$BACKEND" in
     for _ in $(seq 100); do [ -e "$dir/ttyA" ] && [ -e "$dir/ttyB" ] && break; sleep 0.05; done
     sim --modbus "rtu:$dir/ttyA" --board dut-interpolator --unit 3 --adc-bits 0
     URI="modbus+rtu:$dir/ttyB?board=dut-interpolator&unit=3&settle_s=0" ;;
+  usb)
+    export LD_PRELOAD=libumockdev-preload.so.0 FRINGE_TEST_USB_EMULATOR=1
+    export ASAN_OPTIONS="${ASAN_OPTIONS:-}:verify_asan_link_order=0:detect_leaks=0"
+    URI="usb:1209:ec01" ;;
   *) echo "unknown backend $BACKEND" >&2; exit 2 ;;
 esac
 FRINGE_TEST_URI="$URI" "$BIN"
