@@ -102,6 +102,9 @@ struct DriverInfo {
     std::string summary;
     std::vector<ParamInfo> settings;  // query parameters
     std::function<std::unique_ptr<Device>(const std::string& uri, const std::string& path, const nlohmann::json& settings)> open;
+    // Devices of this driver that are reachable now, each {uri, description, board_id}
+    // (SoapySDR's find); empty when the driver cannot discover (Modbus: give the address).
+    std::function<std::vector<nlohmann::json>()> find;
 };
 void to_json(nlohmann::json& j, const DriverInfo& d);
 

@@ -369,6 +369,29 @@ void register_usb(std::vector<DriverInfo>& r) {
     d.open = [](const std::string& uri, const std::string& path, const nlohmann::json& s) -> std::unique_ptr<Device> {
         return std::make_unique<UsbDevice>(uri, path, s);
     };
+    // Boards with the default VID:PID that answer GET_INFO.
+    d.find = []() {
+        std::vector<nlohmann::json> out;
+        libusb_context* ctx = nullptr;
+        if (libusb_init(&ctx) != 0) return out;
+        libusb_device** list = nullptr;
+        const auto n = libusb_get_device_list(ctx, &list);
+        for (ssize_t i = 0; i < n; ++i) {
+            libusb_device_descriptor dd{};
+            if (libusb_get_device_descriptor(list[i], &dd) != 0 || dd.idVendor != usbp::kTestVid || dd.idProduct != usbp::kTestPid) continue;
+            libusb_device_handle* h = nullptr;
+            if (libusb_open(list[i], &h) != 0) continue;
+            usbp::Info info{};
+            if (libusb_control_transfer(h, 0xC0, usbp::GetInfo, 0, 0, reinterpret_cast<unsigned char*>(&info), sizeof info, 1000) == static_cast<int>(sizeof info)) {
+                const std::string name(info.name, strnlen(info.name, sizeof info.name)), serial(info.serial, strnlen(info.serial, sizeof info.serial));
+                out.push_back({{"uri", "usb:1209:ec01?serial=" + serial}, {"description", name + " (USB)"}, {"board_id", name + "#" + serial}});
+            }
+            libusb_close(h);
+        }
+        libusb_free_device_list(list, 1);
+        libusb_exit(ctx);
+        return out;
+    };
     r.push_back(std::move(d));
 }
 

@@ -386,6 +386,12 @@ int run_devices(const DevicesOptions& o) {
         }
     }
     out["reachable"].push_back({{"uri", "loopback:"}, {"ok", true}, {"description", "simulated converter chain"}});
+    for (const auto& d : dev::drivers())
+        if (d.find)
+            for (auto found : d.find()) {
+                found["ok"] = true;
+                out["reachable"].push_back(found);
+            }
     int rc = kExitOk;
     for (const auto& uri : o.probe) {
         try {
@@ -415,7 +421,9 @@ int run_devices(const DevicesOptions& o) {
     std::printf("reachable:\n");
     for (const auto& r : out["reachable"])
         std::printf("  %-40s %s\n", r["uri"].get<std::string>().c_str(),
-                    r["ok"].get<bool>() ? (r.contains("info") ? r["info"]["board_id"].get<std::string>().c_str() : "ok") : r["error"].get<std::string>().c_str());
+                    r["ok"].get<bool>() ? (r.contains("info") ? r["info"]["board_id"].get<std::string>().c_str()
+                                                             : r.contains("board_id") ? r["board_id"].get<std::string>().c_str() : "ok")
+                                        : r["error"].get<std::string>().c_str());
     return rc;
 }
 

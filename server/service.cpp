@@ -639,6 +639,13 @@ HttpResponse Service::devices() {
     json list = json::array();
     // Simulated and file devices are always there; hardware drivers add what they find.
     list.push_back({{"uri", "loopback:"}, {"driver", "loopback"}, {"description", "simulated DAC -> filters -> noise -> ADC"}, {"available", true}});
+    for (const auto& drv : dev::drivers())
+        if (drv.find)
+            for (auto found : drv.find()) {
+                found["driver"] = drv.scheme;
+                found["available"] = true;
+                list.push_back(found);
+            }
     const auto caps = json::parse(list_captures().body)["captures"];
     for (const auto& c : caps)
         list.push_back({{"uri", "capture:" + c["id"].get<std::string>()}, {"driver", "capture"}, {"description", "uploaded capture (" + c.value("format", "") + ")"},

@@ -10,7 +10,11 @@ fail() { echo "FAIL: $*" >&2; exit 1; }
 S="$SRC/fixtures/scenarios/usb-stream.json"
 
 "$SIM" devices --probe usb:1209:ec01 > "$dir/dev.txt" || fail "devices --probe usb"
-grep -q "fringe-usb-sim#SIM0001" "$dir/dev.txt" || fail "probe output: $(cat "$dir/dev.txt")"
+grep -q "usb:1209:ec01 .*fringe-usb-sim#SIM0001" "$dir/dev.txt" || fail "probe output: $(cat "$dir/dev.txt")"
+# enumerated without being named
+FRINGE_USB_EMULATOR="serial=E77" "$SIM" devices --json > "$dir/dev.json" || fail "devices --json"
+$PY -c 'import json,sys; d=json.load(open(sys.argv[1]))
+assert any(r["uri"] == "usb:1209:ec01?serial=E77" for r in d["reachable"]), d["reachable"]' "$dir/dev.json" || fail "USB board not enumerated"
 
 "$SIM" run "$S" --no-db -q --report "$dir/ok.json" || fail "usb-stream should pass"
 $PY - "$dir/ok.json" <<'PY'
