@@ -1,5 +1,6 @@
 // Modbus: board profiles, register codec, read batching, and the driver against the emulated
 // board (libmodbus server in a thread) over real TCP on 127.0.0.1, with its faults.
+#include "board_sim_thread.hpp"
 #include "drivers/board_sim.hpp"
 #include "drivers/device.hpp"
 #include "drivers/modbus_board.hpp"
@@ -17,50 +18,11 @@
 using namespace fringe;
 using namespace fringe::dev;
 using nlohmann::json;
+using fringe::test::SimThread;
 
 namespace {
 
 constexpr double kPi = 3.14159265358979323846;
-
-// board-sim on a free port in a thread; stops on destruction.
-struct SimThread {
-    BoardSimOptions o;
-    std::atomic<bool> stop{false};
-    std::thread t;
-    std::mutex mu;
-    std::condition_variable cv;
-    std::string where;
-    long long answered = -1;
-    std::string failure;
-    explicit SimThread(BoardSimOptions opt) : o(std::move(opt)) {
-        o.listen = "tcp://127.0.0.1:0";
-        o.stop = &stop;
-        o.on_listening = [this](const std::string& w) {
-            std::lock_guard<std::mutex> l(mu);
-            where = w;
-            cv.notify_all();
-        };
-        t = std::thread([this] {
-            try {
-                answered = run_board_sim(o);
-            } catch (const std::exception& e) {
-                std::lock_guard<std::mutex> l(mu);
-                failure = e.what();
-                where = "failed";
-                cv.notify_all();
-            }
-        });
-        std::unique_lock<std::mutex> l(mu);
-        cv.wait_for(l, std::chrono::seconds(5), [&] { return !where.empty(); });
-    }
-    ~SimThread() {
-        stop = true;
-        t.join();
-    }
-    std::string uri(const std::string& query) const {
-        return "modbus+tcp://" + where.substr(6) + "?" + query;
-    }
-};
 
 }  // namespace
 

@@ -1,5 +1,6 @@
 // The HTTP service: Service::handle without a socket, then the same through a real socket on
 // 127.0.0.1 (HttpServer on a free port).
+#include "board_sim_thread.hpp"
 #include "drivers/capture_file.hpp"
 #include "helpers.hpp"
 #include "server/http_server.hpp"
@@ -300,6 +301,37 @@ TEST_CASE("service: runs on one board queue, simulated runs go in parallel", "[s
         CHECK(rep["status"] == "interrupted");
     }
     CHECK(s.handle(req("POST", "/api/v1/runs", R"({"fixture":"fig10c-loopback"})")).status == 500);
+}
+
+TEST_CASE("service: two runs on one Modbus board queue, a loopback run overtakes them", "[service][modbus]") {
+    test::SimThread sim(dev::BoardSimOptions{});
+    REQUIRE(sim.where.rfind("tcp://", 0) == 0);
+    TempDir d;
+    Service s(config(d));
+    json sc = body_of(s.handle(req("GET", "/api/v1/fixtures/modbus-step-sweep")))["scenario"];
+    // 128 steps with 3 ms settle: about 0.4 s on the board
+    sc["device"] = "modbus+tcp://" + sim.where.substr(6) + "?board=generic-aio&settle_s=0.003";
+    sc["limits"] = json::array();
+    const std::string a = body_of(s.handle(req("POST", "/api/v1/runs", json{{"scenario", sc}}.dump())))["id"];
+    const std::string b = body_of(s.handle(req("POST", "/api/v1/runs", json{{"scenario", sc}}.dump())))["id"];
+    const std::string c = body_of(s.handle(req("POST", "/api/v1/runs", R"({"fixture":"fig10c-loopback"})")))["id"];
+    bool overlap = false, b_waited = false;
+    for (int i = 0; i < 500; ++i) {
+        const auto sa = s.runs().snapshot(a)->status, sb = s.runs().snapshot(b)->status;
+        overlap |= sa == "running" && sb == "running";
+        b_waited |= sa == "running" && sb == "queued";
+        if (sa != "queued" && sa != "running" && sb != "queued" && sb != "running") break;
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+    }
+    CHECK_FALSE(overlap);
+    CHECK(b_waited);
+    CHECK(wait_finished(s, a) == "done");
+    CHECK(wait_finished(s, b) == "done");
+    CHECK(wait_finished(s, c) == "done");
+    // The loopback run did not wait for the board: it finished before the second board run.
+    const auto rows = body_of(s.handle(req("GET", "/api/v1/runs/" + b + "/report.json")));
+    const auto rc = body_of(s.handle(req("GET", "/api/v1/runs/" + c + "/report.json")));
+    CHECK(rc["finished_at"].get<std::string>() <= rows["finished_at"].get<std::string>());
 }
 
 TEST_CASE("service: capture upload and evaluation", "[service]") {
