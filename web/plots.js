@@ -18,6 +18,8 @@ function width(parent) { return Math.max(480, Math.min(620, (parent.clientWidth 
 
 const pointsOnly = { show: true, size: 3 };
 const expTicks = (u, vals) => vals.map((v) => (v == null ? '' : v.toExponential(0)));
+// Error axes span 1e-6..1e-1 rad: exponents below 1e-3, else three significant digits.
+const errTicks = (u, vals) => vals.map((v) => (v == null ? '' : v !== 0 && Math.abs(v) < 1e-3 ? v.toExponential(1) : String(+v.toPrecision(3))));
 function range(a, pad = 0.05) {
   let lo = Infinity, hi = -Infinity;
   for (const v of a) if (v != null && Number.isFinite(v)) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
@@ -63,7 +65,7 @@ export function errorVsAngle(parent, tr, labels) {
   return new uPlot({
     width: width(parent), height: 300,
     scales: { x: { time: false } },
-    axes: [{ label: 'theta (rad)' }, { label: 'error (rad)', size: 70 }],
+    axes: [{ label: 'theta (rad)' }, { label: 'error (rad)', size: 70, values: errTicks }],
     series: [{ label: 'theta' }, ...labels.map((l, i) => ({ label: l, stroke: color(i), paths: noPath, points: { ...pointsOnly, fill: color(i) } }))],
   }, data, div);
 }
@@ -73,7 +75,7 @@ export function errorVsTime(parent, tr, labels, title = 'Error vs time (rad)') {
   return new uPlot({
     width: width(parent), height: 300,
     scales: { x: { time: false } },
-    axes: [{ label: 't (s)' }, { label: 'error (rad)', size: 70 }],
+    axes: [{ label: 't (s)' }, { label: 'error (rad)', size: 70, values: errTicks }],
     series: [{ label: 't' }, ...labels.map((l, i) => ({ label: l, stroke: color(i), width: 1 }))],
   }, [tr.t_s, ...labels.map((l) => tr.error_rad[l])], div);
 }
