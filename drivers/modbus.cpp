@@ -144,8 +144,12 @@ private:
     std::size_t key(const RegisterDef& r) const { return r.table == RegTable::Input ? in_base_ + static_cast<std::size_t>(r.address) : static_cast<std::size_t>(r.address); }
 
     void connect() {
-        if (modbus_connect(ctx_) == -1)
-            throw DeviceError(uri_, "board " + board_.name + " at " + endpoint_ + ": connect: " + modbus_strerror(errno));
+        if (modbus_connect(ctx_) == -1) {
+            const std::string msg = modbus_strerror(errno);
+            modbus_free(ctx_);  // the constructor throws: no destructor will
+            ctx_ = nullptr;
+            throw DeviceError(uri_, "board " + board_.name + " at " + endpoint_ + ": connect: " + msg);
+        }
         connected_ = true;
     }
 

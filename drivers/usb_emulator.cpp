@@ -11,6 +11,7 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdio>
+#include <cstdlib>
 #include <deque>
 #include <mutex>
 #include <random>
@@ -46,6 +47,12 @@ std::string hex(const std::vector<std::uint8_t>& b) {
 
 }  // namespace
 
+double UsbEmulatorOptions::default_time_scale() {
+    const char* e = std::getenv("FRINGE_USB_EMULATOR_TIME_SCALE");
+    const double v = e ? std::atof(e) : 1.0;
+    return v > 0 && v <= 1 ? v : 1.0;
+}
+
 UsbEmulatorOptions parse_usb_emulator_options(const std::string& spec) {
     UsbEmulatorOptions o;
     std::size_t pos = 0;
@@ -69,10 +76,11 @@ UsbEmulatorOptions parse_usb_emulator_options(const std::string& spec) {
             else if (k == "drop_count") o.drop_count = std::stoll(v);
             else if (k == "unplug_after") o.unplug_after = std::stoll(v);
             else if (k == "seed") o.seed = std::stoull(v);
+            else if (k == "time_scale") o.time_scale = std::stod(v);
             else throw std::invalid_argument("unknown key");
         } catch (const std::exception&) {
             throw std::invalid_argument("usb emulator option '" + kv +
-                                        "' (known: serial, vid, pid, adc_bits, noise_v, stall_after, silent_after, drop_at, drop_count, unplug_after, seed)");
+                                        "' (known: serial, vid, pid, adc_bits, noise_v, stall_after, silent_after, drop_at, drop_count, unplug_after, seed, time_scale)");
         }
     }
     return o;
@@ -161,7 +169,7 @@ struct UsbEmulator::Impl {
         if (!running || unplugged) return;
         accept_out();
         if (!clock_started) return;
-        const double elapsed = std::chrono::duration<double>(clk::now() - t0).count();
+        const double elapsed = o.time_scale * std::chrono::duration<double>(clk::now() - t0).count();
         const auto due = static_cast<std::uint64_t>(elapsed * rate_hz / frame_samples);
         while (produced < due) {
             if (o.silent_after >= 0 && static_cast<long long>(produced) >= o.silent_after) return;

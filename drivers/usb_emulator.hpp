@@ -27,6 +27,10 @@ struct UsbEmulatorOptions {
     long long drop_count = 1;
     long long unplug_after = -1;      // IN frames produced, then the board disappears
     std::uint64_t seed = 1;
+    // The board's clock runs at this fraction of real time (sanitizer builds are ~20x slower
+    // hosts). Default: $FRINGE_USB_EMULATOR_TIME_SCALE, else 1.
+    double time_scale = default_time_scale();
+    static double default_time_scale();
 };
 
 // "key=value,key=value" (the keys above); throws std::invalid_argument naming a bad key.

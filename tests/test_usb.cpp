@@ -104,7 +104,8 @@ TEST_CASE("usb: a host that does not keep up loses frames, and knows how many", 
     d->start(100000.0);
     Stream in(8000);  // 16 frames: the board's FIFO holds them all
     REQUIRE(d->write(in.s, in.c).status == StreamStatus::Ok);
-    std::this_thread::sleep_for(std::chrono::milliseconds(300));  // ~60 frames due, 2 transfers waiting
+    // ~60 frames due, 2 transfers waiting (longer when the board's clock is slowed down)
+    std::this_thread::sleep_for(std::chrono::duration<double>(0.3 / UsbEmulatorOptions::default_time_scale()));
     std::vector<double> rs(100000), rc(100000);
     StreamResult r;
     for (int i = 0; i < 50; ++i) {
