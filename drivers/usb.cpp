@@ -118,8 +118,8 @@ public:
     void start(double fs) override {
         if (running_) throw DeviceError(uri_, "already streaming");
         if (fs <= 0 || fs > info_.max_rate_hz) throw DeviceError(uri_, "sample rate " + std::to_string(fs) + " Hz outside 0.." + std::to_string(info_.max_rate_hz));
-        // Frames of about 5 ms: few enough transfers per second, short enough latency.
-        frame_samples_ = frame_samples_setting_ > 0 ? frame_samples_setting_ : static_cast<int>(std::clamp(fs / 200.0, 64.0, 16384.0));
+        // Frames of about 10 ms: few enough transfers per second, short enough latency.
+        frame_samples_ = frame_samples_setting_ > 0 ? frame_samples_setting_ : static_cast<int>(std::clamp(fs / 100.0, 64.0, 16384.0));
         frame_samples_ = std::min<int>(frame_samples_, info_.max_frame_samples);
         usbp::RateRequest rr{static_cast<std::uint32_t>(std::lround(fs)), static_cast<std::uint16_t>(frame_samples_), 0};
         control_out(usbp::SetRate, &rr, sizeof rr, "SET_RATE");
@@ -362,8 +362,8 @@ void register_usb(std::vector<DriverInfo>& r) {
     d.summary = "USB streaming board (docs/usb-protocol.md) over libusb: usb:VID:PID[?serial=...]; default VID:PID 1209:ec01";
     d.settings = {
         {"serial", "", ParamType::String, "", -kInf, kInf, {}, "only the board with this serial (from GET_INFO); empty: the first found"},
-        {"transfers", "", ParamType::Integer, 8, 2, 64, {}, "bulk transfers in flight each way"},
-        {"frame_samples", "samples", ParamType::Integer, 0, 0, 16384, {}, "sample pairs per frame (0: about 5 ms at the stream rate)"},
+        {"transfers", "", ParamType::Integer, 16, 2, 64, {}, "bulk transfers in flight each way (16 x 10 ms frames: 160 ms of slack for a busy host)"},
+        {"frame_samples", "samples", ParamType::Integer, 0, 0, 16384, {}, "sample pairs per frame (0: about 10 ms at the stream rate)"},
         {"timeout_ms", "ms", ParamType::Integer, 1000, 10, 60000, {}, "how long a write may wait for the board to take samples"},
     };
     d.open = [](const std::string& uri, const std::string& path, const nlohmann::json& s) -> std::unique_ptr<Device> {

@@ -69,7 +69,7 @@ TEST_CASE("usb: the emulated board identifies itself and selects by serial", "[u
 
 TEST_CASE("usb: a streamed loopback returns what was written, in order", "[usb]") {
     UsbEmulator emu(parse_usb_emulator_options("adc_bits=16"));
-    auto d = open("usb:1209:ec01?transfers=6");
+    auto d = open("usb:1209:ec01?transfers=16");
     d->start(200000.0);
     Stream in(60000);
     std::vector<double> rs, rc;
