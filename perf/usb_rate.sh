@@ -7,7 +7,7 @@ set -euo pipefail
 SIM="${1:-build/server/fringe-usb-sim}"; SRC="$(cd "$(dirname "$0")/.." && pwd)"
 PY=/usr/bin/python3
 dir=$(mktemp -d); trap 'rm -rf "$dir"' EXIT
-for rate in 500000 1000000 2000000 4000000 8000000; do
+for rate in 500000 1000000 1500000 2000000 4000000; do
   $PY - "$SRC" "$rate" "$dir/s.json" <<'PY'
 import json, sys
 src, rate, out = sys.argv[1], float(sys.argv[2]), sys.argv[3]
