@@ -141,8 +141,7 @@ public:
         next_in_seq_ = 0;
         out_seq_ = 0;
         delivered_ = 0;
-        dropped_pending_ = 0;
-        underflow_ = false;
+        events_.clear();
         ended_ = false;
         out_codes_.clear();
         fault_.clear();
@@ -177,22 +176,20 @@ public:
         if (!running_) return {StreamStatus::Error, 0, 0, 0, "not streaming (start first)"};
         const auto deadline = clk::now() + std::chrono::milliseconds(std::max(timeout_ms, 0));
         for (;;) {
-            // What went wrong is reported before what arrived after it.
-            if (dropped_pending_) {
-                const std::uint64_t d = dropped_pending_;
-                dropped_pending_ = 0;
-                return {StreamStatus::Overflow, 0, delivered_, d, std::to_string(d) + " samples lost: IN frames " + lost_frames_ + " never arrived"};
-            }
-            if (underflow_) {
-                underflow_ = false;
-                return {StreamStatus::Underflow, 0, delivered_, 0, "the board ran out of DAC samples (IN frame flagged underflow)"};
+            // Events are reported at the stream position where they happened: samples that
+            // arrived before a loss or an underflow are delivered first.
+            if (!events_.empty() && events_.front().pos == delivered_) {
+                const Event e = events_.front();
+                events_.pop_front();
+                return {e.status, 0, e.pos, e.dropped, e.message};
             }
             if (!in_s_.empty()) break;
             if (!fault_.empty()) return {fault_status_, 0, delivered_, 0, fault_};
             if (clk::now() >= deadline) return {StreamStatus::Timeout, 0, delivered_, 0, "no IN frame within " + std::to_string(timeout_ms) + " ms"};
             pump(10);
         }
-        const std::size_t n = std::min(s.size(), in_s_.size());
+        std::size_t n = std::min(s.size(), in_s_.size());
+        if (!events_.empty()) n = std::min<std::size_t>(n, static_cast<std::size_t>(events_.front().pos - delivered_));
         const double q = range_v_ / 32768.0;
         for (std::size_t i = 0; i < n; ++i) {
             s[i] = in_s_[i] * q;
@@ -301,13 +298,17 @@ private:
             fail(StreamStatus::Error, "malformed IN frame (seq " + std::to_string(h.seq) + ")");
             return;
         }
+        const std::uint64_t pos = delivered_ + in_s_.size();  // stream index of this frame's first sample
         if (h.seq != next_in_seq_) {
             const std::uint32_t gap = h.seq - next_in_seq_;
-            dropped_pending_ += static_cast<std::uint64_t>(gap) * static_cast<std::uint64_t>(frame_samples_);
-            lost_frames_ = std::to_string(next_in_seq_) + (gap > 1 ? ".." + std::to_string(h.seq - 1) : "");
+            const std::uint64_t lost = static_cast<std::uint64_t>(gap) * static_cast<std::uint64_t>(frame_samples_);
+            events_.push_back({pos, StreamStatus::Overflow, lost,
+                               std::to_string(lost) + " samples lost: IN frames " + std::to_string(next_in_seq_) +
+                                   (gap > 1 ? ".." + std::to_string(h.seq - 1) : "") + " never arrived"});
         }
         next_in_seq_ = h.seq + 1;
-        if (h.flags & usbp::kFlagUnderflow) underflow_ = true;
+        if (h.flags & usbp::kFlagUnderflow)
+            events_.push_back({pos, StreamStatus::Underflow, 0, "the board ran out of DAC samples (IN frame " + std::to_string(h.seq) + " flagged underflow)"});
         const auto* p = x.buf.data() + sizeof h;
         for (std::size_t i = 0; i < h.samples; ++i) {
             std::int16_t a, b;
@@ -343,14 +344,21 @@ private:
     usbp::Info info_{};
     double range_v_ = 1.25;
     int transfers_ = 8, frame_samples_setting_ = 0, frame_samples_ = 0, timeout_ms_ = 1000;
-    bool dut_ = false, running_ = false, underflow_ = false;
+    bool dut_ = false, running_ = false;
     std::vector<std::unique_ptr<Xfer>> xfers_;
     std::deque<std::int16_t> in_s_, in_c_;
     std::vector<std::int16_t> out_codes_;  // interleaved sin, cos codes not yet sent as a whole frame
     bool ended_ = false;
     std::uint32_t next_in_seq_ = 0, out_seq_ = 0;
-    std::uint64_t delivered_ = 0, dropped_pending_ = 0;
-    std::string lost_frames_, fault_;
+    std::uint64_t delivered_ = 0;
+    struct Event {
+        std::uint64_t pos;  // stream index where it happened
+        StreamStatus status;
+        std::uint64_t dropped;
+        std::string message;
+    };
+    std::deque<Event> events_;
+    std::string fault_;
     StreamStatus fault_status_ = StreamStatus::Ok;
 };
 

@@ -234,9 +234,9 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
                 m = n;
             } else {
             std::size_t want = n;
-            // Output runs one block ahead of input: a real-time board (USB) must never run dry
+            // Output runs up to four blocks ahead of input: a real-time board (USB) must never run dry
             // while the host reads. Truth is queued as it is written.
-            while (dinfo.needs_output && k_out < std::min<std::uint64_t>(total, k + 2 * o.block)) {
+            while (dinfo.needs_output && k_out < std::min<std::uint64_t>(total, k + 4 * o.block)) {
                 const std::size_t nw = static_cast<std::size_t>(std::min<std::uint64_t>(o.block, total - k_out));
                 b.resize(nw, sc.encoder.index.enabled);
                 gen.generate(k_out, b);
