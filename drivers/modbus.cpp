@@ -61,9 +61,10 @@ public:
         modbus_set_slave(ctx_, unit_);
         modbus_set_response_timeout(ctx_, static_cast<std::uint32_t>(timeout_ms_ / 1000), static_cast<std::uint32_t>((timeout_ms_ % 1000) * 1000));
         connect();
+        std::vector<const RegisterDef*> readback;
         for (const char* role : {"sin_in", "cos_in", "position_count", "position_fraction", "position_rad", "status", "error_flags"})
-            if (const auto* r = board_.find(role); r && r->readable) readback_.push_back(r);
-        batches_ = plan_reads(readback_);
+            if (const auto* r = board_.find(role); r && r->readable) readback.push_back(r);
+        batches_ = plan_reads(readback);
         sin_in_ = board_.find("sin_in");
         cos_in_ = board_.find("cos_in");
         pos_count_ = board_.find("position_count");
@@ -134,8 +135,7 @@ public:
         if (pos_rad_) dut = decode_register(*pos_rad_, &regs_[key(*pos_rad_)]);
         else if (pos_count_ && pos_frac_)
             dut = kTwoPi * (decode_register(*pos_count_, &regs_[key(*pos_count_)]) + decode_register(*pos_frac_, &regs_[key(*pos_frac_)]));
-        if (dut && !dut_bad) out.dut_theta_rad = dut;
-        else if (dut) ++flagged_;
+        if (dut && !dut_bad) out.dut_theta_rad = dut;  // a flagged reading is an invalid sample
         return out;
     }
 
@@ -212,14 +212,12 @@ private:
     double settle_s_ = 0;
     modbus_t* ctx_ = nullptr;
     bool connected_ = false;
-    std::vector<const RegisterDef*> readback_;
     std::vector<ReadBatch> batches_;
     std::vector<std::string> batch_what_, write_what_;
     const RegisterDef *sin_out_ = nullptr, *cos_out_ = nullptr;
     const RegisterDef *sin_in_ = nullptr, *cos_in_ = nullptr, *pos_count_ = nullptr, *pos_frac_ = nullptr, *pos_rad_ = nullptr, *flags_ = nullptr;
     static constexpr std::size_t in_base_ = 65536 + 2;
     std::vector<std::uint16_t> regs_;
-    std::uint64_t flagged_ = 0;
 };
 
 std::vector<ParamInfo> common_settings() {

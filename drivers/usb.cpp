@@ -312,8 +312,7 @@ private:
         const auto* p = x.buf.data() + sizeof h;
         for (std::size_t i = 0; i < h.samples; ++i) {
             std::int16_t a, b;
-            std::memcpy(&a, p + 4 * i, 2);
-            std::memcpy(&b, p + 4 * i + 2, 2);
+            usbp::get_pair(p, i, a, b);
             in_s_.push_back(a);
             in_c_.push_back(b);
         }

@@ -150,8 +150,7 @@ struct UsbEmulator::Impl {
             const auto* p = r.buf->data + sizeof h;
             for (std::size_t i = 0; i < h.samples; ++i) {
                 std::int16_t a, b;
-                std::memcpy(&a, p + 4 * i, 2);
-                std::memcpy(&b, p + 4 * i + 2, 2);
+                usbp::get_pair(p, i, a, b);
                 fifo_s.push_back(a);
                 fifo_c.push_back(b);
             }
@@ -217,11 +216,7 @@ struct UsbEmulator::Impl {
             usbp::FrameHeader h{usbp::kMagic, seq, static_cast<std::uint16_t>(nf), static_cast<std::uint16_t>(under ? usbp::kFlagUnderflow : 0), 0};
             std::memcpy(r.buf->data, &h, sizeof h);
             auto* p = r.buf->data + sizeof h;
-            for (std::size_t i = 0; i < nf; ++i) {
-                const std::int16_t a = adc(s[i]), b = adc(c[i]);
-                std::memcpy(p + 4 * i, &a, 2);
-                std::memcpy(p + 4 * i + 2, &b, 2);
-            }
+            for (std::size_t i = 0; i < nf; ++i) usbp::put_pair(p, i, adc(s[i]), adc(c[i]));
             finish(r, 0, static_cast<int>(bytes));
         }
     }

@@ -2,6 +2,7 @@
 // and the emulated board. All multi-byte fields are little-endian.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <cstring>
 
@@ -54,5 +55,15 @@ constexpr std::uint16_t kFlagUnderflow = 1, kFlagDut = 2;
 // Payload: samples x (int16 sin, int16 cos), then with kFlagDut samples x int32 DUT position
 // (1/65536 of an electrical period).
 inline std::size_t frame_bytes(std::size_t samples, bool dut) { return sizeof(FrameHeader) + samples * (4 + (dut ? 4 : 0)); }
+
+// Sample pair i of a payload (little-endian int16 sin, cos), both ways.
+inline void put_pair(std::uint8_t* payload, std::size_t i, std::int16_t sin_code, std::int16_t cos_code) {
+    std::memcpy(payload + 4 * i, &sin_code, 2);
+    std::memcpy(payload + 4 * i + 2, &cos_code, 2);
+}
+inline void get_pair(const std::uint8_t* payload, std::size_t i, std::int16_t& sin_code, std::int16_t& cos_code) {
+    std::memcpy(&sin_code, payload + 4 * i, 2);
+    std::memcpy(&cos_code, payload + 4 * i + 2, 2);
+}
 
 }  // namespace fringe::dev::usbp

@@ -9,6 +9,7 @@ PY=/usr/bin/python3
 command -v wrk >/dev/null || { echo "wrk missing: scripts/setup --test" >&2; exit 2; }
 dir=$(mktemp -d); pid=
 trap 'kill $pid 2>/dev/null || true; rm -rf "$dir"' EXIT
+: > "$dir/out"
 "$FRINGE" serve --bind 127.0.0.1:0 --data "$dir" --threads "${THREADS:-2}" > "$dir/out" 2> "$dir/log" &
 pid=$!
 for _ in $(seq 100); do URL=$(sed -n 's/.*serving \(http:[^ ]*\) .*/\1/p' "$dir/out"); [ -n "$URL" ] && break; sleep 0.1; done

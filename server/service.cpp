@@ -317,7 +317,7 @@ HttpResponse Service::route(const HttpRequest& req, const std::string& path, con
         if (top == "devices") return get ? devices() : wrong_method("GET");
         if (top == "fixtures") return get ? fixtures() : wrong_method("GET");
         if (top == "runs") return get ? list_runs(query) : post ? create_run(req) : wrong_method("GET, POST");
-        if (top == "captures") return get ? list_captures() : post ? upload_capture(req, query) : wrong_method("GET, POST");
+        if (top == "captures") return get ? json_ok({{"captures", captures()}}) : post ? upload_capture(req, query) : wrong_method("GET, POST");
     }
     if (seg.size() == 4 && top == "fixtures") {
         if (!get) return wrong_method("GET");
@@ -646,8 +646,7 @@ HttpResponse Service::devices() {
                 found["available"] = true;
                 list.push_back(found);
             }
-    const auto caps = json::parse(list_captures().body)["captures"];
-    for (const auto& c : caps)
+    for (const auto& c : captures())
         list.push_back({{"uri", "capture:" + c["id"].get<std::string>()}, {"driver", "capture"}, {"description", "uploaded capture (" + c.value("format", "") + ")"},
                         {"available", true}});
     std::map<std::string, bool> busy;
@@ -729,7 +728,7 @@ HttpResponse Service::upload_capture(const HttpRequest& req, const std::map<std:
     return r;
 }
 
-HttpResponse Service::list_captures() {
+json Service::captures() const {
     json list = json::array();
     const fs::path dir = fs::path(cfg_.data_dir) / "captures";
     std::vector<fs::path> infos;
@@ -742,7 +741,7 @@ HttpResponse Service::list_captures() {
         const json j = json::parse(read_file(p), nullptr, false);
         if (!j.is_discarded()) list.push_back(j);
     }
-    return json_ok({{"captures", list}});
+    return list;
 }
 
 HttpResponse Service::evaluate(const HttpRequest& req, const std::string& id) {

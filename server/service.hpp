@@ -85,7 +85,7 @@ private:
     HttpResponse get_run(const std::string& id);
     HttpResponse run_artifact(const std::string& id, const std::string& what, const std::map<std::string, std::string>& query);
     HttpResponse upload_capture(const HttpRequest& req, const std::map<std::string, std::string>& query);
-    HttpResponse list_captures();
+    nlohmann::json captures() const;  // uploaded captures' info, newest first
     HttpResponse evaluate(const HttpRequest& req, const std::string& id);
     HttpResponse fixtures();
     HttpResponse fixture(const std::string& name);

@@ -14,6 +14,7 @@ S="$SRC/fixtures/scenarios/modbus-step-sweep.json"
 
 sim() {  # sim NAME ARGS...: start board-sim, set SIM_URL (tcp) from its output
   local name=$1; shift
+  : > "$dir/$name.log"  # exists before the poll below reads it (the child opens it after the fork)
   timeout 120 "$FRINGE" board-sim "$@" > "$dir/$name.log" 2>&1 &
   pids+=($!)
   for _ in $(seq 100); do

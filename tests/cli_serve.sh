@@ -11,7 +11,7 @@ trap 'kill -9 $pid 2>/dev/null || true; rm -rf "$dir"' EXIT
 fail() { echo "FAIL: $*" >&2; [ -f "$dir/serve.log" ] && cat "$dir/serve.log" >&2; exit 1; }
 
 start() {  # start the server on a free port; sets pid and URL
-  : > "$dir/serve.log"
+  : > "$dir/serve.log"; : > "$dir/serve.out"  # exist before the poll reads them
   "$FRINGE" serve --bind 127.0.0.1:0 --data "$dir/data" > "$dir/serve.out" 2> "$dir/serve.log" &
   pid=$!
   for _ in $(seq 100); do

@@ -7,6 +7,7 @@ BACKEND="$1"; FRINGE="$2"; BIN="$3"; SRC="$(cd "$4" && pwd)"
 dir=$(mktemp -d); pids=()
 trap 'for p in "${pids[@]}"; do kill $p 2>/dev/null || true; done; rm -rf "$dir"' EXIT
 sim() {
+  : > "$dir/sim.log"  # exists before the poll reads it
   timeout 120 "$FRINGE" board-sim "$@" > "$dir/sim.log" 2>&1 &
   pids+=($!)
   for _ in $(seq 100); do
