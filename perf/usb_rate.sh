@@ -30,6 +30,6 @@ import json, sys
 r = json.load(open(sys.argv[1])); rate = float(sys.argv[2]); wall = float(sys.argv[4]) - float(sys.argv[3])
 n = r["samples"]["processed"]
 print(f"{rate/1e6:4.1f} MS/s: {r['verdict']:5s} {n} sample pairs each way in {wall:.2f} s wall"
-      + (f"  ({r['error'][:90]})" if r.get("error") else ""))
+      + (f"  ({r['error'][:160]})" if r.get("error") else ""))
 PY
 done
