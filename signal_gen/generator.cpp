@@ -146,10 +146,11 @@ void Generator::generate_tile(std::uint64_t first, std::size_t n, const Tile& ou
     }
 
     // Noise: streams 0, 1 additive (sin, cos), 2 gain.
-    double* nz[3] = {noise_s_.data(), noise_c_.data(), noise_g_.data()};
+    double* nz_copy[3] = {noise_s_.data(), noise_c_.data(), noise_g_.data()};
+    const double* nz[3] = {noise_s_.data(), noise_c_.data(), noise_g_.data()};
     const NoiseConfig& nc = enc_.noise;
     const bool any_noise = nc.sigma_add_v > 0 || nc.sigma_gain > 0;
-    if (any_noise) noise_.fill(first, n, nz);
+    if (any_noise && !noise_.view(first, n, nz)) noise_.fill(first, n, nz_copy);
 
     const auto& l = enc_.lissajous;
     const double g_s = 1.0 + l.gain_mismatch / 2, g_c = 1.0 - l.gain_mismatch / 2;
@@ -180,6 +181,14 @@ void Generator::generate_tile(std::uint64_t first, std::size_t n, const Tile& ou
             const double rc = dc + a1 * (pc0 * C + qc0 * S) + a2 * (pc1 * C2 + qc1 * S2);
             vs[i] = rs;
             vc[i] = rc;
+        }
+    } else if (M == 1 && !kappa_varies) {
+        // Ideal quadrature (kappa <= 1, or the ideal model without harmonics): vectorises too.
+        const double a1 = amp[0], ps0 = ps[0], qs0 = qs[0], pc0 = pc[0], qc0 = qc[0];
+        for (std::size_t i = 0; i < n; ++i) {
+            const double C = c1[i], S = s1[i];
+            vs[i] = dc + a1 * (ps0 * C + qs0 * S);
+            vc[i] = dc + a1 * (pc0 * C + qc0 * S);
         }
     } else {
         for (std::size_t i = 0; i < n; ++i) {

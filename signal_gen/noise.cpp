@@ -75,33 +75,42 @@ NoiseField::NoiseField(std::uint64_t seed, std::uint64_t stream_id, int streams)
     : seed_(mix64(seed ^ mix64(stream_id + 0x51ed270b2a1e6f1dULL))), streams_(streams),
       buf_(kNoiseChunk * static_cast<std::size_t>(streams)) {}
 
-void fill_normals(std::uint64_t key, std::size_t n, double* out, std::uint64_t* bits) {
+void fill_normals(std::uint64_t key, std::size_t n, double* out, std::uint64_t* bits,
+                  std::uint32_t* missed) {
     const ZigguratTables& t = tables();
     constexpr std::uint64_t kGamma = 0x9e3779b97f4a7c15ULL;
     for (std::size_t i = 0; i < n; ++i) bits[i] = mix64(key + (i + 1) * kGamma);  // vectorises
     const double* x = t.x;
     const double* ratio = t.ratio;
-    std::int64_t rejected = 0;
+    std::size_t n_missed = 0;
     for (std::size_t i = 0; i < n; ++i) {  // the fast path, branch-free
         const std::uint64_t layer = draw_layer(bits[i]);
         const double u = draw_u(bits[i]);
         out[i] = u * x[layer];
-        rejected += std::fabs(u) < ratio[layer] ? 0 : 1;
+        missed[n_missed] = static_cast<std::uint32_t>(i);  // kept only if this draw missed
+        n_missed += std::fabs(u) < ratio[layer] ? 0 : 1;
     }
-    if (!rejected) return;
-    for (std::size_t i = 0; i < n; ++i) {  // ~1 % of draws: finish the ziggurat
-        const std::uint64_t layer = draw_layer(bits[i]);
-        const double u = draw_u(bits[i]);
-        if (std::fabs(u) < ratio[layer]) continue;
+    for (std::size_t j = 0; j < n_missed; ++j) {  // ~1 % of draws: finish the ziggurat
+        const std::size_t i = missed[j];
         Xoshiro256pp rng(mix64(key ^ mix64(i + 0x632be59bd9b4e019ULL)));
         out[i] = standard_normal_from(bits[i], rng);
     }
 }
 
 void NoiseField::load_chunk(std::uint64_t chunk) {
-    bits_.resize(buf_.size() + 1);
-    fill_normals(mix64(seed_ + mix64(chunk)), buf_.size(), buf_.data(), bits_.data());
+    bits_.resize(buf_.size());
+    missed_.resize(buf_.size());
+    fill_normals(mix64(seed_ + mix64(chunk)), buf_.size(), buf_.data(), bits_.data(), missed_.data());
     cached_ = chunk;
+}
+
+bool NoiseField::view(std::uint64_t first, std::size_t n, const double** out) {
+    const std::uint64_t chunk = first / kNoiseChunk;
+    const std::size_t off = first % kNoiseChunk;
+    if (n == 0 || off + n > kNoiseChunk) return false;
+    if (chunk != cached_) load_chunk(chunk);
+    for (int s = 0; s < streams_; ++s) out[s] = buf_.data() + static_cast<std::size_t>(s) * kNoiseChunk + off;
+    return true;
 }
 
 void NoiseField::fill(std::uint64_t first, std::size_t n, double* const* out) {

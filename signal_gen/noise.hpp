@@ -48,9 +48,11 @@ double standard_normal(Xoshiro256pp& rng);
 double standard_normal_from(std::uint64_t bits, Xoshiro256pp& rng);
 
 // n standard normals that depend only on (key, i): counter-based bits (splitmix64 of
-// key + i), the ziggurat's fast path over the whole array, then the ~1 % of rejected draws
-// finished from a generator seeded by (key, i). `scratch` needs n entries.
-void fill_normals(std::uint64_t key, std::size_t n, double* out, std::uint64_t* scratch);
+// key + i), the ziggurat's fast path over the whole array (branch-free; it notes where a
+// draw missed), then only the ~1 % of missed draws finished from a generator seeded by
+// (key, i). `bits` and `missed` need n entries each.
+void fill_normals(std::uint64_t key, std::size_t n, double* out, std::uint64_t* bits,
+                  std::uint32_t* missed);
 
 constexpr std::size_t kNoiseChunk = 4096;
 
@@ -60,6 +62,10 @@ public:
     NoiseField(std::uint64_t seed, std::uint64_t stream_id, int streams);
     // out[s][i] = normal number s of sample first + i, for i < n.
     void fill(std::uint64_t first, std::size_t n, double* const* out);
+    // The same numbers without a copy when samples first .. first + n - 1 lie in one chunk
+    // (the generator's tiles always do when a block starts at a multiple of 1024): out[s]
+    // points into this field's buffer, valid until the next fill or view. False otherwise.
+    bool view(std::uint64_t first, std::size_t n, const double** out);
 
 private:
     void load_chunk(std::uint64_t chunk);
@@ -68,6 +74,7 @@ private:
     std::uint64_t cached_ = ~0ULL;
     std::vector<double> buf_;  // kNoiseChunk * streams_, stream-major
     std::vector<std::uint64_t> bits_;
+    std::vector<std::uint32_t> missed_;
 };
 
 }  // namespace fringe
