@@ -1,8 +1,11 @@
 // Branch-free sin/cos that GCC vectorises over a block. glibc's scalar sin+cos costs ~14 ns
 // here, which alone would cap the generator near 70 M samples/s. Cody-Waite reduction by
-// pi/2 in three parts, Taylor polynomials on [-pi/4, pi/4] (truncation < 1e-19), so the
-// error is ~1 ulp for |x| < kFastSinCosMaxArg. Callers fall back to std::sin/std::cos
-// beyond that (checked per block, see generator.cpp).
+// pi/2 in four parts of 26, 26, 26 and 53 bits: k*part is exact for the first three while
+// |k| < 2^26, and each subtraction rounds relative to its own result, so r is good to about
+// an ulp. Then polynomials in z = r^2 on |r| <= pi/4: sin r = r (1 + z P(z)), cos r =
+// 1 - z/2 + z^2 Q(z), with P and Q the Chebyshev-economised Taylor series (degree 6 and 5;
+// truncation below 4e-18, computed in exact rational arithmetic). Callers fall back to
+// std::sin/std::cos beyond kFastSinCosMaxArg (checked per block, see generator.cpp).
 #pragma once
 
 #include <cmath>
@@ -13,23 +16,26 @@ namespace fringe {
 constexpr double kPi = 3.14159265358979323846;
 constexpr double kTwoPi = 6.28318530717958647692;
 
-// |x| below this keeps kd*kPio2Hi exact (kd < 2^20 and kPio2Hi has 33 significant bits).
-constexpr double kFastSinCosMaxArg = 1.0e6;
+// |x| below this keeps |k| < 2^26, where the reduction below is exact. About 41 hours of
+// signal at 100 kHz and 937 samples per electrical period.
+constexpr double kFastSinCosMaxArg = 1.0e8;
 
 inline void fast_sincos(double x, double& s_out, double& c_out) {
     constexpr double kTwoOverPi = 0.63661977236758134308;
-    constexpr double kPio2Hi = 1.57079632673412561417e+00;   // first 33 bits of pi/2
-    constexpr double kPio2Mid = 6.07710050630396597660e-11;  // next 33 bits
-    constexpr double kPio2Lo = 2.02226624871116645580e-21;   // remainder
-    constexpr double kRound = 6755399441055744.0;            // 1.5 * 2^52: round to nearest
+    constexpr double kPio2A = 0x1.921fb50000000p+0;   // pi/2 = A + B + C + D
+    constexpr double kPio2B = 0x1.110b460000000p-26;
+    constexpr double kPio2C = 0x1.1a62630000000p-54;
+    constexpr double kPio2D = 0x1.8a2e03707344ap-81;
+    constexpr double kRound = 6755399441055744.0;    // 1.5 * 2^52: round to nearest
     const double kd = (x * kTwoOverPi + kRound) - kRound;
-    const double r = ((x - kd * kPio2Hi) - kd * kPio2Mid) - kd * kPio2Lo;
-    const double r2 = r * r;
-    // sin r = r - r^3/3! + ... - r^19/19! ; cos r = 1 - r^2/2! + ... - r^18/18!
-    const double sin_r =
-        r - r * r2 * (1.0 / 6.0 - r2 * (1.0 / 120.0 - r2 * (1.0 / 5040.0 - r2 * (1.0 / 362880.0 - r2 * (1.0 / 39916800.0 - r2 * (1.0 / 6227020800.0 - r2 * (1.0 / 1307674368000.0 - r2 * (1.0 / 355687428096000.0 - r2 * (1.0 / 121645100408832000.0)))))))));
-    const double cos_r =
-        1.0 - r2 * (0.5 - r2 * (1.0 / 24.0 - r2 * (1.0 / 720.0 - r2 * (1.0 / 40320.0 - r2 * (1.0 / 3628800.0 - r2 * (1.0 / 479001600.0 - r2 * (1.0 / 87178291200.0 - r2 * (1.0 / 20922789888000.0 - r2 * (1.0 / 6402373705728000.0)))))))));
+    const double r = (((x - kd * kPio2A) - kd * kPio2B) - kd * kPio2C) - kd * kPio2D;
+    const double z = r * r;
+    const double p = -1.66666666666666158e-01 + z * (8.33333333332036616e-03 + z * (-1.98412698286529752e-04 +
+                     z * (2.75573133772343877e-06 + z * (-2.50507170940625882e-08 + z * 1.58947431203602702e-10))));
+    const double q = 4.16666666666666644e-02 + z * (-1.38888888888873976e-03 + z * (2.48015872987663532e-05 +
+                     z * (-2.75573172720311515e-07 + z * (2.08761463240985520e-09 + z * -1.13826360281909132e-11))));
+    const double sin_r = r + r * (z * p);
+    const double cos_r = (1.0 - 0.5 * z) + (z * z) * q;
     const auto quadrant = static_cast<std::int64_t>(kd) & 3;
     const double s = (quadrant & 1) ? cos_r : sin_r;
     const double c = (quadrant & 1) ? sin_r : cos_r;
