@@ -9,6 +9,59 @@
 
 namespace fringe {
 
+namespace {
+// Front end, channel gains and offsets, additive noise (eta2) and the ADC (MODEL.md 2.5),
+// with the constants hoisted so that per-sample loops vectorise.
+struct FrontEnd {
+    double g_s, g_c, vref_v, off_s_v, off_c_v, sigma_add_v, gain_scale;
+    double adc_lo_v, adc_inv_q, adc_q_v, adc_top;
+    double adc(double v) const { return Quantizer::quantize(v, adc_lo_v, adc_inv_q, adc_q_v, adc_top); }
+    // raw: detector voltage; g: 1 + gain noise; noise: a standard normal.
+    template <bool kQuantize>
+    double sin_channel(double raw, double g, double noise) const {
+        const double v = g_s * (g * raw - vref_v) + off_s_v + sigma_add_v * noise;
+        return kQuantize ? adc(v) : v;
+    }
+    template <bool kQuantize>
+    double cos_channel(double raw, double g, double noise) const {
+        const double v = g_c * (g * raw - vref_v) + off_c_v + sigma_add_v * noise;
+        return kQuantize ? adc(v) : v;
+    }
+};
+
+struct Inputs {  // per-sample inputs of a tile
+    const double* __restrict theta_rad;
+    const double* __restrict gain_src;
+    const double* __restrict noise_s;
+    const double* __restrict noise_c;
+};
+
+// Up to two harmonics: raw = dc + a1 (p1 cos th + q1 sin th) + a2 (p2 cos 2th + q2 sin 2th).
+struct Harmonics2 {
+    double a1, a2, ps1, ps2, qs1, qs2, pc1, pc2, qc1, qc2, dc_v;
+};
+
+template <int kM, bool kQuantize>
+void synthesize(std::size_t n, const Inputs& in, const Harmonics2 h, const FrontEnd fe,
+                double* __restrict s1, double* __restrict c1, double* __restrict vs, double* __restrict vc) {
+    // Two passes: the sin/cos polynomial alone vectorises better than fused with the rest.
+    for (std::size_t i = 0; i < n; ++i) fast_sincos(in.theta_rad[i], s1[i], c1[i]);
+    for (std::size_t i = 0; i < n; ++i) {
+        const double S = s1[i], C = c1[i];
+        double rs = h.dc_v + h.a1 * (h.ps1 * C + h.qs1 * S);
+        double rc = h.dc_v + h.a1 * (h.pc1 * C + h.qc1 * S);
+        if constexpr (kM == 2) {
+            const double C2 = 2 * C * C - 1, S2 = 2 * S * C;
+            rs += h.a2 * (h.ps2 * C2 + h.qs2 * S2);
+            rc += h.a2 * (h.pc2 * C2 + h.qc2 * S2);
+        }
+        const double g = 1.0 + fe.gain_scale * in.gain_src[i];
+        vs[i] = fe.sin_channel<kQuantize>(rs, g, in.noise_s[i]);
+        vc[i] = fe.cos_channel<kQuantize>(rc, g, in.noise_c[i]);
+    }
+}
+}  // namespace
+
 void Block::resize(std::size_t n, bool with_index) {
     for (auto* v : {&t_s, &sin_v, &cos_v, &phi_rad, &theta_rad, &omega_rad_s}) v->resize(n);
     index_v.resize(with_index ? n : 0);
@@ -134,63 +187,71 @@ void Generator::generate_tile(std::uint64_t first, std::size_t n, const Tile& ou
         }
     }
 
-    // sin/cos of the electrical phase: vectorised polynomial unless |theta| is huge.
-    int in_range = 1;  // an integer AND vectorises; a floating max reduction does not
-    for (std::size_t i = 0; i < n; ++i) in_range &= std::fabs(theta[i]) < kFastSinCosMaxArg;
-    double* s1 = s1_.data();
-    double* c1 = c1_.data();
-    if (in_range) {
-        for (std::size_t i = 0; i < n; ++i) fast_sincos(theta[i], s1[i], c1[i]);
-    } else {
-        for (std::size_t i = 0; i < n; ++i) { s1[i] = std::sin(theta[i]); c1[i] = std::cos(theta[i]); }
-    }
-
     // Noise: streams 0, 1 additive (sin, cos), 2 gain.
     double* nz_copy[3] = {noise_s_.data(), noise_c_.data(), noise_g_.data()};
     const double* nz[3] = {noise_s_.data(), noise_c_.data(), noise_g_.data()};
     const NoiseConfig& nc = enc_.noise;
     const bool any_noise = nc.sigma_add_v > 0 || nc.sigma_gain > 0;
     if (any_noise && !noise_.view(first, n, nz)) noise_.fill(first, n, nz_copy);
+    if (!any_noise)
+        for (auto* v : {&noise_s_, &noise_c_, &noise_g_}) std::fill(v->begin(), v->begin() + static_cast<std::ptrdiff_t>(n), 0.0);
+
+    // Gain noise and drift (eta1): g = 1 + gain_scale * gain_src[i].
+    const double* gain_src = nz[2];
+    double gain_scale = nc.sigma_gain;
+    if (nc.drift_amplitude != 0.0) {
+        const double wd = kTwoPi * nc.drift_freq_hz;
+        for (std::size_t i = 0; i < n; ++i) {
+            double sd, cd;
+            fast_sincos(wd * t[i] + nc.drift_phase_rad, sd, cd);
+            noise_g_[i] = nc.sigma_gain * nz[2][i] + nc.drift_amplitude * sd;
+        }
+        gain_src = noise_g_.data();
+        gain_scale = 1.0;  // exact: the same numbers as scaling in place
+    }
 
     const auto& l = enc_.lissajous;
-    const double g_s = 1.0 + l.gain_mismatch / 2, g_c = 1.0 - l.gain_mismatch / 2;
-    const double vref = enc_.reference_v();
-    const double sig_a = nc.sigma_add_v, sig_g = nc.sigma_gain;
-    const double dc = dc_v_;
+    const Quantizer adc = enc_.adc;
+    const FrontEnd fe{1.0 + l.gain_mismatch / 2, 1.0 - l.gain_mismatch / 2, enc_.reference_v(),
+                      l.offset_sin_v, l.offset_cos_v, nc.sigma_add_v, gain_scale,
+                      adc.min_v, adc.ideal() ? 0.0 : adc.inv_step(), adc.ideal() ? 0.0 : adc.step_v(),
+                      adc.ideal() ? 0.0 : adc.max_code()};
+    const Inputs in{theta, gain_src, nz[0], nz[1]};
     double* vs = out.sin_v;
     double* vc = out.cos_v;
     const int M = M_;
-    const double* ps = p_s_.data(); const double* qs = q_s_.data();
-    const double* pc = p_c_.data(); const double* qc = q_c_.data();
     double amp_local[64];
     std::vector<double> amp_heap;
     double* amp = amp_local;
     if (M > 64) { amp_heap.resize(M); amp = amp_heap.data(); }
     std::copy(amp_nominal_.begin(), amp_nominal_.end(), amp);
 
-    if (enc_.model == ModelKind::Diffraction && M == 2 && !kappa_varies) {
-        // The common case (1 < kappa <= 1.5), unrolled so that it vectorises.
-        // Coefficients in locals: loads through ps/qs could alias vs/vc and block vectorising.
-        const double a1 = amp[0], a2 = amp[1];
-        const double ps0 = ps[0], ps1 = ps[1], qs0 = qs[0], qs1 = qs[1];
-        const double pc0 = pc[0], pc1 = pc[1], qc0 = qc[0], qc1 = qc[1];
-        for (std::size_t i = 0; i < n; ++i) {
-            const double C = c1[i], S = s1[i];
-            const double C2 = 2 * C * C - 1, S2 = 2 * S * C;
-            const double rs = dc + a1 * (ps0 * C + qs0 * S) + a2 * (ps1 * C2 + qs1 * S2);
-            const double rc = dc + a1 * (pc0 * C + qc0 * S) + a2 * (pc1 * C2 + qc1 * S2);
-            vs[i] = rs;
-            vc[i] = rc;
-        }
-    } else if (M == 1 && !kappa_varies) {
-        // Ideal quadrature (kappa <= 1, or the ideal model without harmonics): vectorises too.
-        const double a1 = amp[0], ps0 = ps[0], qs0 = qs[0], pc0 = pc[0], qc0 = qc[0];
-        for (std::size_t i = 0; i < n; ++i) {
-            const double C = c1[i], S = s1[i];
-            vs[i] = dc + a1 * (ps0 * C + qs0 * S);
-            vc[i] = dc + a1 * (pc0 * C + qc0 * S);
-        }
+    // |theta| small enough for the vectorised sin/cos?
+    int in_range = 1;  // an integer AND vectorises; a floating max reduction does not
+    for (std::size_t i = 0; i < n; ++i) in_range &= std::fabs(theta[i]) < kFastSinCosMaxArg;
+
+    if (in_range && !kappa_varies && (M == 1 || (M == 2 && enc_.model == ModelKind::Diffraction))) {
+        // The common cases (the ideal model without harmonics or kappa <= 1; the paper's
+        // 1 < kappa <= 1.5) in one vectorised pass from theta to the ADC's output.
+        const Harmonics2 h{amp[0], M == 2 ? amp[1] : 0.0, p_s_[0], M == 2 ? p_s_[1] : 0.0, q_s_[0],
+                           M == 2 ? q_s_[1] : 0.0, p_c_[0], M == 2 ? p_c_[1] : 0.0, q_c_[0],
+                           M == 2 ? q_c_[1] : 0.0, dc_v_};
+        if (M == 1)
+            adc.ideal() ? synthesize<1, false>(n, in, h, fe, s1_.data(), c1_.data(), vs, vc) : synthesize<1, true>(n, in, h, fe, s1_.data(), c1_.data(), vs, vc);
+        else
+            adc.ideal() ? synthesize<2, false>(n, in, h, fe, s1_.data(), c1_.data(), vs, vc) : synthesize<2, true>(n, in, h, fe, s1_.data(), c1_.data(), vs, vc);
     } else {
+        // Any number of harmonics, kappa per sample, or huge |theta| (libm's sin/cos).
+        double* s1 = s1_.data();
+        double* c1 = c1_.data();
+        if (in_range) {
+            for (std::size_t i = 0; i < n; ++i) fast_sincos(theta[i], s1[i], c1[i]);
+        } else {
+            for (std::size_t i = 0; i < n; ++i) { s1[i] = std::sin(theta[i]); c1[i] = std::cos(theta[i]); }
+        }
+        const double dc = dc_v_;
+        const double* ps = p_s_.data(); const double* qs = q_s_.data();
+        const double* pc = p_c_.data(); const double* qc = q_c_.data();
         for (std::size_t i = 0; i < n; ++i) {
             if (kappa_varies) set_amplitudes(kappa_[i], amp);
             const double C = c1[i], S = s1[i];
@@ -205,40 +266,16 @@ void Generator::generate_tile(std::uint64_t first, std::size_t n, const Tile& ou
             vs[i] = rs;
             vc[i] = rc;
         }
-    }
-
-    // Gain noise and drift (eta1) on the raw signal, front end, channel gains and offsets,
-    // additive noise (eta2), ADC.
-    const bool drift = nc.drift_amplitude != 0.0;
-    const double wd = kTwoPi * nc.drift_freq_hz;
-    const double* ns = nz[0]; const double* nco = nz[1]; const double* ng = nz[2];
-    if (!any_noise)
-        for (auto* v : {&noise_s_, &noise_c_, &noise_g_}) std::fill(v->begin(), v->begin() + static_cast<std::ptrdiff_t>(n), 0.0);
-    if (drift) {
         for (std::size_t i = 0; i < n; ++i) {
-            double sd, cd;
-            fast_sincos(wd * t[i] + nc.drift_phase_rad, sd, cd);
-            noise_g_[i] = sig_g * ng[i] + nc.drift_amplitude * sd;
+            const double g = 1.0 + fe.gain_scale * gain_src[i];
+            vs[i] = fe.sin_channel<false>(vs[i], g, nz[0][i]);
+            vc[i] = fe.cos_channel<false>(vc[i], g, nz[1][i]);
         }
-    } else {
-        for (std::size_t i = 0; i < n; ++i) noise_g_[i] = sig_g * ng[i];
-    }
-    const double* gn = noise_g_.data();
-    const Quantizer adc = enc_.adc;
-    const double os = l.offset_sin_v, oc = l.offset_cos_v;
-    if (adc.ideal()) {
-        for (std::size_t i = 0; i < n; ++i) {
-            const double g = 1.0 + gn[i];
-            vs[i] = g_s * (g * vs[i] - vref) + os + sig_a * ns[i];
-            vc[i] = g_c * (g * vc[i] - vref) + oc + sig_a * nco[i];
-        }
-    } else {
-        const double q = adc.step_v(), inv_q = adc.inv_step(), lo = adc.min_v, top = adc.max_code();
-        for (std::size_t i = 0; i < n; ++i) {
-            const double g = 1.0 + gn[i];
-            vs[i] = Quantizer::quantize(g_s * (g * vs[i] - vref) + os + sig_a * ns[i], lo, inv_q, q, top);
-            vc[i] = Quantizer::quantize(g_c * (g * vc[i] - vref) + oc + sig_a * nco[i], lo, inv_q, q, top);
-        }
+        if (!adc.ideal())
+            for (std::size_t i = 0; i < n; ++i) {
+                vs[i] = fe.adc(vs[i]);
+                vc[i] = fe.adc(vc[i]);
+            }
     }
 
     if (out.index_v) {

@@ -1,6 +1,7 @@
 #include "noise.hpp"
 
 #include <cmath>
+#include <cstring>
 
 #if defined(__AVX512F__) && defined(__AVX512DQ__)
 #include <immintrin.h>
@@ -50,19 +51,22 @@ inline double draw_u(std::uint64_t bits) {
     return static_cast<double>(static_cast<std::int64_t>(bits >> 11)) * 0x1p-52 - 1.0;
 }
 
-double normal_tail(Xoshiro256pp& rng, bool negative) {
+// Uniform in (0, 1] from 64 bits.
+inline double bits_uniform(std::uint64_t bits) { return (static_cast<double>(bits >> 11) + 1.0) * 0x1p-53; }
+
+template <class Rng>
+double normal_tail(Rng& rng, bool negative) {
     double x, y;
     do {
-        x = std::log(rng.uniform()) / kR;
-        y = std::log(rng.uniform());
+        x = std::log(bits_uniform(rng.next())) / kR;
+        y = std::log(bits_uniform(rng.next()));
     } while (-2.0 * y < x * x);
     return negative ? x - kR : kR - x;
 }
-}  // namespace
 
-double standard_normal(Xoshiro256pp& rng) { return standard_normal_from(rng.next(), rng); }
-
-double standard_normal_from(std::uint64_t bits, Xoshiro256pp& rng) {
+// The ziggurat continued from a first draw `bits`; further draws from rng.next().
+template <class Rng>
+double ziggurat_from(std::uint64_t bits, Rng& rng) {
     const ZigguratTables& t = tables();
     for (bool first = true;; first = false) {
         if (!first) bits = rng.next();
@@ -73,9 +77,21 @@ double standard_normal_from(std::uint64_t bits, Xoshiro256pp& rng) {
         // The wedge: x is accepted with the probability that a uniform height between the
         // density at the layer's outer edge x[i] and inner edge x[i+1] lies under the density.
         const double x = u * t.x[i];
-        if (t.f[i] + rng.uniform() * (t.f[i + 1] - t.f[i]) < std::exp(-0.5 * x * x)) return x;
+        if (t.f[i] + bits_uniform(rng.next()) * (t.f[i + 1] - t.f[i]) < std::exp(-0.5 * x * x)) return x;
     }
 }
+
+// The draws after a missed fast path in fill_normals: splitmix64 of a per-draw seed, so a
+// miss costs one hash per extra draw (most need one) instead of seeding a generator.
+struct CounterBits {
+    std::uint64_t base, j = 0;
+    std::uint64_t next() { return mix64(base + (++j) * 0x9e3779b97f4a7c15ULL); }
+};
+}  // namespace
+
+double standard_normal(Xoshiro256pp& rng) { return ziggurat_from(rng.next(), rng); }
+
+double standard_normal_from(std::uint64_t bits, Xoshiro256pp& rng) { return ziggurat_from(bits, rng); }
 
 NoiseField::NoiseField(std::uint64_t seed, std::uint64_t stream_id, int streams)
     : seed_(mix64(seed ^ mix64(stream_id + 0x51ed270b2a1e6f1dULL))), streams_(streams),
@@ -104,58 +120,92 @@ std::size_t fast_pass_scalar(std::uint64_t key, std::size_t begin, std::size_t n
 }
 
 #ifdef FRINGE_ZIGGURAT_AVX512
-// The same fast path eight draws at a time, with the 128-entry tables held in registers:
-// two-source permutes pick within each group of 16 entries and blends on bits 4-6 of the
-// layer pick the group. Gathers would be simpler but are microcoded (slow) on recent Intel
-// cores. Every lane computes exactly what fast_pass_scalar computes (the same IEEE
-// operations, no contraction), so both paths give identical numbers.
-inline __m512d lookup128(const __m512d* tab, __m512i idx, __mmask8 b4, __mmask8 b5, __mmask8 b6) {
-    const __m512d g0 = _mm512_permutex2var_pd(tab[0], idx, tab[1]);
-    const __m512d g1 = _mm512_permutex2var_pd(tab[2], idx, tab[3]);
-    const __m512d g2 = _mm512_permutex2var_pd(tab[4], idx, tab[5]);
-    const __m512d g3 = _mm512_permutex2var_pd(tab[6], idx, tab[7]);
-    const __m512d g4 = _mm512_permutex2var_pd(tab[8], idx, tab[9]);
-    const __m512d g5 = _mm512_permutex2var_pd(tab[10], idx, tab[11]);
-    const __m512d g6 = _mm512_permutex2var_pd(tab[12], idx, tab[13]);
-    const __m512d g7 = _mm512_permutex2var_pd(tab[14], idx, tab[15]);
-    const __m512d h0 = _mm512_mask_blend_pd(b4, g0, g1), h1 = _mm512_mask_blend_pd(b4, g2, g3);
-    const __m512d h2 = _mm512_mask_blend_pd(b4, g4, g5), h3 = _mm512_mask_blend_pd(b4, g6, g7);
-    const __m512d k0 = _mm512_mask_blend_pd(b5, h0, h1), k1 = _mm512_mask_blend_pd(b5, h2, h3);
-    return _mm512_mask_blend_pd(b6, k0, k1);
+// The same fast path sixteen draws at a time with the tables held in registers, as 32-bit
+// words so that one two-source permute covers 32 entries: x[layer] from its high and low
+// words (four permutes each, blends on bits 5 and 6 of the layer), and a float copy of
+// ratio[layer] rounded down for the acceptance test. Gathers would be simpler but are
+// microcoded (slow) on recent Intel cores. A draw the float ratio rejects but the exact one
+// accepts just goes to the slow path, which returns the same u * x[layer]; every value is
+// computed with the same IEEE operations as fast_pass_scalar, so both paths give identical
+// numbers.
+struct WordTables {
+    alignas(64) std::uint32_t x_hi[kLayers], x_lo[kLayers];
+    alignas(64) float ratio_down[kLayers];
+    WordTables() {
+        const ZigguratTables& t = tables();
+        for (int i = 0; i < kLayers; ++i) {
+            std::uint64_t w;
+            std::memcpy(&w, &t.x[i], sizeof w);
+            x_hi[i] = static_cast<std::uint32_t>(w >> 32);
+            x_lo[i] = static_cast<std::uint32_t>(w);
+            float r = static_cast<float>(t.ratio[i]);
+            if (static_cast<double>(r) > t.ratio[i]) r = std::nextafter(r, 0.0f);
+            ratio_down[i] = r;
+        }
+    }
+};
+
+// Entry idx (0..127, 16 lanes) of a 128-word table held in eight registers.
+inline __m512i lookup128_epi32(const __m512i* tab, __m512i idx, __mmask16 b5, __mmask16 b6) {
+    const __m512i g0 = _mm512_permutex2var_epi32(tab[0], idx, tab[1]);
+    const __m512i g1 = _mm512_permutex2var_epi32(tab[2], idx, tab[3]);
+    const __m512i g2 = _mm512_permutex2var_epi32(tab[4], idx, tab[5]);
+    const __m512i g3 = _mm512_permutex2var_epi32(tab[6], idx, tab[7]);
+    return _mm512_mask_blend_epi32(b6, _mm512_mask_blend_epi32(b5, g0, g1), _mm512_mask_blend_epi32(b5, g2, g3));
+}
+
+inline __m512i mix64_epi64(__m512i z, __m512i c1, __m512i c2) {
+    z = _mm512_xor_si512(z, _mm512_srli_epi64(z, 30));
+    z = _mm512_mullo_epi64(z, c1);
+    z = _mm512_xor_si512(z, _mm512_srli_epi64(z, 27));
+    z = _mm512_mullo_epi64(z, c2);
+    return _mm512_xor_si512(z, _mm512_srli_epi64(z, 31));
+}
+
+inline __m512d draw_u_pd(__m512i bits) {
+    return _mm512_sub_pd(_mm512_mul_pd(_mm512_cvtepi64_pd(_mm512_srli_epi64(bits, 11)), _mm512_set1_pd(0x1p-52)),
+                         _mm512_set1_pd(1.0));
 }
 
 std::size_t fast_pass_avx512(std::uint64_t key, std::size_t n, double* out, std::uint32_t* missed) {
-    const ZigguratTables& t = tables();
-    __m512d xt[16], rt[16];
-    for (int j = 0; j < 16; ++j) {
-        xt[j] = _mm512_load_pd(t.x + 8 * j);
-        rt[j] = _mm512_load_pd(t.ratio + 8 * j);
+    static const WordTables wt;
+    __m512i xh[8], xl[8], rt[8];
+    for (int j = 0; j < 8; ++j) {
+        xh[j] = _mm512_load_si512(wt.x_hi + 16 * j);
+        xl[j] = _mm512_load_si512(wt.x_lo + 16 * j);
+        rt[j] = _mm512_castps_si512(_mm512_load_ps(wt.ratio_down + 16 * j));
     }
     const __m512i c1 = _mm512_set1_epi64(static_cast<long long>(0xbf58476d1ce4e5b9ULL));
     const __m512i c2 = _mm512_set1_epi64(static_cast<long long>(0x94d049bb133111ebULL));
-    const __m512i step = _mm512_set1_epi64(static_cast<long long>(8 * kGamma));
-    const __m512i layer_mask = _mm512_set1_epi64(kLayers - 1);
-    const __m512i bit4 = _mm512_set1_epi64(16), bit5 = _mm512_set1_epi64(32), bit6 = _mm512_set1_epi64(64);
-    const __m512d scale = _mm512_set1_pd(0x1p-52), one = _mm512_set1_pd(1.0);
-    // Lane l of z holds key + (i + l + 1) * gamma (wrapping arithmetic, as in draw_bits).
-    __m512i z = _mm512_add_epi64(_mm512_set1_epi64(static_cast<long long>(key)),
-                                 _mm512_mullo_epi64(_mm512_setr_epi64(1, 2, 3, 4, 5, 6, 7, 8),
-                                                    _mm512_set1_epi64(static_cast<long long>(kGamma))));
+    const __m512i step = _mm512_set1_epi64(static_cast<long long>(16 * kGamma));
+    const __m512i low_words = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 16, 18, 20, 22, 24, 26, 28, 30);
+    const __m512i join_lo = _mm512_setr_epi32(0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23);
+    const __m512i join_hi = _mm512_setr_epi32(8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31);
+    const __m512i layer_mask = _mm512_set1_epi32(kLayers - 1);
+    const __m512i bit5 = _mm512_set1_epi32(32), bit6 = _mm512_set1_epi32(64);
+    const __m512i gamma = _mm512_set1_epi64(static_cast<long long>(kGamma));
+    // Lane l of z0 holds key + (i + l + 1) * gamma, of z1 key + (i + l + 9) * gamma
+    // (wrapping arithmetic, as in draw_bits).
+    __m512i z0 = _mm512_add_epi64(_mm512_set1_epi64(static_cast<long long>(key)),
+                                  _mm512_mullo_epi64(_mm512_setr_epi64(1, 2, 3, 4, 5, 6, 7, 8), gamma));
+    __m512i z1 = _mm512_add_epi64(z0, _mm512_mullo_epi64(_mm512_set1_epi64(8), gamma));
     std::size_t n_missed = 0, i = 0;
-    for (; i + 8 <= n; i += 8, z = _mm512_add_epi64(z, step)) {
-        __m512i b = _mm512_xor_si512(z, _mm512_srli_epi64(z, 30));  // mix64
-        b = _mm512_mullo_epi64(b, c1);
-        b = _mm512_xor_si512(b, _mm512_srli_epi64(b, 27));
-        b = _mm512_mullo_epi64(b, c2);
-        b = _mm512_xor_si512(b, _mm512_srli_epi64(b, 31));
-        const __m512i layer = _mm512_and_si512(b, layer_mask);
-        const __m512d u = _mm512_sub_pd(_mm512_mul_pd(_mm512_cvtepi64_pd(_mm512_srli_epi64(b, 11)), scale), one);
-        const __mmask8 m4 = _mm512_test_epi64_mask(layer, bit4);
-        const __mmask8 m5 = _mm512_test_epi64_mask(layer, bit5);
-        const __mmask8 m6 = _mm512_test_epi64_mask(layer, bit6);
-        _mm512_storeu_pd(out + i, _mm512_mul_pd(u, lookup128(xt, layer, m4, m5, m6)));
-        const __mmask8 hit = _mm512_cmp_pd_mask(_mm512_abs_pd(u), lookup128(rt, layer, m4, m5, m6), _CMP_LT_OQ);
-        for (unsigned miss = ~static_cast<unsigned>(hit) & 0xffu; miss; miss &= miss - 1)
+    for (; i + 16 <= n; i += 16, z0 = _mm512_add_epi64(z0, step), z1 = _mm512_add_epi64(z1, step)) {
+        const __m512i b0 = mix64_epi64(z0, c1, c2), b1 = mix64_epi64(z1, c1, c2);
+        const __m512i layer = _mm512_and_si512(_mm512_permutex2var_epi32(b0, low_words, b1), layer_mask);
+        const __mmask16 m5 = _mm512_test_epi32_mask(layer, bit5), m6 = _mm512_test_epi32_mask(layer, bit6);
+        const __m512i hi = lookup128_epi32(xh, layer, m5, m6), lo = lookup128_epi32(xl, layer, m5, m6);
+        const __m512d x0 = _mm512_castsi512_pd(_mm512_permutex2var_epi32(lo, join_lo, hi));
+        const __m512d x1 = _mm512_castsi512_pd(_mm512_permutex2var_epi32(lo, join_hi, hi));
+        const __m512 r = _mm512_castsi512_ps(lookup128_epi32(rt, layer, m5, m6));
+        const __m512d r0 = _mm512_cvtps_pd(_mm512_castps512_ps256(r));
+        const __m512d r1 = _mm512_cvtps_pd(_mm512_extractf32x8_ps(r, 1));
+        const __m512d u0 = draw_u_pd(b0), u1 = draw_u_pd(b1);
+        _mm512_storeu_pd(out + i, _mm512_mul_pd(u0, x0));
+        _mm512_storeu_pd(out + i + 8, _mm512_mul_pd(u1, x1));
+        const unsigned hit = static_cast<unsigned>(_mm512_cmp_pd_mask(_mm512_abs_pd(u0), r0, _CMP_LT_OQ)) |
+                             static_cast<unsigned>(_mm512_cmp_pd_mask(_mm512_abs_pd(u1), r1, _CMP_LT_OQ)) << 8;
+        for (unsigned miss = ~hit & 0xffffu; miss; miss &= miss - 1)
             missed[n_missed++] = static_cast<std::uint32_t>(i + static_cast<unsigned>(__builtin_ctz(miss)));
     }
     return fast_pass_scalar(key, i, n, out, missed, n_missed);
@@ -173,8 +223,8 @@ void fill_normals(std::uint64_t key, std::size_t n, double* out, std::uint32_t* 
 #endif
     for (std::size_t j = 0; j < n_missed; ++j) {  // ~1 % of draws: finish the ziggurat
         const std::size_t i = missed[j];
-        Xoshiro256pp rng(mix64(key ^ mix64(i + 0x632be59bd9b4e019ULL)));
-        out[i] = standard_normal_from(draw_bits(key, i), rng);
+        CounterBits rng{mix64(key ^ mix64(i + 0x632be59bd9b4e019ULL))};
+        out[i] = ziggurat_from(draw_bits(key, i), rng);
     }
 }
 
