@@ -48,10 +48,11 @@ double standard_normal(Xoshiro256pp& rng);
 double standard_normal_from(std::uint64_t bits, Xoshiro256pp& rng);
 
 // n standard normals that depend only on (key, i): counter-based bits (splitmix64 of
-// key + i), the ziggurat's fast path over the whole array (branch-free, eight at a time with
-// AVX-512; it notes where a draw missed), then only the ~1 % of missed draws finished from
-// a generator seeded by (key, i). `missed` needs n entries. The numbers are the same with
-// and without AVX-512; `portable` forces the scalar path (for tests that check so).
+// key + i), the ziggurat's fast path over the whole array (branch-free, sixteen at a time
+// with AVX-512; it notes where a draw missed), then only the ~2.8 % of missed draws
+// finished with further counter-based bits keyed by (key, i). `missed` needs n entries. The
+// numbers are the same with and without AVX-512; `portable` forces the scalar path (for
+// tests that check so).
 void fill_normals(std::uint64_t key, std::size_t n, double* out, std::uint32_t* missed,
                   bool portable = false);
 
