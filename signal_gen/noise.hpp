@@ -1,7 +1,7 @@
 // Deterministic noise. The noise of sample k is a function of (seed, stream, k) only, so
 // blocks of any size give the same output as one big block: samples are grouped in
-// chunks of kNoiseChunk, each chunk's generator is seeded from a hash of (seed, stream,
-// chunk index), and normals inside a chunk come from xoshiro256++ with a ziggurat.
+// chunks of kNoiseChunk, and normal i of a chunk is a function of a hash of (seed, stream,
+// chunk index) and i: counter-based bits (splitmix64) through a ziggurat (see fill_normals).
 #pragma once
 
 #include <array>
