@@ -6,13 +6,13 @@
 set -euo pipefail
 FRINGE="${1:-build/server/fringe}"; SECS="${2:-10}"
 PY=/usr/bin/python3
+. "$(dirname "$0")/../tests/lib.sh"
 command -v wrk >/dev/null || { echo "wrk missing: scripts/setup --test" >&2; exit 2; }
 dir=$(mktemp -d); pid=
 trap 'kill $pid 2>/dev/null || true; rm -rf "$dir"' EXIT
-: > "$dir/out"
 "$FRINGE" serve --bind 127.0.0.1:0 --data "$dir" --threads "${THREADS:-2}" > "$dir/out" 2> "$dir/log" &
 pid=$!
-for _ in $(seq 100); do URL=$(sed -n 's/.*serving \(http:[^ ]*\) .*/\1/p' "$dir/out"); [ -n "$URL" ] && break; sleep 0.1; done
+URL=$(poll_log "$dir/out" 's/.*serving \(http:[^ ]*\) .*/\1/p' 100 0.1) || { cat "$dir/log" >&2; exit 1; }
 T=$(cat "$dir/token")
 id=$(curl -s -X POST -H "Authorization: Bearer $T" -d '{"fixture":"fig10c-loopback"}' "${URL}api/v1/runs" | $PY -c 'import json,sys; print(json.load(sys.stdin)["id"])')
 for _ in $(seq 100); do curl -s "${URL}api/v1/runs/$id" | grep -q '"status":"done"' && break; sleep 0.1; done

@@ -7,6 +7,7 @@
 set -euo pipefail
 FRINGE="$1"; SRC="$(cd "$2" && pwd)"
 PY=/usr/bin/python3
+. "$SRC/tests/lib.sh"
 dir=$(mktemp -d); pids=()
 trap 'for p in "${pids[@]}"; do kill $p 2>/dev/null || true; done; rm -rf "$dir"' EXIT
 fail() { echo "FAIL: $*" >&2; for f in "$dir"/*.log; do echo "== $f" >&2; cat "$f" >&2; done; exit 1; }
@@ -14,15 +15,9 @@ S="$SRC/fixtures/scenarios/modbus-step-sweep.json"
 
 sim() {  # sim NAME ARGS...: start board-sim, set SIM_URL (tcp) from its output
   local name=$1; shift
-  : > "$dir/$name.log"  # exists before the poll below reads it (the child opens it after the fork)
   timeout 120 "$FRINGE" board-sim "$@" > "$dir/$name.log" 2>&1 &
   pids+=($!)
-  for _ in $(seq 100); do
-    SIM_AT=$(sed -n 's/.* listening on \(.*\)$/\1/p' "$dir/$name.log")
-    [ -n "$SIM_AT" ] && return 0
-    sleep 0.05
-  done
-  fail "board-sim $name did not start"
+  SIM_AT=$(poll_log "$dir/$name.log" 's/.* listening on \(.*\)$/\1/p') || fail "board-sim $name did not start"
 }
 port_of() { echo "${1##*:}"; }
 

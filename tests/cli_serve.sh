@@ -6,20 +6,16 @@
 set -euo pipefail
 FRINGE="$1"; SRC="$(cd "$2" && pwd)"
 PY=/usr/bin/python3
+. "$SRC/tests/lib.sh"
 dir=$(mktemp -d); pid=
 trap 'kill -9 $pid 2>/dev/null || true; rm -rf "$dir"' EXIT
 fail() { echo "FAIL: $*" >&2; [ -f "$dir/serve.log" ] && cat "$dir/serve.log" >&2; exit 1; }
 
 start() {  # start the server on a free port; sets pid and URL
-  : > "$dir/serve.log"; : > "$dir/serve.out"  # exist before the poll reads them
+  : > "$dir/serve.log"  # fail() shows it
   "$FRINGE" serve --bind 127.0.0.1:0 --data "$dir/data" > "$dir/serve.out" 2> "$dir/serve.log" &
   pid=$!
-  for _ in $(seq 100); do
-    URL=$(sed -n 's/.*serving \(http:[^ ]*\) .*/\1/p' "$dir/serve.out")
-    [ -n "$URL" ] && return 0
-    sleep 0.1
-  done
-  fail "fringe serve did not start"
+  URL=$(poll_log "$dir/serve.out" 's/.*serving \(http:[^ ]*\) .*/\1/p' 100 0.1) || fail "fringe serve did not start"
 }
 api() { curl -sS --max-time 10 "$@"; }
 status_of() { api "${URL}api/v1/runs/$1" | $PY -c 'import json,sys; r=json.load(sys.stdin); print(r["status"], r["verdict"] or "")'; }

@@ -4,16 +4,13 @@
 #   conformance.sh BACKEND FRINGE CONFORMANCE_BINARY SRC
 set -euo pipefail
 BACKEND="$1"; FRINGE="$2"; BIN="$3"; SRC="$(cd "$4" && pwd)"
+. "$SRC/tests/lib.sh"
 dir=$(mktemp -d); pids=()
 trap 'for p in "${pids[@]}"; do kill $p 2>/dev/null || true; done; rm -rf "$dir"' EXIT
 sim() {
-  : > "$dir/sim.log"  # exists before the poll reads it
   timeout 120 "$FRINGE" board-sim "$@" > "$dir/sim.log" 2>&1 &
   pids+=($!)
-  for _ in $(seq 100); do
-    AT=$(sed -n 's/.* listening on \(.*\)$/\1/p' "$dir/sim.log"); [ -n "$AT" ] && return 0; sleep 0.05
-  done
-  cat "$dir/sim.log" >&2; exit 1
+  AT=$(poll_log "$dir/sim.log" 's/.* listening on \(.*\)$/\1/p') || { cat "$dir/sim.log" >&2; exit 1; }
 }
 case "$BACKEND" in
   loopback) URI="loopback:?adc_bits=16&latency_samples=3&aa_cutoff_hz=45000" ;;
