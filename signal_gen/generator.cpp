@@ -232,14 +232,14 @@ void Generator::generate_tile(std::uint64_t first, std::size_t n, const Tile& ou
 
     if (in_range && !kappa_varies && (M == 1 || (M == 2 && enc_.model == ModelKind::Diffraction))) {
         // The common cases (the ideal model without harmonics or kappa <= 1; the paper's
-        // 1 < kappa <= 1.5) in one vectorised pass from theta to the ADC's output.
-        const Harmonics2 h{amp[0], M == 2 ? amp[1] : 0.0, p_s_[0], M == 2 ? p_s_[1] : 0.0, q_s_[0],
-                           M == 2 ? q_s_[1] : 0.0, p_c_[0], M == 2 ? p_c_[1] : 0.0, q_c_[0],
-                           M == 2 ? q_c_[1] : 0.0, dc_v_};
-        if (M == 1)
-            adc.ideal() ? synthesize<1, false>(n, in, h, fe, s1_.data(), c1_.data(), vs, vc) : synthesize<1, true>(n, in, h, fe, s1_.data(), c1_.data(), vs, vc);
-        else
-            adc.ideal() ? synthesize<2, false>(n, in, h, fe, s1_.data(), c1_.data(), vs, vc) : synthesize<2, true>(n, in, h, fe, s1_.data(), c1_.data(), vs, vc);
+        // 1 < kappa <= 1.5): sin/cos, then one vectorised pass from there to the ADC's output.
+        auto second = [&](const std::vector<double>& v) { return M == 2 ? v[1] : 0.0; };
+        const Harmonics2 h{amp[0], M == 2 ? amp[1] : 0.0, p_s_[0], second(p_s_), q_s_[0], second(q_s_),
+                           p_c_[0], second(p_c_), q_c_[0], second(q_c_), dc_v_};
+        using Synth = decltype(&synthesize<1, false>);
+        constexpr Synth kSynth[2][2] = {{synthesize<1, false>, synthesize<1, true>},
+                                        {synthesize<2, false>, synthesize<2, true>}};
+        kSynth[M - 1][adc.ideal() ? 0 : 1](n, in, h, fe, s1_.data(), c1_.data(), vs, vc);
     } else {
         // Any number of harmonics, kappa per sample, or huge |theta| (libm's sin/cos).
         double* s1 = s1_.data();
@@ -266,16 +266,14 @@ void Generator::generate_tile(std::uint64_t first, std::size_t n, const Tile& ou
             vs[i] = rs;
             vc[i] = rc;
         }
+        const bool quantize = !adc.ideal();
         for (std::size_t i = 0; i < n; ++i) {
             const double g = 1.0 + fe.gain_scale * gain_src[i];
-            vs[i] = fe.sin_channel<false>(vs[i], g, nz[0][i]);
-            vc[i] = fe.cos_channel<false>(vc[i], g, nz[1][i]);
+            const double s = fe.sin_channel<false>(vs[i], g, nz[0][i]);
+            const double c = fe.cos_channel<false>(vc[i], g, nz[1][i]);
+            vs[i] = quantize ? fe.adc(s) : s;
+            vc[i] = quantize ? fe.adc(c) : c;
         }
-        if (!adc.ideal())
-            for (std::size_t i = 0; i < n; ++i) {
-                vs[i] = fe.adc(vs[i]);
-                vc[i] = fe.adc(vc[i]);
-            }
     }
 
     if (out.index_v) {

@@ -10,10 +10,14 @@
 
 namespace fringe {
 
+namespace {
+constexpr std::uint64_t kGamma = 0x9e3779b97f4a7c15ULL;  // splitmix64's Weyl increment
+}
+
 Xoshiro256pp::Xoshiro256pp(std::uint64_t seed) {
     std::uint64_t z = seed;
     for (auto& s : s_) {
-        z += 0x9e3779b97f4a7c15ULL;
+        z += kGamma;
         s = mix64(z);
     }
 }
@@ -85,21 +89,18 @@ double ziggurat_from(std::uint64_t bits, Rng& rng) {
 // miss costs one hash per extra draw (most need one) instead of seeding a generator.
 struct CounterBits {
     std::uint64_t base, j = 0;
-    std::uint64_t next() { return mix64(base + (++j) * 0x9e3779b97f4a7c15ULL); }
+    std::uint64_t next() { return mix64(base + (++j) * kGamma); }
 };
 }  // namespace
 
 double standard_normal(Xoshiro256pp& rng) { return ziggurat_from(rng.next(), rng); }
 
-double standard_normal_from(std::uint64_t bits, Xoshiro256pp& rng) { return ziggurat_from(bits, rng); }
 
 NoiseField::NoiseField(std::uint64_t seed, std::uint64_t stream_id, int streams)
     : seed_(mix64(seed ^ mix64(stream_id + 0x51ed270b2a1e6f1dULL))), streams_(streams),
       buf_(kNoiseChunk * static_cast<std::size_t>(streams)) {}
 
 namespace {
-constexpr std::uint64_t kGamma = 0x9e3779b97f4a7c15ULL;  // splitmix64's Weyl increment
-
 // The draw of normal i: splitmix64 of key + (i + 1) * gamma.
 inline std::uint64_t draw_bits(std::uint64_t key, std::size_t i) { return mix64(key + (i + 1) * kGamma); }
 
