@@ -53,6 +53,24 @@ double UsbEmulatorOptions::default_time_scale() {
     return v > 0 && v <= 1 ? v : 1.0;
 }
 
+namespace {
+UsbEmulatorOptions::Clock parse_clock(const std::string& v) {
+    if (v == "realtime") return UsbEmulatorOptions::Clock::Realtime;
+    if (v == "paced") return UsbEmulatorOptions::Clock::Paced;
+    throw std::invalid_argument("clock");
+}
+}  // namespace
+
+UsbEmulatorOptions::Clock UsbEmulatorOptions::default_clock() {
+    const char* e = std::getenv("FRINGE_USB_EMULATOR_CLOCK");
+    if (!e || !*e) return Clock::Realtime;
+    try {
+        return parse_clock(e);
+    } catch (const std::invalid_argument&) {
+        throw std::invalid_argument(std::string("FRINGE_USB_EMULATOR_CLOCK='") + e + "' (known: realtime, paced)");
+    }
+}
+
 UsbEmulatorOptions parse_usb_emulator_options(const std::string& spec) {
     UsbEmulatorOptions o;
     std::size_t pos = 0;
@@ -77,10 +95,11 @@ UsbEmulatorOptions parse_usb_emulator_options(const std::string& spec) {
             else if (k == "unplug_after") o.unplug_after = std::stoll(v);
             else if (k == "seed") o.seed = std::stoull(v);
             else if (k == "time_scale") o.time_scale = std::stod(v);
+            else if (k == "clock") o.clock = parse_clock(v);
             else throw std::invalid_argument("unknown key");
         } catch (const std::exception&) {
             throw std::invalid_argument("usb emulator option '" + kv +
-                                        "' (known: serial, vid, pid, adc_bits, noise_v, stall_after, silent_after, drop_at, drop_count, unplug_after, seed, time_scale)");
+                                        "' (known: serial, vid, pid, adc_bits, noise_v, stall_after, silent_after, drop_at, drop_count, unplug_after, seed, time_scale, clock=realtime|paced)");
         }
     }
     return o;
@@ -163,21 +182,35 @@ struct UsbEmulator::Impl {
         }
     }
 
-    // The sample clock: IN frames due since START are produced now.
+    bool dropped_on_board(std::uint64_t seq) const {
+        return o.drop_at >= 0 && static_cast<long long>(seq) >= o.drop_at && static_cast<long long>(seq) < o.drop_at + o.drop_count;
+    }
+
+    // The sample clock. Real time: the IN frames due since the clock started are produced now.
+    // Paced: a frame is produced once its samples are in the FIFO (or the output has ended) and
+    // the host has an IN transfer waiting for it.
     void advance() {
         if (!running || unplugged) return;
         accept_out();
         if (!clock_started) return;
-        const double elapsed = o.time_scale * std::chrono::duration<double>(clk::now() - t0).count();
-        const auto due = static_cast<std::uint64_t>(elapsed * rate_hz / frame_samples);
-        while (produced < due) {
+        const bool paced = o.clock == UsbEmulatorOptions::Clock::Paced;
+        std::uint64_t due = 0;
+        if (!paced) {
+            const double elapsed = o.time_scale * std::chrono::duration<double>(clk::now() - t0).count();
+            due = static_cast<std::uint64_t>(elapsed * rate_hz / frame_samples);
+        }
+        while (paced || produced < due) {
             if (o.silent_after >= 0 && static_cast<long long>(produced) >= o.silent_after) return;
             if (o.unplug_after >= 0 && static_cast<long long>(produced) >= o.unplug_after) {
                 unplug_locked();
                 return;
             }
-            if (o.stall_after >= 0 && static_cast<long long>(produced) >= o.stall_after) stalled = true;
             if (out_ended && fifo_s.empty()) return;  // the stream is over
+            if (paced) {
+                if (!out_ended && fifo_s.size() < frame_samples) return;          // waits for the host's samples
+                if (in_pending.empty() && !dropped_on_board(produced)) return;   // waits for the host to ask
+            }
+            if (o.stall_after >= 0 && static_cast<long long>(produced) >= o.stall_after) stalled = true;
             // After the output ended, the last frame holds what is left.
             const std::size_t nf = out_ended ? std::min<std::size_t>(frame_samples, fifo_s.size()) : frame_samples;
             const std::uint32_t seq = static_cast<std::uint32_t>(produced++);
@@ -197,7 +230,7 @@ struct UsbEmulator::Impl {
             }
             if (under) ++st.underflows;
             accept_out();
-            const bool lost = o.drop_at >= 0 && static_cast<long long>(seq) >= o.drop_at && static_cast<long long>(seq) < o.drop_at + o.drop_count;
+            const bool lost = dropped_on_board(seq);
             if (lost || in_pending.empty()) {  // never sent, or the host had no transfer waiting: gone
                 ++st.in_dropped;
                 continue;

@@ -1,7 +1,10 @@
 // An emulated fringe USB streaming board for CI, on libumockdev: a device description
 // (descriptors for VID:PID, one vendor interface, bulk endpoints 0x01/0x81) and an ioctl
-// handler that implements docs/usb-protocol.md with a simulated analog loopback paced by a
-// real-time sample clock. The process must run under umockdev's preload
+// handler that implements docs/usb-protocol.md with a simulated analog loopback. Its sample
+// clock either keeps real time (a free-running board: a host that falls behind loses IN frames,
+// one that writes too late underflows) or is paced by the host (each IN frame is made when the
+// host has sent its samples and has a transfer waiting: no timing, so tests of everything else
+// are deterministic). The process must run under umockdev's preload
 // (LD_PRELOAD=libumockdev-preload.so.0); libusb in the same process then sees the board.
 // Fault injection: IN stall, the board going silent (timeout), dropped frames, unplug.
 #pragma once
@@ -27,10 +30,14 @@ struct UsbEmulatorOptions {
     long long drop_count = 1;
     long long unplug_after = -1;      // IN frames produced, then the board disappears
     std::uint64_t seed = 1;
-    // The board's clock runs at this fraction of real time (sanitizer builds are ~20x slower
+    enum class Clock { Realtime, Paced };
+    // Default: $FRINGE_USB_EMULATOR_CLOCK ("realtime" or "paced"), else realtime.
+    Clock clock = default_clock();
+    // A real-time clock runs at this fraction of real time (sanitizer builds are ~20x slower
     // hosts). Default: $FRINGE_USB_EMULATOR_TIME_SCALE, else 1.
     double time_scale = default_time_scale();
     static double default_time_scale();
+    static Clock default_clock();
 };
 
 // "key=value,key=value" (the keys above); throws std::invalid_argument naming a bad key.

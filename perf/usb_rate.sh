@@ -6,6 +6,8 @@
 set -euo pipefail
 SIM="${1:-build/server/fringe-usb-sim}"; SRC="$(cd "$(dirname "$0")/.." && pwd)"
 PY=/usr/bin/python3
+# The free-running board at full speed, whatever the caller's environment says.
+export FRINGE_USB_EMULATOR_CLOCK=realtime FRINGE_USB_EMULATOR_TIME_SCALE=1
 dir=$(mktemp -d); trap 'rm -rf "$dir"' EXIT
 for rate in 500000 1000000 1500000 2000000 4000000; do
   $PY - "$SRC" "$rate" "$dir/s.json" <<'PY'
