@@ -6,6 +6,7 @@
 #include "estimator/estimator.hpp"
 #include "server/evaluate.hpp"
 #include "server/http_server.hpp"
+#include "server/remote.hpp"
 #include "server/service.hpp"
 #include "server/report_formats.hpp"
 #include "server/run.hpp"
@@ -32,6 +33,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <fstream>
 #include <thread>
 #include <unistd.h>
 
@@ -234,16 +236,69 @@ std::atomic<bool> g_cancel{false};
 extern "C" void on_interrupt(int) { g_cancel.store(true); }
 
 struct RunCliOptions {
-    std::string scenario, report, junit, html, data, record, device;
+    std::string scenario, report, junit, html, data, record, device, server, token_file;
     std::int64_t seed = -1;
     bool no_db = false, quiet = false;
 };
+
+void print_run_summary(const json& r, const std::string& name) {
+    std::printf("run %s: %s %s (%s)\n", r["id"].get<std::string>().c_str(), name.c_str(), r["verdict"].get<std::string>().c_str(),
+                r["status"].get<std::string>().c_str());
+    if (r["error"].is_string()) std::printf("error: %s\n", r["error"].get<std::string>().c_str());
+    for (const auto& e : r["estimators"])
+        std::printf("  %-20s rms %.3e rad, max|e| %.3e rad, slipped %llu\n", e["label"].get<std::string>().c_str(),
+                    e["metrics"]["rms"]["rad"].get<double>(), e["metrics"]["max_abs"]["rad"].get<double>(),
+                    static_cast<unsigned long long>(e["metrics"]["slipped_samples"].get<std::uint64_t>()));
+    for (const auto& m : r["measurements"])
+        std::printf("  %-8s %s %s = %s %s\n", m["outcome"].get<std::string>().c_str(), m["estimator"].get<std::string>().c_str(),
+                    m["metric"].get<std::string>().c_str(), m["value"].dump().c_str(), m["unit"].get<std::string>().c_str());
+}
+
+// fringe run --server URL: the scenario is read and checked here (file references inlined),
+// run by the service, and its report fetched; same output files, summary and exit code.
+int run_run_remote(const RunCliOptions& o, const Scenario& sc) {
+    if (!o.record.empty()) throw ConfigError("record", "--record needs the device on this host; not with --server");
+    if (!o.data.empty()) throw ConfigError("data", "the service keeps the history; --data does not apply with --server");
+    if (sc.motion.kind == MotionKind::Table)
+        throw ConfigError("motion.file", "a table motion is read from a file on the service's host; with --server, put the table in the service's fixtures and run a scenario there");
+    const ServiceUrl url = parse_service_url(o.server);
+    const std::string token_path = o.token_file.empty() ? default_data_dir() + "/token" : o.token_file;
+    std::string token;
+    if (std::ifstream f(token_path); f) std::getline(f, token);
+    else if (!o.token_file.empty()) throw ConfigError("token-file", "cannot read " + token_path);
+    ServiceClient client(url, token);
+    RemoteRunOptions ro;
+    ro.junit = o.junit;
+    ro.html = o.html;
+    ro.cancel = &g_cancel;  // Ctrl-C cancels the run on the service; its report still comes back
+    std::signal(SIGINT, on_interrupt);
+    std::signal(SIGTERM, on_interrupt);
+    const bool tty = isatty(STDERR_FILENO) && !o.quiet;
+    if (tty)
+        ro.progress = [](std::uint64_t done, std::uint64_t total) {
+            if (total) std::fprintf(stderr, "\rrun: %5.1f %%", 100.0 * static_cast<double>(done) / static_cast<double>(total));
+        };
+    json r;
+    try {
+        r = run_remote(client, json(sc), ro);
+    } catch (const RemoteError& e) {
+        if (tty) std::fprintf(stderr, "\r%40s\r", "");
+        spdlog::error("{}", e.what());
+        return kExitError;
+    }
+    if (tty) std::fprintf(stderr, "\r%40s\r", "");
+    if (!o.report.empty()) write_file_atomic(o.report, r.dump(2) + "\n");
+    if (!o.quiet) print_run_summary(r, sc.name);
+    if (r["error"].is_string()) spdlog::error("{}", r["error"].get<std::string>());
+    return exit_code(r);
+}
 
 int run_run(const RunCliOptions& o) {
     Scenario sc = load_scenario(o.scenario);
     if (o.seed >= 0) sc.seed = static_cast<std::uint64_t>(o.seed);
     if (!o.device.empty()) sc.device = o.device;
     validate_run(sc);
+    if (!o.server.empty()) return run_run_remote(o, sc);
     std::unique_ptr<RunStore> store;
     RunOptions ro;
     ro.run_id = new_run_id();
@@ -274,18 +329,7 @@ int run_run(const RunCliOptions& o) {
     if (!o.junit.empty()) write_file_atomic(o.junit, junit_xml(r));
     if (!o.html.empty()) write_file_atomic(o.html, report_html(r));
     if (store) store->finish(r);
-    if (!o.quiet) {
-        std::printf("run %s: %s %s (%s)\n", r["id"].get<std::string>().c_str(), sc.name.c_str(), r["verdict"].get<std::string>().c_str(),
-                    r["status"].get<std::string>().c_str());
-        if (r["error"].is_string()) std::printf("error: %s\n", r["error"].get<std::string>().c_str());
-        for (const auto& e : r["estimators"])
-            std::printf("  %-20s rms %.3e rad, max|e| %.3e rad, slipped %llu\n", e["label"].get<std::string>().c_str(),
-                        e["metrics"]["rms"]["rad"].get<double>(), e["metrics"]["max_abs"]["rad"].get<double>(),
-                        static_cast<unsigned long long>(e["metrics"]["slipped_samples"].get<std::uint64_t>()));
-        for (const auto& m : r["measurements"])
-            std::printf("  %-8s %s %s = %s %s\n", m["outcome"].get<std::string>().c_str(), m["estimator"].get<std::string>().c_str(),
-                        m["metric"].get<std::string>().c_str(), m["value"].dump().c_str(), m["unit"].get<std::string>().c_str());
-    }
+    if (!o.quiet) print_run_summary(r, sc.name);
     if (r["status"] == "error") spdlog::error("{}", r["error"].get<std::string>());
     return exit_code(r);
 }
@@ -530,6 +574,8 @@ int main(int argc, char** argv) {
     rn->add_option("--device", run_o.device, "Override the scenario's device URI (e.g. modbus+tcp://127.0.0.1:1502?board=dut-interpolator)");
     rn->add_option("--record", run_o.record, "Record the device input with aligned truth to this capture (.csv or .fcap)");
     rn->add_flag("-q,--quiet", run_o.quiet, "No summary or progress");
+    rn->add_option("--server", run_o.server, "Run it on a fringe serve at this URL (http://HOST:PORT): the scenario is checked here, run there, its report fetched");
+    rn->add_option("--token-file", run_o.token_file, "With --server: the service's bearer token file (default $FRINGE_DATA/token or ~/.local/share/fringe/token)");
 
     RunsOptions runs_o;
     auto* rs = app.add_subcommand("runs", "List the run history (newest first), or print one run's report");

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# fringe serve through the real executable on 127.0.0.1: the stdlib Python client gets the
-# same verdicts (exit 0 PASS, 1 FAIL); SIGTERM mid-run stores the run as interrupted with its
+# fringe serve through the real executable on 127.0.0.1: the stdlib Python client and
+# `fringe run --server` get the same verdicts (exit 0 PASS, 1 FAIL); SIGTERM mid-run stores the run as interrupted with its
 # partial report and exits 0; kill -9 mid-run, restart: the run is interrupted, completed
 # reports are intact, the token is reused.
 set -euo pipefail
@@ -33,6 +33,32 @@ $PY "$SRC/scripts/fringe_remote.py" "$URL" ci-failing --token-file "$T" > "$dir/
 set -e
 [ $rc -eq 1 ] || fail "ci-failing over HTTP should exit 1, got $rc"
 grep -q "FAIL" "$dir/f.txt" || fail "FAIL verdict line"
+# fringe run --server: the scenario is read here, run by the service, its report fetched. The
+# same seed gives the same scenario, metrics and measurements as a local run.
+"$FRINGE" run "$SRC/fixtures/scenarios/fig10c-loopback.json" --server "$URL" --token-file "$T" \
+  --report "$dir/rr.json" --junit "$dir/rj.xml" --html "$dir/rh.html" > "$dir/rr.txt" || fail "fringe run --server should PASS"
+grep -q "fig10c-loopback PASS (done)" "$dir/rr.txt" || fail "run --server verdict line: $(cat "$dir/rr.txt")"
+"$FRINGE" run "$SRC/fixtures/scenarios/fig10c-loopback.json" --no-db -q --report "$dir/lr.json" || fail "fig10c locally"
+$PY - "$dir/rr.json" "$dir/lr.json" <<'PY' || fail "run --server report"
+import json, sys
+r, l = (json.load(open(p)) for p in sys.argv[1:3])
+assert r["scenario"] == l["scenario"], "the service ran a different scenario"
+assert [e["metrics"] for e in r["estimators"]] == [e["metrics"] for e in l["estimators"]], "metrics differ"
+assert r["measurements"] == l["measurements"] and r["verdict"] == "PASS", r["verdict"]
+PY
+grep -q "<testsuites" "$dir/rj.xml" || fail "run --server JUnit"
+grep -qi "<html" "$dir/rh.html" || fail "run --server HTML"
+rid=$($PY -c 'import json,sys; print(json.load(open(sys.argv[1]))["id"])' "$dir/rr.json")
+[ "$(status_of "$rid")" = "done PASS" ] || fail "run --server: the run is in the service's history"
+set +e
+"$FRINGE" run "$SRC/fixtures/scenarios/ci-failing.json" --server "$URL" --token-file "$T" -q; rc=$?
+[ $rc -eq 1 ] || fail "run --server of a FAIL should exit 1, got $rc"
+"$FRINGE" run "$SRC/fixtures/scenarios/ci-failing.json" --server "$URL" --token-file /dev/null -q 2> "$dir/e401.txt"; rc=$?
+[ $rc -eq 2 ] && grep -q "HTTP 401" "$dir/e401.txt" || fail "run --server without a token: exit 2 naming 401, got $rc: $(cat "$dir/e401.txt")"
+"$FRINGE" run "$SRC/fixtures/scenarios/ci-failing.json" --server "http://127.0.0.1:1" --token-file "$T" -q 2> "$dir/eref.txt"; rc=$?
+[ $rc -eq 2 ] && grep -q "127.0.0.1:1/.*refused" "$dir/eref.txt" || fail "run --server, nobody listening: exit 2 naming the server, got $rc: $(cat "$dir/eref.txt")"
+set -e
+
 done_id=$(api "${URL}api/v1/runs?outcome=PASS" | $PY -c 'import json,sys; print(json.load(sys.stdin)["runs"][0]["id"])')
 api "${URL}api/v1/runs/$done_id/report.json" > "$dir/before.json"
 

@@ -4,6 +4,7 @@
 #include "drivers/capture_file.hpp"
 #include "helpers.hpp"
 #include "server/http_server.hpp"
+#include "server/remote.hpp"
 #include "server/service.hpp"
 
 #include <catch2/catch.hpp>
@@ -486,4 +487,24 @@ TEST_CASE("http server: real socket on 127.0.0.1", "[service][socket]") {
     }
     server.stop();
     t.join();
+}
+
+TEST_CASE("fringe run --server: service URLs are parsed, bad ones refused naming the problem", "[service][remote]") {
+    auto u = parse_service_url("http://127.0.0.1:8080");
+    CHECK(u.host == "127.0.0.1");
+    CHECK(u.port == "8080");
+    CHECK(u.prefix.empty());
+    CHECK(u.text() == "http://127.0.0.1:8080/");
+    u = parse_service_url("http://[::1]:9000/bench/");
+    CHECK(u.host == "::1");
+    CHECK(u.port == "9000");
+    CHECK(u.prefix == "/bench");
+    CHECK(u.text() == "http://[::1]:9000/bench/");
+    CHECK(parse_service_url("http://bench.local").port == "80");
+    CHECK_THROWS_WITH(parse_service_url("https://bench:8080"), Catch::Contains("https is not supported"));
+    CHECK_THROWS_WITH(parse_service_url("bench:8080"), Catch::Contains("expected http://HOST"));
+    CHECK_THROWS_WITH(parse_service_url("http://bench:99999"), Catch::Contains("port '99999'"));
+    CHECK_THROWS_WITH(parse_service_url("http://bench:80x"), Catch::Contains("port '80x'"));
+    CHECK_THROWS_WITH(parse_service_url("http://:80"), Catch::Contains("no host"));
+    CHECK_THROWS_WITH(parse_service_url("http://[::1"), Catch::Contains("unclosed ["));
 }
