@@ -33,7 +33,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <fstream>
+#include <filesystem>
 #include <thread>
 #include <unistd.h>
 
@@ -263,9 +263,8 @@ int run_run_remote(const RunCliOptions& o, const Scenario& sc) {
         throw ConfigError("motion.file", "a table motion is read from a file on the service's host; with --server, put the table in the service's fixtures and run a scenario there");
     const ServiceUrl url = parse_service_url(o.server);
     const std::string token_path = o.token_file.empty() ? default_data_dir() + "/token" : o.token_file;
-    std::string token;
-    if (std::ifstream f(token_path); f) std::getline(f, token);
-    else if (!o.token_file.empty()) throw ConfigError("token-file", "cannot read " + token_path);
+    // No default token file: send none, and the service's 401 says what is missing.
+    const std::string token = o.token_file.empty() && !std::filesystem::exists(token_path) ? "" : read_token_file(token_path);
     ServiceClient client(url, token);
     RemoteRunOptions ro;
     ro.junit = o.junit;
@@ -279,14 +278,17 @@ int run_run_remote(const RunCliOptions& o, const Scenario& sc) {
             if (total) std::fprintf(stderr, "\rrun: %5.1f %%", 100.0 * static_cast<double>(done) / static_cast<double>(total));
         };
     json r;
+    std::string failure;
     try {
         r = run_remote(client, json(sc), ro);
     } catch (const RemoteError& e) {
-        if (tty) std::fprintf(stderr, "\r%40s\r", "");
-        spdlog::error("{}", e.what());
-        return kExitError;
+        failure = e.what();
     }
     if (tty) std::fprintf(stderr, "\r%40s\r", "");
+    if (!failure.empty()) {
+        spdlog::error("{}", failure);
+        return kExitError;
+    }
     if (!o.report.empty()) write_file_atomic(o.report, r.dump(2) + "\n");
     if (!o.quiet) print_run_summary(r, sc.name);
     if (r["error"].is_string()) spdlog::error("{}", r["error"].get<std::string>());

@@ -52,7 +52,9 @@ ServiceUrl parse_service_url(const std::string& url) {
     }
     if (u.host.empty()) throw ConfigError("server", "'" + url + "': no host");
     if (!port.empty()) {
-        if (port.find_first_not_of("0123456789") != std::string::npos || port.size() > 5 || std::stoi(port) < 1 || std::stoi(port) > 65535)
+        const bool digits = port.find_first_not_of("0123456789") == std::string::npos && port.size() <= 5;
+        const int number = digits ? std::stoi(port) : 0;
+        if (number < 1 || number > 65535)
             throw ConfigError("server", "'" + url + "': port '" + port + "' is not 1-65535");
         u.port = port;
     }
@@ -145,7 +147,7 @@ json run_remote(ServiceClient& client, const json& scenario, const RemoteRunOpti
     const auto fetch = [&](const std::string& what, const std::string& file) {
         if (file.empty()) return;
         const HttpReply r = client.request("GET", "runs/" + id + "/" + what);
-        if (r.status != 200) throw RemoteError("fringe serve at " + client.url().text() + ": GET runs/" + id + "/" + what + ": HTTP " + std::to_string(r.status));
+        if (r.status != 200) throw RemoteError("fringe serve at " + client.url().text() + ": GET runs/" + id + "/" + what + ": HTTP " + std::to_string(r.status), r.status);
         write_file_atomic(file, r.body);
     };
     fetch("report.xml", o.junit);

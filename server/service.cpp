@@ -155,11 +155,20 @@ HttpResponse json_error(int status, const std::string& code, const std::string& 
     return r;
 }
 
+std::string read_token_file(const std::string& path) {
+    std::ifstream f(path, std::ios::binary);
+    if (!f) throw std::runtime_error("cannot read token file " + path);
+    std::ostringstream ss;
+    ss << f.rdbuf();
+    std::string t = ss.str();
+    while (!t.empty() && (t.back() == '\n' || t.back() == '\r' || t.back() == ' ')) t.pop_back();
+    return t;
+}
+
 std::string load_or_create_token(const std::string& path, bool* created) {
     if (created) *created = false;
     if (fs::exists(path)) {
-        std::string t = read_file(path);
-        while (!t.empty() && (t.back() == '\n' || t.back() == '\r' || t.back() == ' ')) t.pop_back();
+        const std::string t = read_token_file(path);
         if (t.size() < 16) throw std::runtime_error("token file " + path + " holds fewer than 16 characters");
         struct stat st {};
         if (::stat(path.c_str(), &st) == 0 && (st.st_mode & 077))

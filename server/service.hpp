@@ -118,5 +118,8 @@ private:
 // Bearer token: read from path, or created there (mode 0600, 256 random bits, hex) when
 // absent. created is set when this call made it.
 std::string load_or_create_token(const std::string& path, bool* created);
+// A token file's text without trailing newline, CR or spaces (the service's and the
+// clients' reading); throws std::runtime_error naming the file when it cannot be read.
+std::string read_token_file(const std::string& path);
 
 }  // namespace fringe
