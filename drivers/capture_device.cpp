@@ -5,6 +5,8 @@
 
 #include "signal_gen/config.hpp"
 
+#include <limits>
+
 namespace fringe::dev {
 
 namespace {
@@ -50,7 +52,8 @@ public:
         if (buf_.theta_true_rad.empty()) return false;
         for (std::size_t i = 0; i < last_n_ && i < th.size(); ++i) {
             th[i] = buf_.theta_true_rad[last_pos_ + i];
-            om[i] = buf_.omega_true_rad_s.empty() ? 0.0 : buf_.omega_true_rad_s[last_pos_ + i];
+            // No rate truth in the file: unknown, not zero (the run then has no rate metrics).
+            om[i] = buf_.omega_true_rad_s.empty() ? std::numeric_limits<double>::quiet_NaN() : buf_.omega_true_rad_s[last_pos_ + i];
         }
         return true;
     }

@@ -23,7 +23,13 @@ const char* to_string(StreamStatus s) {
 void to_json(nlohmann::json& j, const DeviceInfo& d) {
     j = {{"driver", d.driver}, {"uri", d.uri}, {"description", d.description}, {"board_id", d.board_id},
          {"streaming", d.streaming}, {"step_mode", d.step_mode}, {"dut_position", d.dut_position},
-         {"latency_samples", d.latency_samples}, {"settings", d.settings}};
+         {"latency_samples", d.latency_samples}, {"settings", d.settings}, {"converter", d.converter}};
+}
+
+void to_json(nlohmann::json& j, const ConverterInfo& c) {
+    j = {{"known", c.known}, {"dac_bits", c.dac_bits}, {"dac_range_v", c.dac_range_v}, {"adc_bits", c.adc_bits},
+         {"adc_range_v", c.adc_range_v}, {"dac_step_v", c.dac_q_v()}, {"adc_step_v", c.adc_q_v()}, {"noise_at_adc_v", c.noise_at_adc_v}, {"added_noise_v", c.added_noise_v}};
+    if (!c.note.empty()) j["note"] = c.note;
 }
 
 void to_json(nlohmann::json& j, const DriverInfo& d) {

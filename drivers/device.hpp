@@ -10,6 +10,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <cmath>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -48,6 +49,28 @@ struct StreamResult {
     std::string message;
 };
 
+// What the device's converter chain adds to the signal, for bounds from the signal as
+// delivered (quantisation and analog noise); known = false when the device cannot say.
+struct ConverterInfo {
+    bool known = false;
+    int dac_bits = 0, adc_bits = 0;   // 0: ideal (or absent)
+    double dac_range_v = 0, adc_range_v = 0;  // full scale is [-range_v, range_v)
+    double dac_step_v = 0, adc_step_v = 0;  // quantisation step when given directly (register scale)
+    double noise_at_adc_v = 0;        // analog noise rms per channel at the ADC input
+    // Noise the device adds to the signal, rms per channel (V): quantisation as white noise of
+    // q^2/12 per converter plus analog noise, as the device judges it (a loopback whose ADC
+    // re-reads its own DAC's grid adds no second quantisation).
+    double added_noise_v = 0;
+    std::string note;                 // what was assumed
+    // Quantisation step, V (0: ideal): the explicit step, else 2*range/2^bits.
+    double dac_q_v() const { return dac_step_v > 0 ? dac_step_v : dac_bits > 0 ? 2 * dac_range_v / static_cast<double>(1ull << dac_bits) : 0.0; }
+    double adc_q_v() const { return adc_step_v > 0 ? adc_step_v : adc_bits > 0 ? 2 * adc_range_v / static_cast<double>(1ull << adc_bits) : 0.0; }
+    // DAC and ADC quantisation independent of each other, plus the analog noise.
+    double independent_noise_v() const {
+        return std::sqrt(dac_q_v() * dac_q_v() / 12 + adc_q_v() * adc_q_v() / 12 + noise_at_adc_v * noise_at_adc_v);
+    }
+};
+
 struct DeviceInfo {
     std::string driver;       // "loopback", "capture", "modbus", "usb"
     std::string uri;
@@ -59,8 +82,10 @@ struct DeviceInfo {
     bool needs_output = true; // false: an input-only source (capture replay)
     int latency_samples = 0;  // known input delay relative to the output, samples
     nlohmann::json settings = nlohmann::json::object();  // resolved settings
+    ConverterInfo converter;
 };
 void to_json(nlohmann::json& j, const DeviceInfo& d);
+void to_json(nlohmann::json& j, const ConverterInfo& c);
 
 struct StepResult {
     double sin_v = 0, cos_v = 0;         // measured (averaged) ADC pair

@@ -102,6 +102,16 @@ public:
         i.dut_position = board_.has_dut_position();
         i.settings = {{"board", board_.name}, {"unit", unit_}, {"timeout_ms", timeout_ms_}, {"retries", retries_},
                       {"settle_s", settle_s_}, {"average", average_}, {"board_profile", board_.path}};
+        // Integer registers quantise by their scale (V per count); floats do not.
+        auto step = [&](const char* role) {
+            const RegisterDef* r = board_.find(role);
+            return r && r->type != RegType::F32 ? std::fabs(r->scale) : 0.0;
+        };
+        i.converter.known = true;
+        i.converter.dac_step_v = step("sin_out");
+        i.converter.adc_step_v = step("sin_in");
+        i.converter.note = "quantisation from the register scale; the board's analog noise is unknown";
+        i.converter.added_noise_v = i.converter.independent_noise_v();
         return i;
     }
 

@@ -112,6 +112,12 @@ public:
         i.dut_position = (info_.flags & 1) != 0;
         i.settings = {{"serial", serial_}, {"transfers", transfers_}, {"frame_samples", frame_samples_ ? frame_samples_ : frame_samples_setting_}, {"timeout_ms", timeout_ms_},
                       {"adc_bits", info_.adc_bits}, {"dac_bits", info_.dac_bits}, {"range_v", range_v_}, {"max_rate_hz", info_.max_rate_hz}};
+        i.converter.known = true;
+        i.converter.adc_bits = info_.adc_bits;
+        i.converter.dac_bits = info_.dac_bits;
+        i.converter.adc_range_v = i.converter.dac_range_v = range_v_;
+        i.converter.note = "the board reports its converters' bits and range, not its analog noise: quantisation only";
+        i.converter.added_noise_v = i.converter.independent_noise_v();
         return i;
     }
 

@@ -79,6 +79,9 @@ public:
     // in and out have equal sizes. Stream in blocks of any size: the result does not depend
     // on the partition.
     virtual void process(InputSpan in, OutputSpan out) = 0;
+    // The end of the input: an estimator with pending output (a child process) checks that it
+    // delivered exactly one estimate per input frame; throws EstimatorError if not.
+    virtual void finish() {}
     virtual BoundClass bound_class() const { return BoundClass::Tracker; }
     virtual std::optional<TrackingPrior> prior() const { return std::nullopt; }
     // Diagnostics for the report (fitted calibration, final gain or kappa, ...).

@@ -31,6 +31,10 @@ public:
             {"protocol", "", ParamType::Choice, "text", -kInf, kInf, {"text", "binary"},
              "text: lines 'sin cos' in, 'theta_rad omega_rad_s valid' out; binary: little-endian f64 pairs in, f64 triples out"},
             {"timeout_s", "s", ParamType::Number, 10.0, 0.01, 3600, {}, "give up when the child makes no progress for this long"},
+            {"model", "", ParamType::Choice, "unknown", -kInf, kInf, {"unknown", "memoryless", "tracker-cv", "tracker-ca"},
+             "what the child is, so it is graded like a built-in estimator: memoryless (per-sample CRB), a tracker with a "
+             "constant-velocity or constant-acceleration prior (PCRB at natural_freq_hz); unknown: no efficiency"},
+            {"natural_freq_hz", "Hz", ParamType::Number, 0.0, 0.0, 1e7, {}, "a tracker's loop natural frequency (its declared prior; required for tracker-cv/-ca)"},
         };
     }
     ~External() override { stop(); }
@@ -43,6 +47,24 @@ public:
         binary_ = p.string("protocol") == "binary";
         timeout_ms_ = static_cast<int>(p.number("timeout_s") * 1000);
         if (!(cfg.sample_rate_hz > 0)) throw ConfigError("sample_rate_hz", "must be positive");
+        model_ = p.string("model");
+        fn_hz_ = p.number("natural_freq_hz");
+        if ((model_ == "tracker-cv" || model_ == "tracker-ca") && !(fn_hz_ > 0))
+            throw ConfigError("params.natural_freq_hz", "a tracker's declared prior needs its natural frequency (> 0 Hz)");
+        // The encoder and sampling as fringe knows them, for firmware configured like the
+        // built-in estimators: a JSON file named by FRINGE_ENCODER_JSON.
+        char tmpl[] = "/tmp/fringe-external-XXXXXX";
+        const int fd = mkstemp(tmpl);
+        if (fd < 0) throw EstimatorError(std::string("external: cannot write its configuration file: ") + std::strerror(errno));
+        config_path_ = tmpl;
+        nlohmann::json conf{{"schema", "fringe.external"}, {"schema_version", 1}, {"sample_rate_hz", cfg.sample_rate_hz},
+                            {"protocol", binary_ ? "binary" : "text"},
+                            {"phase_convention", "theta = 0 where sin = 0 and cos is at its maximum; theta increases with motion; unwrapped, in radians"},
+                            {"encoder", cfg.encoder ? nlohmann::json(*cfg.encoder) : nlohmann::json()}};
+        const std::string text = conf.dump(2, ' ', false, nlohmann::json::error_handler_t::replace) + "\n";
+        const bool wrote = ::write(fd, text.data(), text.size()) == static_cast<ssize_t>(text.size());
+        ::close(fd);
+        if (!wrote) throw EstimatorError("external: cannot write its configuration file " + config_path_);
         // A child that dies while we write must give EPIPE, not kill the bench.
         ::signal(SIGPIPE, SIG_IGN);
         int in_pipe[2], out_pipe[2];
@@ -59,6 +81,7 @@ public:
             close(in_pipe[0]); close(in_pipe[1]); close(out_pipe[0]); close(out_pipe[1]);
             setenv("FRINGE_SAMPLE_RATE_HZ", rate.c_str(), 1);
             setenv("FRINGE_PROTOCOL", proto.c_str(), 1);
+            setenv("FRINGE_ENCODER_JSON", config_path_.c_str(), 1);
             signal(SIGPIPE, SIG_DFL);
             execl("/bin/sh", "sh", "-c", command_.c_str(), static_cast<char*>(nullptr));
             _exit(127);
@@ -148,7 +171,9 @@ public:
             if (fds[0].revents & (POLLIN | POLLHUP | POLLERR)) {
                 const ssize_t r = read(from_child_, buf, sizeof buf);
                 if (r > 0) { rx.append(buf, static_cast<std::size_t>(r)); progress = true; consume(); }
-                else if (r == 0) fail_exited(stopped_reading ? "stopped reading its input and closed its output" : "closed its output");
+                else if (r == 0) fail_exited(std::string(stopped_reading ? "stopped reading its input and closed its output" : "closed its output") +
+                                             " after " + std::to_string(samples_ + got) + " estimates for " + std::to_string(samples_ + n) +
+                                             " samples (exactly one per input frame)");
                 else if (errno != EAGAIN && errno != EINTR) fail(std::string("read: ") + std::strerror(errno));
             }
             const auto now = std::chrono::steady_clock::now();
@@ -156,21 +181,67 @@ public:
             else if (now - last_progress > std::chrono::milliseconds(timeout_ms_)) {
                 int status = 0;
                 if (waitpid(pid_, &status, WNOHANG) == pid_) { pid_ = -1; fail(exit_text(status)); }
-                fail("no output for " + std::to_string(timeout_ms_ / 1000.0).substr(0, 5) +
-                     " s (does it flush its output after each line or block?)");
+                fail("no output for " + std::to_string(timeout_ms_ / 1000.0).substr(0, 5) + " s with " + std::to_string(samples_ + got) +
+                     " of " + std::to_string(samples_ + n) + " estimates received (one per input frame; does it flush its output after each line or block?)");
             }
         }
-        partial_ = std::move(rx);  // a child may run ahead by at most a partial frame
         samples_ += n;
         got_ = 0;
+        // One estimate per input frame: a complete frame beyond them is an extra one (the child
+        // cannot know samples it has not been sent).
+        if (complete_frames(rx) > 0)
+            fail("sent more estimates than samples: " + std::to_string(samples_ + complete_frames(rx)) + " estimates for " +
+                 std::to_string(samples_) + " samples so far (exactly one per input frame)");
+        partial_ = std::move(rx);  // a child may run ahead by at most a partial frame
     }
 
-    BoundClass bound_class() const override { return BoundClass::Tracker; }
-    nlohmann::json state() const override { return {{"command", command_}, {"samples", samples_}}; }
+    void finish() override {
+        if (pid_ <= 0) return;
+        // Close its input; it must end its output with nothing more than the frames it owed.
+        close(to_child_);
+        to_child_ = -1;
+        std::string rx = std::move(partial_);
+        partial_.clear();
+        char buf[4096];
+        const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(std::min(timeout_ms_, 2000));
+        for (;;) {
+            pollfd fd{from_child_, POLLIN, 0};
+            const int rc = poll(&fd, 1, 50);
+            if (rc > 0) {
+                const ssize_t r = read(from_child_, buf, sizeof buf);
+                if (r > 0) { rx.append(buf, static_cast<std::size_t>(r)); continue; }
+                if (r == 0) break;
+                if (errno != EAGAIN && errno != EINTR) break;
+            }
+            if (std::chrono::steady_clock::now() > deadline) break;  // still running: stop() ends it
+        }
+        if (const std::size_t extra = complete_frames(rx))
+            fail("sent more estimates than samples: " + std::to_string(samples_ + extra) + " estimates for " + std::to_string(samples_) +
+                 " samples (exactly one per input frame)");
+        if (!rx.empty() && !(rx.find_first_not_of(" \t\r\n") == std::string::npos && !binary_))
+            fail("left a partial estimate (" + std::to_string(rx.size()) + " bytes) after its last full one");
+        stop();
+    }
+
+    BoundClass bound_class() const override { return model_ == "memoryless" ? BoundClass::Memoryless : BoundClass::Tracker; }
+    std::optional<TrackingPrior> prior() const override {
+        if (model_ == "tracker-cv") return TrackingPrior{Kinematics::CV, fn_hz_};
+        if (model_ == "tracker-ca") return TrackingPrior{Kinematics::CA, fn_hz_};
+        return std::nullopt;
+    }
+    nlohmann::json state() const override { return {{"command", command_}, {"samples", samples_}, {"model", model_}}; }
 
 private:
+    std::size_t complete_frames(const std::string& rx) const {
+        if (binary_) return rx.size() / 24;
+        std::size_t n = 0;
+        for (std::size_t pos = rx.find('\n'); pos != std::string::npos; pos = rx.find('\n', pos + 1)) ++n;
+        return n;
+    }
     void put(OutputSpan out, std::size_t i, double th, double om, double v) {
         if (!std::isfinite(th)) fail("estimate " + std::to_string(samples_ + i + 1) + " has a non-finite theta");
+        if (v != 0.0 && !std::isfinite(om))
+            fail("estimate " + std::to_string(samples_ + i + 1) + " is marked valid but its omega is not finite (mark it valid = 0, or give the rate)");
         out.theta_rad[i] = th;
         out.omega_rad_s[i] = om;
         out.valid[i] = v != 0.0 ? 1 : 0;
@@ -218,9 +289,11 @@ private:
         }
         if (pgid_ > 0) { kill(-pgid_, SIGKILL); pgid_ = -1; }  // grandchildren (a wrapper script's helpers) too
         if (from_child_ >= 0) { close(from_child_); from_child_ = -1; }
+        if (!config_path_.empty()) { ::unlink(config_path_.c_str()); config_path_.clear(); }
     }
 
-    std::string command_;
+    std::string command_, model_ = "unknown", config_path_;
+    double fn_hz_ = 0;
     bool binary_ = false;
     int timeout_ms_ = 10000;
     pid_t pid_ = -1, pgid_ = -1;

@@ -112,6 +112,27 @@ TrackingBound kalata_cv(double sigma_a2, double r, double T) {
     return b;
 }
 
+EncoderProfile delivered_profile(const EncoderProfile& enc, const dev::ConverterInfo& c, nlohmann::json* basis) {
+    EncoderProfile out = enc;
+    const double q_enc = enc.adc.ideal() ? 0.0 : enc.adc.step_v();
+    const double q_dac = c.known ? c.dac_q_v() : 0.0, q_adc = c.known ? c.adc_q_v() : 0.0;
+    const double noise = c.known ? c.noise_at_adc_v : 0.0, added = c.known ? c.added_noise_v : 0.0;
+    const double white2 = enc.noise.sigma_add_v * enc.noise.sigma_add_v + q_enc * q_enc / 12 + added * added;
+    out.noise.sigma_add_v = std::sqrt(white2);
+    out.adc = Quantizer{};  // folded into the white noise above
+    out.adc.bits = 0;
+    if (basis) {
+        nlohmann::json assumptions = nlohmann::json::array();
+        assumptions.push_back("quantisation as white noise of q^2/12 per converter (valid when the signal spans many codes)");
+        if (!c.known) assumptions.push_back("the device does not describe its converter: the bound is the encoder signal's alone");
+        else if (!c.note.empty()) assumptions.push_back(c.note);
+        *basis = {{"encoder_noise_v", enc.noise.sigma_add_v}, {"encoder_adc_step_v", q_enc}, {"device_dac_step_v", q_dac},
+                  {"device_adc_step_v", q_adc}, {"device_noise_v", noise}, {"device_added_noise_v", added}, {"white_noise_v", out.noise.sigma_add_v},
+                  {"gain_noise", enc.noise.sigma_gain}, {"assumptions", assumptions}};
+    }
+    return out;
+}
+
 nlohmann::json bounds_json(const EncoderProfile& truth, const est::Estimator& e, double fs,
                            std::uint64_t scored, double rms_rad, int channels) {
     nlohmann::json j;

@@ -4,6 +4,7 @@
 // (electrical), rates in rad/s.
 #pragma once
 
+#include "drivers/device.hpp"
 #include "estimator/estimator.hpp"
 #include "signal_gen/encoder.hpp"
 
@@ -47,6 +48,11 @@ TrackingBound steady_state_bound(const Eigen::MatrixXd& F, const Eigen::MatrixXd
 // Closed form for the discrete white-noise-acceleration model, Q = sigma_a^2*G*G' with
 // G = [T^2/2, T] (Kalata; Bar-Shalom 6.5): an independent check of the Riccati solver.
 TrackingBound kalata_cv(double sigma_a2, double r_rad2, double T_s);
+
+// The encoder profile as the estimators receive the signal: the encoder's own noise and ADC
+// plus the device's DAC and ADC quantisation (q^2/12 each) and analog noise, combined as white
+// noise per channel. basis (optional) receives each contribution and what was assumed.
+EncoderProfile delivered_profile(const EncoderProfile& enc, const dev::ConverterInfo& c, nlohmann::json* basis);
 
 // Bounds for a scored run of an estimator: per-sample CRB, PCRB for its declared prior,
 // batch bound over the scored samples, and the efficiency against the bound MODEL.md 6

@@ -60,7 +60,8 @@ json evaluate_capture(const EvaluateOptions& o) {
     const bool truth = reader.columns().theta_true;
     std::optional<EstimatesWriter> out;
     if (!o.estimates_path.empty()) out.emplace(o.estimates_path);
-    Scorer scorer(o.settle_s);
+    Scorer scorer(ScoringOptions{o.settle_s, 0.1, o.max_harmonic});
+    ConventionCheck conventions;
     std::vector<double> th, om;
     std::vector<std::uint8_t> valid;
     std::uint64_t total = 0;
@@ -73,12 +74,15 @@ json evaluate_capture(const EvaluateOptions& o) {
         estimator->process({d.sin_v, d.cos_v}, {th, om, valid});
         est_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - a).count();
         if (out) out->write(n, d.t_s.data(), th.data(), om.data(), valid.data());
-        if (truth)
+        if (truth) {
             scorer.add(n, d.t_s.data(), d.theta_true_rad.data(),
                        d.omega_true_rad_s.empty() ? nullptr : d.omega_true_rad_s.data(), th.data(), om.data(), valid.data());
+            conventions.add(n, d.theta_true_rad.data(), th.data(), valid.data());
+        }
         total += n;
         if (o.progress) o.progress(total);
     }
+    estimator->finish();
     if (out) out->close();
     const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 
@@ -101,6 +105,14 @@ json evaluate_capture(const EvaluateOptions& o) {
     const int lines = truth_enc ? truth_enc->lines_per_rev : 0;
     r["settle_s"] = o.settle_s;
     r["metrics"] = to_json(m, lines);
+    if (m.scored == 0) {
+        r["note"] = "no scored samples: " + std::to_string(total) + " samples (" + std::to_string(static_cast<double>(total) / fs).substr(0, 8) +
+                    " s), " + std::to_string(m.after_settle) + " after the " + std::to_string(o.settle_s).substr(0, 6) + " s settle time, " +
+                    std::to_string(m.invalid_after_settle) + " of them marked invalid by the estimator";
+    }
+    json diag = json::array();
+    for (const auto& f : conventions.findings()) diag.push_back({{"code", f.code}, {"message", f.message}});
+    r["diagnosis"] = diag;
     if (truth_enc && m.scored > 0)
         r["bounds"] = bounds_json(*truth_enc, *estimator, fs, m.scored, m.rms_rad);
     else

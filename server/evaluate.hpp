@@ -22,6 +22,7 @@ struct EvaluateOptions {
     // What the estimator is told about the encoder; default: the capture's sidecar/header.
     std::optional<EncoderProfile> encoder;
     double settle_s = 0.1;
+    int max_harmonic = 16;
     std::string estimates_path;  // optional CSV t,theta_rad,omega_rad_s,valid
     std::size_t block = 65536;
     std::function<void(std::uint64_t done)> progress;

@@ -169,6 +169,20 @@ void print_estimators(bool as_json) {
     }
 }
 
+// Harmonic amplitudes with the share of the error power they hold, or why there are none.
+void print_harmonics(const json& m) {
+    const auto& ha = m["harmonic_analysis"];
+    if (m["harmonics"].empty()) {
+        if (ha["note"].is_string()) std::printf("harmonics: not reported: %s\n", ha["note"].get<std::string>().c_str());
+        return;
+    }
+    std::printf("harmonics (rad):");
+    for (const auto& h : m["harmonics"]) std::printf(" %dx %.2e", h["order"].get<int>(), h["amplitude"]["rad"].get<double>());
+    std::printf("\n  1x..%dx hold %.1f %% of the error variance; broadband rest %.3e rad rms\n", static_cast<int>(m["harmonics"].size()),
+                100.0 * ha["power_fraction"].get<double>(), ha["broadband_rms_rad"].get<double>());
+    if (ha["note"].is_string()) std::printf("  (%s)\n", ha["note"].get<std::string>().c_str());
+}
+
 int run_estimate(const EstimateOptions& o) {
     if (o.list) {
         print_estimators(o.json_list);
@@ -209,17 +223,17 @@ int run_estimate(const EstimateOptions& o) {
                     r["timing"]["estimator_samples_per_s"].get<double>() / 1e6);
         if (r["metrics"].is_null()) {
             std::printf("no theta_true in the capture: estimates only\n");
+        } else if (r["metrics"]["scored"].get<std::uint64_t>() == 0) {
+            std::printf("%s\n", r["note"].get<std::string>().c_str());
         } else {
             const auto& m = r["metrics"];
-            std::printf("error after %.3g s settle (%llu samples): rms %.3e rad (%.4f %% of a period), std %.3e, mean %.3e, max|e| %.3e rad, slipped %llu\n",
-                        o.settle_s, static_cast<unsigned long long>(m["scored"].get<std::uint64_t>()), m["rms"]["rad"].get<double>(),
+            const auto& ev = m["evidence"];
+            std::printf("error after %.3g s settle (%llu samples, %.1f electrical cycles, valid %.1f %%): rms %.3e rad (%.4f %% of a period), std %.3e, mean %.3e, max|e| %.3e rad, slipped %llu\n",
+                        o.settle_s, static_cast<unsigned long long>(m["scored"].get<std::uint64_t>()), ev["scored_cycles"].get<double>(),
+                        100.0 * ev["valid_fraction"].get<double>(), m["rms"]["rad"].get<double>(),
                         m["rms"]["percent_period"].get<double>(), m["std"]["rad"].get<double>(), m["mean"]["rad"].get<double>(),
                         m["max_abs"]["rad"].get<double>(), static_cast<unsigned long long>(m["slipped_samples"].get<std::uint64_t>()));
-            if (!m["harmonics"].empty()) {
-                std::printf("harmonics (rad):");
-                for (const auto& h : m["harmonics"]) std::printf(" %dx %.2e", h["order"].get<int>(), h["amplitude"]["rad"].get<double>());
-                std::printf("\n");
-            }
+            print_harmonics(m);
             const auto& b = r["bounds"];
             if (b.is_object() && b.contains("per_sample_crb_rad")) {
                 std::printf("bounds: per-sample CRB %.3e rad", b["per_sample_crb_rad"].get<double>());
@@ -227,6 +241,7 @@ int run_estimate(const EstimateOptions& o) {
                 if (!b["efficiency"].is_null()) std::printf(", efficiency %.3f vs %s", b["efficiency"].get<double>(), b["efficiency_against"].get<std::string>().c_str());
                 std::printf("\n");
             }
+            for (const auto& d : r["diagnosis"]) std::printf("warning: %s\n", d["message"].get<std::string>().c_str());
         }
     }
     return kExitOk;
@@ -245,13 +260,42 @@ void print_run_summary(const json& r, const std::string& name) {
     std::printf("run %s: %s %s (%s)\n", r["id"].get<std::string>().c_str(), name.c_str(), r["verdict"].get<std::string>().c_str(),
                 r["status"].get<std::string>().c_str());
     if (r["error"].is_string()) std::printf("error: %s\n", r["error"].get<std::string>().c_str());
-    for (const auto& e : r["estimators"])
-        std::printf("  %-20s rms %.3e rad, max|e| %.3e rad, slipped %llu\n", e["label"].get<std::string>().c_str(),
-                    e["metrics"]["rms"]["rad"].get<double>(), e["metrics"]["max_abs"]["rad"].get<double>(),
-                    static_cast<unsigned long long>(e["metrics"]["slipped_samples"].get<std::uint64_t>()));
-    for (const auto& m : r["measurements"])
-        std::printf("  %-8s %s %s = %s %s\n", m["outcome"].get<std::string>().c_str(), m["estimator"].get<std::string>().c_str(),
-                    m["metric"].get<std::string>().c_str(), m["value"].dump().c_str(), m["unit"].get<std::string>().c_str());
+    for (const auto& w : r.value("warnings", json::array())) std::printf("warning: %s\n", w.value("message", "").c_str());
+    for (const auto& e : r["estimators"]) {
+        const auto& m = e["metrics"];
+        const auto& ev = m.value("evidence", json::object());
+        if (!m["rms"].is_object()) {
+            std::printf("  %-20s no scored samples (%llu after the settle time, valid %s)\n", e["label"].get<std::string>().c_str(),
+                        static_cast<unsigned long long>(ev.value("samples_after_settle", std::uint64_t{0})),
+                        ev.value("valid_fraction", json()).is_number() ? (std::to_string(100.0 * ev["valid_fraction"].get<double>()).substr(0, 5) + " %").c_str() : "-");
+            continue;
+        }
+        std::printf("  %-20s rms %.3e rad, max|e| %.3e rad, slipped %llu; scored %llu samples, %.1f cycles, valid %.1f %%\n",
+                    e["label"].get<std::string>().c_str(), m["rms"]["rad"].get<double>(), m["max_abs"]["rad"].get<double>(),
+                    static_cast<unsigned long long>(m["slipped_samples"].get<std::uint64_t>()),
+                    static_cast<unsigned long long>(ev.value("scored_samples", std::uint64_t{0})), ev.value("scored_cycles", 0.0),
+                    100.0 * ev.value("valid_fraction", 0.0));
+    }
+    // Counts as integers, everything else to 4 significant digits.
+    auto fmt = [](const json& v) {
+        if (!v.is_number()) return std::string("not measured");
+        const double x = v.get<double>();
+        char b[32];
+        if (x == std::floor(x) && std::fabs(x) < 1e15) std::snprintf(b, sizeof b, "%.0f", x);
+        else std::snprintf(b, sizeof b, "%.4g", x);
+        return std::string(b);
+    };
+    for (const auto& m : r["measurements"]) {
+        std::string lim;
+        const auto& l = m["limit"];
+        if (l.contains("min")) lim += ">= " + fmt(l["min"]);
+        if (l.contains("max")) lim += std::string(lim.empty() ? "" : ", ") + "<= " + fmt(l["max"]);
+        char val[32];
+        std::snprintf(val, sizeof val, "%s", fmt(m["value"]).c_str());
+        std::printf("  %-8s %s %s = %s %s (limit %s%s)%s\n", m["outcome"].get<std::string>().c_str(), m["estimator"].get<std::string>().c_str(),
+                    m["metric"].get<std::string>().c_str(), val, m["unit"].get<std::string>().c_str(), lim.c_str(),
+                    m.value("implicit", false) ? ", evidence" : "", m.contains("reason") ? ("; " + m["reason"].get<std::string>()).c_str() : "");
+    }
 }
 
 // fringe run --server URL: the scenario is read and checked here (file references inlined),
@@ -299,7 +343,7 @@ int run_run(const RunCliOptions& o) {
     Scenario sc = load_scenario(o.scenario);
     if (o.seed >= 0) sc.seed = static_cast<std::uint64_t>(o.seed);
     if (!o.device.empty()) sc.device = o.device;
-    validate_run(sc);
+    validate_run(sc);  // preflight errors stop here (exit 2); warnings come back in the report
     if (!o.server.empty()) return run_run_remote(o, sc);
     std::unique_ptr<RunStore> store;
     RunOptions ro;
@@ -324,15 +368,33 @@ int run_run(const RunCliOptions& o) {
                 last = now;
             }
         };
-    const json r = execute_run(sc, ro);
+    json r;
+    try {
+        r = execute_run(sc, ro);
+    } catch (const std::exception& e) {  // the history must not keep it "running"
+        r = unstarted_report(sc, ro.run_id, iso_now(), "error", "ERROR", e.what());
+    }
     if (tty) std::fprintf(stderr, "\r%40s\r", "");
     // The report survives first: files, then the history.
     if (!o.report.empty()) write_file_atomic(o.report, r.dump(2) + "\n");
     if (!o.junit.empty()) write_file_atomic(o.junit, junit_xml(r));
     if (!o.html.empty()) write_file_atomic(o.html, report_html(r));
-    if (store) store->finish(r);
+    std::string store_error;
+    if (store) {
+        try {
+            store->finish(r);
+        } catch (const std::exception& e) {
+            store_error = e.what();
+        }
+    }
     if (!o.quiet) print_run_summary(r, sc.name);
     if (r["status"] == "error") spdlog::error("{}", r["error"].get<std::string>());
+    if (!store_error.empty()) {
+        // A verdict that is not in the history is not a finished run: say so and fail.
+        spdlog::error("the run's report could not be stored in the history: {}{}", store_error,
+                      o.report.empty() ? "" : " (the report file " + o.report + " was written)");
+        return kExitError;
+    }
     return exit_code(r);
 }
 

@@ -40,6 +40,11 @@ void write_file_atomic(const std::string& path, const std::string& text) {
 }
 
 namespace {
+// j[a][b], or null when either level is missing (statistics of an unscored estimator are null).
+json sub(const json& j, const char* a, const char* b) {
+    if (!j.is_object() || !j.contains(a) || !j[a].is_object() || !j[a].contains(b)) return json();
+    return j[a][b];
+}
 std::string num(const json& v) {
     if (!v.is_number()) return "";
     std::ostringstream os;
@@ -69,6 +74,9 @@ std::string junit_xml(const json& r) {
     x << "      <property name=\"verdict\" value=\"" << xml_escape(r.value("verdict", std::string())) << "\"/>\n";
     x << "      <property name=\"seed\" value=\"" << r["seed"].dump() << "\"/>\n";
     if (r["device"].is_object()) x << "      <property name=\"device\" value=\"" << xml_escape(r["device"].value("uri", std::string())) << "\"/>\n";
+    // Preflight and convention warnings: what the verdict was reached under.
+    for (const auto& w : r.value("warnings", json::array()))
+        x << "      <property name=\"warning\" value=\"" << xml_escape(w.value("code", std::string()) + ": " + w.value("message", std::string())) << "\"/>\n";
     x << "    </properties>\n";
     if (run_error)
         x << "    <testcase classname=\"" << xml_escape(name) << "\" name=\"run\"><error message=\""
@@ -83,10 +91,13 @@ std::string junit_xml(const json& r) {
         if (m["limit"].contains("min")) x << "        <property name=\"min\" value=\"" << num(m["limit"]["min"]) << "\"/>\n";
         x << "        <property name=\"marginal_fraction\" value=\"" << num(m["limit"]["marginal_fraction"]) << "\"/>\n";
         x << "        <property name=\"outcome\" value=\"" << xml_escape(m["outcome"].get<std::string>()) << "\"/>\n";
+        if (m.value("implicit", false)) x << "        <property name=\"evidence\" value=\"true\"/>\n";
+        if (m.contains("reason")) x << "        <property name=\"reason\" value=\"" << xml_escape(m["reason"].get<std::string>()) << "\"/>\n";
         x << "      </properties>\n";
         const std::string what = est + " " + metric + " = " + (m["value"].is_number() ? num(m["value"]) : std::string("unmeasured")) + " " +
                                  m["unit"].get<std::string>();
-        if (m["outcome"] == "FAIL") x << "      <failure message=\"" << xml_escape(what + " outside its limit") << "\"/>\n";
+        if (m["outcome"] == "FAIL")
+            x << "      <failure message=\"" << xml_escape(m.contains("reason") ? what + ": " + m["reason"].get<std::string>() : what + " outside its limit") << "\"/>\n";
         if (m["outcome"] == "ERROR") x << "      <error message=\"" << xml_escape(what + ": the run did not complete") << "\"/>\n";
         x << "    </testcase>\n";
     }
@@ -203,23 +214,34 @@ std::string report_html(const json& r) {
       << "</code>, " << r["samples"]["processed"].dump() << " of " << r["samples"]["planned"].dump() << " samples, fringe "
       << xml_escape(r.value("fringe_version", std::string())) << ".</p>\n";
     if (r["error"].is_string()) h << "<p class=\"ERROR\"><b>Error:</b> " << xml_escape(r["error"].get<std::string>()) << "</p>\n";
+    if (!r.value("warnings", json::array()).empty()) {
+        h << "<h2>Warnings</h2><ul id=\"warnings\">\n";
+        for (const auto& w : r["warnings"])
+            h << "<li><code>" << xml_escape(w.value("code", std::string())) << "</code> " << xml_escape(w.value("message", std::string())) << "</li>\n";
+        h << "</ul>\n";
+    }
     h << "<h2>Measurements</h2><table id=\"measurements\"><tr><th>estimator</th><th>metric</th><th>value</th><th>unit</th><th>limit</th><th>outcome</th></tr>\n";
     for (const auto& m : r["measurements"]) {
         std::string lim;
         if (m["limit"].contains("min")) lim += "&ge; " + num(m["limit"]["min"]) + " ";
         if (m["limit"].contains("max")) lim += "&le; " + num(m["limit"]["max"]);
         h << "<tr><td>" << xml_escape(m["estimator"].get<std::string>()) << "</td><td>" << xml_escape(m["metric"].get<std::string>()) << "</td><td>"
-          << num(m["value"]) << "</td><td>" << xml_escape(m["unit"].get<std::string>()) << "</td><td>" << lim << "</td><td class=\""
-          << xml_escape(m["outcome"].get<std::string>()) << "\">" << xml_escape(m["outcome"].get<std::string>()) << "</td></tr>\n";
+          << (m["value"].is_number() ? num(m["value"]) : std::string("not measured")) << "</td><td>" << xml_escape(m["unit"].get<std::string>()) << "</td><td>" << lim
+          << (m.value("implicit", false) ? " (evidence)" : "") << "</td><td class=\""
+          << xml_escape(m["outcome"].get<std::string>()) << "\">" << xml_escape(m["outcome"].get<std::string>())
+          << (m.contains("reason") ? ": " + xml_escape(m["reason"].get<std::string>()) : std::string()) << "</td></tr>\n";
     }
     h << "</table>\n<h2>Estimators</h2><table><tr><th>estimator</th><th>rms (rad)</th><th>max |e| (rad)</th><th>rms (% period)</th><th>rms (arcsec mech)</th>"
-      << "<th>slipped</th><th>per-sample CRB (rad)</th><th>PCRB (rad)</th><th>efficiency</th></tr>\n";
+      << "<th>slipped</th><th>scored samples</th><th>scored cycles</th><th>valid</th><th>per-sample CRB (rad)</th><th>PCRB (rad)</th><th>efficiency</th></tr>\n";
     for (const auto& e : r["estimators"]) {
         const auto& m = e["metrics"];
         const auto& b = e["bounds"];
+        const json ev = m.value("evidence", json::object());
         auto bget = [&](const char* k) { return b.is_object() && b.contains(k) ? num(b[k]) : std::string(); };
-        h << "<tr><td>" << xml_escape(e["label"].get<std::string>()) << "</td><td>" << num(m["rms"]["rad"]) << "</td><td>" << num(m["max_abs"]["rad"])
-          << "</td><td>" << num(m["rms"]["percent_period"]) << "</td><td>" << num(m["rms"]["arcsec_mech"]) << "</td><td>" << m["slipped_samples"].dump()
+        h << "<tr><td>" << xml_escape(e["label"].get<std::string>()) << "</td><td>" << num(sub(m, "rms", "rad")) << "</td><td>" << num(sub(m, "max_abs", "rad"))
+          << "</td><td>" << num(sub(m, "rms", "percent_period")) << "</td><td>" << num(sub(m, "rms", "arcsec_mech")) << "</td><td>" << m["slipped_samples"].dump()
+          << "</td><td>" << ev.value("scored_samples", json()).dump() << "</td><td>" << num(ev.value("scored_cycles", json()))
+          << "</td><td>" << (ev.value("valid_fraction", json()).is_number() ? num(100.0 * ev["valid_fraction"].get<double>()) + " %" : std::string())
           << "</td><td>" << bget("per_sample_crb_rad") << "</td><td>" << bget("pcrb_rad") << "</td><td>" << bget("efficiency") << "</td></tr>\n";
     }
     h << "</table>\n<h2>Plots</h2><div class=\"plots\">\n";

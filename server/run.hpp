@@ -4,6 +4,8 @@
 // length (traces are decimated to a fixed number of points).
 #pragma once
 
+#include "limits.hpp"
+#include "preflight.hpp"
 #include "scenario.hpp"
 
 #include <nlohmann/json.hpp>
@@ -25,21 +27,14 @@ struct RunOptions {
     std::string record_path;
 };
 
-// Metrics a limit can name, with their units.
-struct MetricInfo {
-    std::string name, unit, description;
-};
-const std::vector<MetricInfo>& metric_catalog();
-const MetricInfo* find_metric(const std::string& name);  // nullptr if unknown
-// A metric's value from an estimator's report "metrics" and "bounds" (nullopt if absent).
-std::optional<double> metric_value(const std::string& name, const nlohmann::json& metrics, const nlohmann::json& bounds);
-
 // Validates a scenario for running (estimators exist and accept their parameters, limits
-// name known metrics and estimators). Throws ConfigError naming the key.
-void validate_run(const Scenario& sc);
+// name known metrics and estimators, preflight finds no error). Throws ConfigError naming the
+// key; returns the preflight warnings.
+std::vector<Finding> validate_run(const Scenario& sc);
 
-// Never throws for device faults, sample loss, estimator failure or cancellation: those end
-// the run with status "error" or "aborted" and a report saying why.
+// Never throws once the scenario is valid: device faults, sample loss, estimator failure,
+// cancellation and any unexpected exception end the run with status "error" or "aborted" and
+// a report of what was processed until then. Throws ConfigError from validate_run only.
 nlohmann::json execute_run(const Scenario& sc, const RunOptions& o = {});
 
 // The report of a run that ended before it produced a sample (cancelled while queued, or the

@@ -181,7 +181,17 @@ void RunManager::worker() {
             std::lock_guard<std::mutex> sl(store_mu_);
             store_.finish(report);
         } catch (const std::exception& e) {
+            // A verdict that is not stored is not a finished run: the run becomes an error,
+            // visibly, and its row is marked so if the store still takes a status.
             spdlog::error("run {}: could not store the report: {}", job->snap.id, e.what());
+            report["status"] = "error";
+            report["verdict"] = "ERROR";
+            report["error"] = std::string("the report could not be stored: ") + e.what();
+            try {
+                std::lock_guard<std::mutex> sl(store_mu_);
+                store_.set_status(job->snap.id, "error");
+            } catch (const std::exception&) {
+            }
         }
         {
             std::lock_guard<std::mutex> l(mu_);

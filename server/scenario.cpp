@@ -59,6 +59,14 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
     s.device = r.string("device", s.device);
     s.settle_s = r.number("settle_s", s.settle_s, 0.0, 1e7);
     s.dut = r.string("dut", "");
+    if (r.has("scoring")) {
+        JsonReader sr = r.object("scoring");
+        s.scoring.max_harmonic = static_cast<int>(sr.integer("max_harmonic", s.scoring.max_harmonic, 1, 64));
+        s.scoring.min_scored_samples = static_cast<std::uint64_t>(sr.integer("min_scored_samples", 1000, 1, 1LL << 53));
+        s.scoring.min_scored_cycles = sr.number("min_scored_cycles", s.scoring.min_scored_cycles, 0.0, 1e12);
+        s.scoring.min_valid_fraction = sr.number("min_valid_fraction", s.scoring.min_valid_fraction, 0.0, 1.0);
+        sr.finish();
+    }
     if (r.has("estimators")) {
         const json& arr = r.raw("estimators");
         if (!arr.is_array()) throw ConfigError("estimators", "expected an array of {name, params}");
@@ -110,6 +118,8 @@ void to_json(json& j, const Scenario& s) {
     j["device"] = s.device;
     j["settle_s"] = s.settle_s;
     if (!s.dut.empty()) j["dut"] = s.dut;
+    j["scoring"] = {{"max_harmonic", s.scoring.max_harmonic}, {"min_scored_samples", s.scoring.min_scored_samples},
+                    {"min_scored_cycles", s.scoring.min_scored_cycles}, {"min_valid_fraction", s.scoring.min_valid_fraction}};
     auto est = json::array();
     for (const auto& e : s.estimators) {
         json x{{"name", e.name}, {"label", e.label}, {"params", e.params}};

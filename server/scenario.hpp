@@ -31,6 +31,15 @@ struct Limit {
     double marginal_fraction = 0.0;
 };
 
+// What a verdict needs besides limits (DESIGN.md "Trust"): every estimator of a run is checked
+// against these, and a run without this evidence FAILs instead of passing on nothing.
+struct ScoringRules {
+    int max_harmonic = 16;                  // error harmonics fitted: 1x..max_harmonic x
+    std::uint64_t min_scored_samples = 1000;
+    double min_scored_cycles = 3.0;         // electrical cycles of truth under the scored samples
+    double min_valid_fraction = 0.95;       // valid share of the samples after the settle time
+};
+
 struct Scenario {
     std::string name = "unnamed";
     std::string description;
@@ -46,6 +55,7 @@ struct Scenario {
     std::vector<Limit> limits;
     double settle_s = 0.1;
     std::string dut;  // DUT / board id for the history; default: the device's
+    ScoringRules scoring;
 
     std::uint64_t samples() const;
 };

@@ -32,7 +32,8 @@ assert m["scored"] == 20000, m["scored"]
 assert 5e-6 < m["rms"]["rad"] < 4e-5, m["rms"]
 assert abs(m["rms"]["percent_period"] - m["rms"]["rad"] / 6.283185307179586 * 100) < 1e-12
 assert abs(m["rms"]["arcsec_mech"] - m["rms"]["rad"] / 1024 * 206264.80624709636) < 1e-9
-assert len(m["harmonics"]) == 6 and m["slipped_samples"] == 0
+assert len(m["harmonics"]) == 16 and m["slipped_samples"] == 0
+assert m["evidence"]["scored_samples"] == 20000 and m["evidence"]["valid_fraction"] == 1.0
 assert b["efficiency_against"] == "pcrb_noise_only" and 0.3 < b["efficiency"] < 1.5, b
 assert r["encoder_source"] == "capture metadata"
 PY

@@ -18,8 +18,12 @@ r = json.load(open(d + "/r.json"))
 assert r["schema"] == "fringe.report" and r["verdict"] == "PASS", r["verdict"]
 suite = ET.parse(d + "/r.xml").getroot().find("testsuite")
 cases = suite.findall("testcase")
-assert len(cases) == len(r["measurements"]) == 4, len(cases)
+# 4 limits, and the 3 evidence checks of each of the 3 estimators first
+assert r["schema_version"] == 2
+assert len(cases) == len(r["measurements"]) == 13, len(cases)
 props = {p.get("name"): p.get("value") for p in cases[0].find("properties")}
+assert props["unit"] == "samples" and props["evidence"] == "true" and props["outcome"] == "PASS", props
+props = {p.get("name"): p.get("value") for p in cases[9].find("properties")}
 assert props["unit"] == "rad" and "max" in props and props["outcome"] == "PASS", props
 html = open(d + "/r.html").read()
 assert html.count("<svg") >= 4 and "PASS" in html

@@ -150,8 +150,11 @@ TEST_CASE("run: PASS, MARGINAL and FAIL from limits, and exit codes", "[run]") {
     r = run_with(l);
     CHECK(r["verdict"] == "FAIL");
     CHECK(exit_code(r) == 1);
-    CHECK(r["measurements"][0]["outcome"] == "FAIL");
-    CHECK(r["measurements"][0]["value"].get<double>() == rms);  // same seed: bit for bit
+    // the limit's measurement follows the estimator's three implicit evidence checks
+    REQUIRE(r["measurements"].size() == 4);
+    CHECK(r["measurements"][3]["outcome"] == "FAIL");
+    CHECK(r["measurements"][3]["value"].get<double>() == rms);  // same seed: bit for bit
+    for (int k = 0; k < 3; ++k) CHECK(r["measurements"][k]["implicit"] == true);
     l = {};
     l.metric = "efficiency";
     l.min = 0.5;
@@ -235,7 +238,8 @@ TEST_CASE("report renderings: JUnit testcases per measurement, HTML with plots",
     Scenario sc = short_run();
     const auto r = execute_run(sc);
     const std::string x = junit_xml(r);
-    CHECK_THAT(x, Catch::Contains("<testsuite name=\"fig10c-loopback\" tests=\"4\" failures=\"0\""));
+    // 4 limits plus 3 evidence checks for each of the 3 estimators
+    CHECK_THAT(x, Catch::Contains("<testsuite name=\"fig10c-loopback\" tests=\"13\" failures=\"0\""));
     CHECK_THAT(x, Catch::Contains("name=\"rms_rad\""));
     CHECK_THAT(x, Catch::Contains("<property name=\"unit\" value=\"rad\"/>"));
     const std::string h = report_html(r);

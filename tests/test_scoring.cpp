@@ -55,7 +55,7 @@ TEST_CASE("scorer: moments, harmonics and the removed 2*pi multiple", "[scoring]
     CHECK(m.rms_rad == Approx(std::sqrt(a * a + b * b / 2)).epsilon(1e-3));
     CHECK(m.max_abs_rad == Approx(a + b).epsilon(1e-6));
     CHECK(m.max_dev_rad == Approx(b).epsilon(1e-3));
-    REQUIRE(m.harmonics.size() == 6);
+    REQUIRE(m.harmonics.size() == 16);  // 1x..16x by default
     CHECK(m.harmonics[2].amplitude_rad == Approx(b).epsilon(1e-9));
     CHECK(m.harmonics[2].phase_rad == Approx(phi).epsilon(1e-9));
     CHECK(m.harmonics[0].amplitude_rad < 1e-12);
