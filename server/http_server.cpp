@@ -71,9 +71,24 @@ private:
         http::async_read_header(stream_, buf_, *head_, beast::bind_front_handler(&Session::on_header, shared_from_this()));
     }
 
+    // A request Beast could not parse: answered with a JSON 400 (431 for huge headers), then
+    // the connection closes. A client that went away or timed out gets nothing.
+    bool refuse_malformed(const beast::error_code& ec) {
+        if (ec == http::error::header_limit) {
+            respond(json_error(431, "headers_too_large", "the request headers exceed 16 KiB"), false);
+            return true;
+        }
+        if (ec.category() != beast::error_code(http::error::bad_method).category() || ec == http::error::end_of_stream ||
+            ec == http::error::partial_message || ec == http::error::body_limit)
+            return false;
+        respond(json_error(400, "bad_request", "malformed HTTP request: " + ec.message()), false);
+        return true;
+    }
+
     void on_header(beast::error_code ec, std::size_t) {
         if (ec) {  // end of stream, timeout, garbage
             if (ec != http::error::end_of_stream && ec != beast::error::timeout) spdlog::warn("header: {}", ec.message());
+            if (refuse_malformed(ec)) return;
             return close();
         }
         const auto& h = head_->get();
@@ -123,6 +138,7 @@ private:
         if (ec) {
             spdlog::warn("{} {}: {}", log_escape(req_.method), log_escape(req_.target), ec.message());
             drop_upload();  // a client that went away mid-upload leaves nothing behind
+            if (refuse_malformed(ec)) return;
             return close();
         }
         if (file_) {

@@ -199,6 +199,14 @@ TEST_CASE("hostile: bytes that are not UTF-8 answer 400 bad_encoding, the servic
         check_error(r, 400, "bad_encoding");
         CHECK(r.error()["field"] == "path");
     }
+    SECTION("a request Beast cannot parse is a JSON 400, huge headers 431") {
+        check_error(s.raw("G\x01T / HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"), 400, "bad_request");
+        check_error(s.raw("GET / HTTP/9.9\r\nHost: 127.0.0.1\r\n\r\n"), 400, "bad_request");
+        check_error(s.raw("POST /api/v1/runs HTTP/1.1\r\nHost: 127.0.0.1\r\nTransfer-Encoding: chunked\r\nAuthorization: Bearer " +
+                          std::string(kToken) + "\r\n\r\nzz\r\n"),
+                    400, "bad_request");
+        check_error(s.raw("GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Big: " + std::string(20000, 'a') + "\r\n\r\n"), 431, "headers_too_large");
+    }
     SECTION("a JSON body holding byte 0xC3") {
         const auto r = s.post("/api/v1/runs", "{\"fixture\":\"\xc3\"}");
         check_error(r, 400, "bad_encoding");
