@@ -381,8 +381,12 @@ std::string Service::public_text(std::string s) const {
     for (const auto& [dir, name] : public_names_) {
         for (std::size_t pos = s.find(dir); pos != std::string::npos; pos = s.find(dir, pos)) {
             const std::size_t end = pos + dir.size();
-            // Whole folder names only: /data is not a prefix of /database.
-            if (end < s.size() && (std::isalnum(static_cast<unsigned char>(s[end])) || s[end] == '-' || s[end] == '_' || s[end] == '.')) {
+            // Whole folder names only: /data is not a prefix of /database or /data.old (a
+            // sentence's full stop is not part of the name).
+            const auto name_char = [&](std::size_t k) {
+                return k < s.size() && (std::isalnum(static_cast<unsigned char>(s[k])) || s[k] == '-' || s[k] == '_');
+            };
+            if (name_char(end) || (end < s.size() && s[end] == '.' && name_char(end + 1)) || (pos > 0 && (name_char(pos - 1) || s[pos - 1] == '.'))) {
                 pos = end;
                 continue;
             }

@@ -283,6 +283,8 @@ TEST_CASE("hostile: a run whose error holds bytes that are not UTF-8 is read wit
     const std::string err = j["error"];
     CHECK_FALSE(err.empty());
     CHECK(err.find(fx.string()) == std::string::npos);  // no absolute path of the service
+    CHECK(err.find("\xef\xbf\xbd") != std::string::npos);  // the file's bytes were there, served as U+FFFD
+    CHECK(err.find("fixtures/binary.json") != std::string::npos);  // named relative to the fixtures
     const auto ev = s.get("/api/v1/runs/" + id + "/events");
     CHECK(ev.body.find("event: end") != std::string::npos);
     CHECK(valid_utf8(ev.body));
