@@ -388,7 +388,7 @@ TEST_CASE("hostile: the Host header must name this service", "[service][hostile]
     CHECK(s.healthy());
 }
 
-TEST_CASE("hostile: bound to all interfaces, IP literals are this host; names need --allow-host", "[service][hostile]") {
+TEST_CASE("hostile: bound to all interfaces, IP literals are this host, names need --allow-host", "[service][hostile]") {
     TempDir d;
     Service s(config(d));
     s.set_bound_address("0.0.0.0");
