@@ -1,5 +1,7 @@
 #include "http_server.hpp"
 
+#include "text.hpp"
+
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/asio/signal_set.hpp>
 #include <boost/asio/steady_timer.hpp>
@@ -69,9 +71,24 @@ private:
         http::async_read_header(stream_, buf_, *head_, beast::bind_front_handler(&Session::on_header, shared_from_this()));
     }
 
+    // A request Beast could not parse: answered with a JSON 400 (431 for huge headers), then
+    // the connection closes. A client that went away or timed out gets nothing.
+    bool refuse_malformed(const beast::error_code& ec) {
+        if (ec == http::error::header_limit) {
+            respond(json_error(431, "headers_too_large", "the request headers exceed 16 KiB"), false);
+            return true;
+        }
+        if (ec.category() != beast::error_code(http::error::bad_method).category() || ec == http::error::end_of_stream ||
+            ec == http::error::partial_message || ec == http::error::body_limit)
+            return false;
+        respond(json_error(400, "bad_request", "malformed HTTP request: " + ec.message()), false);
+        return true;
+    }
+
     void on_header(beast::error_code ec, std::size_t) {
         if (ec) {  // end of stream, timeout, garbage
             if (ec != http::error::end_of_stream && ec != beast::error::timeout) spdlog::warn("header: {}", ec.message());
+            if (refuse_malformed(ec)) return;
             return close();
         }
         const auto& h = head_->get();
@@ -85,7 +102,15 @@ private:
         }
         keep_alive_ = h.keep_alive();
         const auto len = head_->content_length();
-        if (auto early = sh_.svc.precheck(req_, len ? *len : 0, len.has_value())) {
+        std::optional<HttpResponse> early;
+        // HTTP/1.1 requires exactly one Host (RFC 9112 3.2); the service checks its value.
+        if (h.version() >= 11 && h.count(http::field::host) == 0)
+            early = json_error(400, "missing_host", "an HTTP/1.1 request needs a Host header", "host");
+        else if (h.count(http::field::host) > 1)
+            early = json_error(400, "bad_host", "the request has more than one Host header", "host");
+        else
+            early = sh_.svc.precheck(req_, len ? *len : 0, len.has_value());
+        if (early) {
             // The body (if any) is not read: answer and close.
             const bool has_body = (len && *len > 0) || head_->chunked();
             return respond(std::move(*early), keep_alive_ && !has_body);
@@ -111,8 +136,9 @@ private:
             return respond(json_error(413, "body_too_large", "the body exceeds this endpoint's limit"), false);
         }
         if (ec) {
-            spdlog::warn("{} {}: {}", req_.method, req_.target, ec.message());
+            spdlog::warn("{} {}: {}", log_escape(req_.method), log_escape(req_.target), ec.message());
             drop_upload();  // a client that went away mid-upload leaves nothing behind
+            if (refuse_malformed(ec)) return;
             return close();
         }
         if (file_) {
@@ -177,7 +203,12 @@ private:
     }
 
     void poll_events() {
-        const auto s = sh_.svc.run_state(ev_id_);
+        std::optional<RunSnapshot> s;
+        try {
+            s = sh_.svc.run_state(ev_id_);
+        } catch (const std::exception& e) {  // the store failed: end this stream, not the server
+            spdlog::error("events of run {}: {}", ev_id_, log_escape(e.what()));
+        }
         if (!s) return close();
         if (s->seq != last_seq_ || s->finished()) {
             last_seq_ = s->seq;
@@ -242,6 +273,7 @@ struct HttpServer::Impl {
         if (!ec) acceptor.listen(net::socket_base::max_listen_connections, ec);
         if (ec) throw std::runtime_error("cannot listen on " + sh.opt.bind + ": " + ec.message());
         local = acceptor.local_endpoint();
+        sh.svc.set_bound_address(local.address().to_string());  // Host headers may name it
     }
 
     void accept() {
@@ -303,9 +335,20 @@ void HttpServer::run() {
         });
     }
     impl_->accept();
+    // A handler that throws would end the io loop (and the process): log it and go on.
+    auto serve = [this] {
+        for (;;) {
+            try {
+                impl_->ioc.run();
+                return;
+            } catch (const std::exception& e) {
+                spdlog::error("request handler: {}", log_escape(e.what()));
+            }
+        }
+    };
     std::vector<std::thread> extra;
-    for (unsigned i = 1; i < std::max(1u, impl_->sh.opt.threads); ++i) extra.emplace_back([this] { impl_->ioc.run(); });
-    impl_->ioc.run();
+    for (unsigned i = 1; i < std::max(1u, impl_->sh.opt.threads); ++i) extra.emplace_back(serve);
+    serve();
     for (auto& t : extra) t.join();
     {
         std::lock_guard<std::mutex> l(impl_->stopper_mu);

@@ -13,6 +13,7 @@
 #include "server/store.hpp"
 #include "server/sweep.hpp"
 #include "server/scenario.hpp"
+#include "server/text.hpp"
 #include "signal_gen/analysis.hpp"
 #include "signal_gen/config.hpp"
 #include "signal_gen/fastmath.hpp"
@@ -24,6 +25,7 @@
 #endif
 
 #include <CLI/CLI.hpp>
+#include <spdlog/pattern_formatter.h>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
@@ -540,9 +542,24 @@ struct ServeOptions {
     unsigned workers = 0, threads = 2;
     double max_upload_mb = 256;
     bool allow_external = false;
+    std::vector<std::string> allow_device, allow_host;
+};
+
+// The service logs what requests carry (targets, scenario names, messages): one line per
+// event, control characters escaped, so a request cannot forge or split log lines.
+class EscapedPayload : public spdlog::custom_flag_formatter {
+public:
+    void format(const spdlog::details::log_msg& msg, const std::tm&, spdlog::memory_buf_t& dest) override {
+        const std::string e = log_escape(std::string_view(msg.payload.data(), msg.payload.size()));
+        dest.append(e.data(), e.data() + e.size());
+    }
+    std::unique_ptr<custom_flag_formatter> clone() const override { return std::make_unique<EscapedPayload>(); }
 };
 
 int run_serve(const ServeOptions& o) {
+    auto formatter = std::make_unique<spdlog::pattern_formatter>();
+    formatter->add_flag<EscapedPayload>('*').set_pattern("%^%l%$: %*");
+    spdlog::default_logger()->set_formatter(std::move(formatter));
     ServiceConfig cfg;
     cfg.data_dir = o.data.empty() ? default_data_dir() : o.data;
     cfg.fixtures_dir = o.fixtures;
@@ -550,6 +567,8 @@ int run_serve(const ServeOptions& o) {
     cfg.workers = o.workers ? o.workers : std::max(1u, std::thread::hardware_concurrency());
     cfg.max_upload_bytes = static_cast<std::uint64_t>(o.max_upload_mb * 1024 * 1024);
     cfg.allow_external = o.allow_external;
+    cfg.allow_devices = o.allow_device;
+    cfg.allow_hosts = o.allow_host;
     cfg.token_for_reads = !is_loopback_bind(o.bind);
     const std::string token_file = o.token_file.empty() ? cfg.data_dir + "/token" : o.token_file;
     bool created = false;
@@ -566,6 +585,9 @@ int run_serve(const ServeOptions& o) {
     else
         std::printf("API token: in %s (send Authorization: Bearer <token>; paste it into the UI once)\n", token_file.c_str());
     if (cfg.token_for_reads) std::printf("bound beyond loopback: every API request needs the token\n");
+    std::string devices = "loopback:, uploaded captures";
+    for (const auto& d : cfg.allow_devices) devices += ", " + d;
+    std::printf("devices clients may use: %s (--allow-device adds more)\n", devices.c_str());
     std::fflush(stdout);
     server.run();
     std::printf("fringe serve: stopped\n");
@@ -670,6 +692,26 @@ int main(int argc, char** argv) {
     sv->add_option("--threads", serve_o.threads, "HTTP I/O threads")->check(CLI::Range(1, 64))->capture_default_str();
     sv->add_option("--max-upload-mb", serve_o.max_upload_mb, "Largest capture upload, MiB")->check(CLI::PositiveNumber)->capture_default_str();
     sv->add_flag("--allow-external", serve_o.allow_external, "Allow the external estimator (runs a command on this host) in HTTP requests");
+    sv->add_option("--allow-device", serve_o.allow_device,
+                   "Let clients' scenarios use devices matching this glob (repeatable): modbus+tcp://HOST:PORT, modbus+rtu:/dev/ttyUSB*, usb:1209:*; "
+                   "loopback: and uploaded captures always, fixtures' devices are the operator's")
+        ->allow_extra_args(false)
+        ->check([](const std::string& p) -> std::string {
+            const auto colon = p.find(':');
+            const std::string scheme = colon == std::string::npos ? "" : p.substr(0, colon);
+            for (const auto& d : dev::drivers())
+                if (d.scheme == scheme && scheme != "loopback" && scheme != "capture") return "";
+            return "'" + p + "' is not a device pattern: expected modbus+tcp://HOST:PORT, modbus+rtu:/dev/PATH or usb:VID:PID (globs * and ? allowed)";
+        });
+    sv->add_option("--allow-host", serve_o.allow_host,
+                   "Answer requests whose Host header names this (repeatable), besides localhost, 127.0.0.1, [::1] and the bound address")
+        ->allow_extra_args(false)
+        ->check([](const std::string& h) -> std::string {
+            const bool ok = !h.empty() && std::all_of(h.begin(), h.end(), [](char c) {
+                return std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '-' || c == '_' || c == ':' || c == '[' || c == ']';
+            });
+            return ok ? "" : "'" + h + "' is not a host name";
+        });
 
     BoardSimCli sim;
     auto* bs = app.add_subcommand("board-sim", "An emulated Modbus board (libmodbus server) for tests and demos");

@@ -1,5 +1,8 @@
 #include "report_formats.hpp"
 
+#include "text.hpp"
+
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -11,17 +14,35 @@ namespace fringe {
 
 using nlohmann::json;
 
+// Text from a scenario or a device may hold anything: XML 1.0 forbids C0 controls but tab,
+// LF and CR (written as references so attribute values keep them), and the document must be
+// UTF-8 (other bytes become U+FFFD). Forbidden controls are shown as \xNN.
 std::string xml_escape(const std::string& s) {
+    const std::string u = sanitize_utf8(s);
     std::string o;
-    o.reserve(s.size());
-    for (char c : s) {
+    o.reserve(u.size());
+    char hex[8];
+    for (std::size_t i = 0; i < u.size(); ++i) {
+        const char c = u[i];
         switch (c) {
             case '&': o += "&amp;"; break;
             case '<': o += "&lt;"; break;
             case '>': o += "&gt;"; break;
             case '"': o += "&quot;"; break;
             case '\'': o += "&apos;"; break;
-            default: o += c;
+            case '\t': o += "&#9;"; break;
+            case '\n': o += "&#10;"; break;
+            case '\r': o += "&#13;"; break;
+            default:
+                if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) {
+                    std::snprintf(hex, sizeof hex, "\\x%02x", static_cast<unsigned>(static_cast<unsigned char>(c)));
+                    o += hex;
+                } else if (u.compare(i, 3, "\xef\xbf\xbe") == 0 || u.compare(i, 3, "\xef\xbf\xbf") == 0) {  // U+FFFE, U+FFFF: not XML characters
+                    o += "\xef\xbf\xbd";
+                    i += 2;
+                } else {
+                    o += c;
+                }
         }
     }
     return o;
@@ -259,7 +280,14 @@ std::string report_html(const json& r) {
         h << svg_plot("Error vs time", "time (s)", "error (rad)", by_time, false);
         h << svg_bars(r["estimators"]);
     }
-    h << "\n</div>\n<h2>Scenario as run</h2><pre>" << xml_escape(r["scenario"].dump(2)) << "</pre>\n</body></html>\n";
+    // dump() escapes every control character inside strings: its own line breaks stay raw.
+    std::string scenario = r["scenario"].dump(2, ' ', false, json::error_handler_t::replace), pre;
+    for (std::size_t pos = 0; pos <= scenario.size();) {
+        const auto nl = std::min(scenario.find('\n', pos), scenario.size());
+        pre += xml_escape(scenario.substr(pos, nl - pos)) + (nl < scenario.size() ? "\n" : "");
+        pos = nl + 1;
+    }
+    h << "\n</div>\n<h2>Scenario as run</h2><pre>" << pre << "</pre>\n</body></html>\n";
     return h.str();
 }
 

@@ -3,16 +3,20 @@
 #include "drivers/capture_file.hpp"
 #include "drivers/device.hpp"
 #include "drivers/modbus_board.hpp"
+#include "drivers/usb_protocol.hpp"
 #include "estimator/estimator.hpp"
 #include "evaluate.hpp"
 #include "report_formats.hpp"
 #include "run.hpp"
 #include "scenario.hpp"
 #include "signal_gen/config.hpp"
+#include "text.hpp"
 
 #include <spdlog/spdlog.h>
 
+#include <arpa/inet.h>
 #include <fcntl.h>
+#include <fnmatch.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -32,6 +36,25 @@ using nlohmann::json;
 namespace {
 
 constexpr std::size_t kReportCache = 64;
+constexpr std::uint64_t kMaxSeed = 1ull << 53;  // the scenario schema's cap (exact in a double)
+
+// An answer decided deep in a handler (bad_encoding, device_not_allowed): handle() turns it
+// into the JSON error.
+struct HttpError : std::runtime_error {
+    int status;
+    std::string code, field;
+    HttpError(int s, std::string c, const std::string& message, std::string f = "")
+        : std::runtime_error(message), status(s), code(std::move(c)), field(std::move(f)) {}
+};
+
+// Strings from outside may hold bytes that are not UTF-8: they become U+FFFD instead of
+// making dump() throw.
+std::string dump_safe(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
+
+void require_utf8(const std::string& s, const std::string& field, const std::string& what) {
+    if (const auto at = invalid_utf8_at(s); at != std::string::npos)
+        throw HttpError(400, "bad_encoding", what + " is not valid UTF-8 (byte " + std::to_string(at) + ")", field);
+}
 
 bool valid_id(const std::string& id) {
     if (id.empty() || id.size() > 64) return false;
@@ -84,17 +107,91 @@ std::vector<std::string> segments(const std::string& path) {
 HttpResponse json_ok(const json& j, int status = 200) {
     HttpResponse r;
     r.status = status;
-    r.body = j.dump();
+    r.body = dump_safe(j);
     return r;
 }
 
+// nlohmann's DOM parser behind a SAX front that keeps the path of the value being read, so
+// a parse error (1e400 overflows a double) names its field: "scenario.duration_s".
+class PathSax {
+public:
+    explicit PathSax(json& root) : dom_(root, false) {}
+    bool null() { return value() && dom_.null(); }
+    bool boolean(bool v) { return value() && dom_.boolean(v); }
+    bool number_integer(json::number_integer_t v) { return value() && dom_.number_integer(v); }
+    bool number_unsigned(json::number_unsigned_t v) { return value() && dom_.number_unsigned(v); }
+    bool number_float(json::number_float_t v, const json::string_t& s) { return value() && dom_.number_float(v, s); }
+    bool string(json::string_t& v) { return value() && dom_.string(v); }
+    bool binary(json::binary_t& v) { return value() && dom_.binary(v); }
+    bool start_object(std::size_t n) {
+        value();
+        frames_.push_back({false, 0, {}});
+        return dom_.start_object(n);
+    }
+    bool key(json::string_t& k) {
+        frames_.back().key = k;
+        return dom_.key(k);
+    }
+    bool end_object() {
+        frames_.pop_back();
+        return dom_.end_object();
+    }
+    bool start_array(std::size_t n) {
+        value();
+        frames_.push_back({true, 0, {}});
+        return dom_.start_array(n);
+    }
+    bool end_array() {
+        frames_.pop_back();
+        return dom_.end_array();
+    }
+    bool parse_error(std::size_t, const std::string&, const nlohmann::detail::exception& e) {
+        for (std::size_t i = 0; i < frames_.size(); ++i) {
+            const auto& f = frames_[i];
+            // The innermost array is reading its next element; outer ones, their last.
+            if (f.array) {
+                error_field.append(1, '[').append(std::to_string(i + 1 == frames_.size() ? f.count : f.count - 1)).append(1, ']');
+            } else if (!f.key.empty()) {
+                if (!error_field.empty()) error_field.append(1, '.');
+                error_field.append(f.key);
+            }
+        }
+        error_id = e.id;
+        error = e.what();
+        return false;
+    }
+    std::string error, error_field;
+    int error_id = 0;
+
+private:
+    bool value() {
+        if (!frames_.empty() && frames_.back().array) ++frames_.back().count;
+        return true;
+    }
+    struct Frame {
+        bool array;
+        std::size_t count;
+        std::string key;
+    };
+    nlohmann::detail::json_sax_dom_parser<json> dom_;
+    std::vector<Frame> frames_;
+};
+
 json parse_body(const std::string& body) {
     if (body.empty()) throw ConfigError("", "the request needs a JSON body");
-    try {
-        return json::parse(body);
-    } catch (const json::parse_error& e) {
-        throw ConfigError("", std::string("malformed JSON: ") + e.what());
+    require_utf8(body, "body", "the request body");
+    json j;
+    PathSax sax(j);
+    if (!json::sax_parse(body, &sax)) {
+        // out_of_range.406: a number that does not fit a double (1e400)
+        if (sax.error_id == 406) {
+            const auto q = sax.error.find('\'');
+            throw ConfigError(sax.error_field, "number out of range" + (q == std::string::npos ? std::string() : " (" + sax.error.substr(q) + ")") +
+                                                   ": JSON numbers here must fit a double");
+        }
+        throw ConfigError(sax.error_field, "malformed JSON: " + sax.error);
     }
+    return j;
 }
 
 void only_keys(const json& j, std::initializer_list<const char*> keys, const std::string& where) {
@@ -144,6 +241,50 @@ void check_ref(const json& j, const fs::path& base, const fs::path& root, const 
     if (rel.empty() || *rel.begin() == "..") throw ConfigError(field, "file references must stay inside the fixtures folder");
 }
 
+std::string lower(std::string s) {
+    for (auto& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    return s;
+}
+
+// The name in a Host header ("Bench.Lab:8080" -> "bench.lab", "[::1]:80" -> "[::1]"), or ""
+// if it is not a host[:port].
+std::string host_name(std::string v) {
+    while (!v.empty() && (v.back() == ' ' || v.back() == '\t')) v.pop_back();
+    while (!v.empty() && (v.front() == ' ' || v.front() == '\t')) v.erase(0, 1);
+    std::string name, rest;
+    if (!v.empty() && v[0] == '[') {
+        const auto close = v.find(']');
+        if (close == std::string::npos) return "";
+        name = v.substr(0, close + 1);
+        rest = v.substr(close + 1);
+        in6_addr a6{};
+        if (::inet_pton(AF_INET6, name.substr(1, name.size() - 2).c_str(), &a6) != 1) return "";
+    } else {
+        const auto colon = v.find(':');
+        name = v.substr(0, colon);
+        rest = colon == std::string::npos ? "" : v.substr(colon);
+        if (name.empty() || !std::all_of(name.begin(), name.end(), [](char c) {
+                return std::isalnum(static_cast<unsigned char>(c)) || c == '.' || c == '-' || c == '_';
+            }))
+            return "";
+    }
+    if (!rest.empty() && (rest[0] != ':' || rest.size() > 6 || !std::all_of(rest.begin() + 1, rest.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); })))
+        return "";
+    name = lower(name);
+    if (name.size() > 1 && name.back() == '.') name.pop_back();  // "localhost." is localhost
+    return name;
+}
+
+bool ip_literal(const std::string& name) {
+    in_addr a4{};
+    return ::inet_pton(AF_INET, name.c_str(), &a4) == 1 || (name.size() > 2 && name.front() == '[');  // host_name checked the [v6]
+}
+
+// Glob as in a shell: * and ? do not cross '/', nor match a leading '.' of a path part.
+bool glob_match(const std::string& pattern, const std::string& text) {
+    return ::fnmatch(pattern.c_str(), text.c_str(), FNM_PATHNAME | FNM_PERIOD) == 0;
+}
+
 }  // namespace
 
 HttpResponse json_error(int status, const std::string& code, const std::string& message, const std::string& field) {
@@ -151,7 +292,7 @@ HttpResponse json_error(int status, const std::string& code, const std::string& 
     e["field"] = field.empty() ? json(nullptr) : json(field);
     HttpResponse r;
     r.status = status;
-    r.body = json{{"error", e}}.dump();
+    r.body = dump_safe(json{{"error", e}});
     return r;
 }
 
@@ -196,6 +337,23 @@ std::string load_or_create_token(const std::string& path, bool* created) {
 
 Service::Service(ServiceConfig cfg) : cfg_(std::move(cfg)) {
     fs::create_directories(fs::path(cfg_.data_dir) / "captures");
+    // Clients see our folders by short names: every spelling a message may use (as given,
+    // absolute, with symlinks resolved).
+    auto name_folder = [&](const std::string& dir, const std::string& name) {
+        if (dir.empty()) return;
+        std::error_code ec;
+        const fs::path abs = fs::absolute(dir, ec).lexically_normal();
+        for (fs::path p : {fs::path(dir), abs, fs::weakly_canonical(abs, ec)}) {
+            std::string t = p.string();
+            while (t.size() > 1 && t.back() == '/') t.pop_back();
+            if (t.size() > 1 && t[0] == '/') public_names_.emplace_back(t, name);
+        }
+    };
+    name_folder(cfg_.data_dir, "DATA");
+    name_folder(cfg_.fixtures_dir, "fixtures");
+    name_folder(dev::boards_dir(), "boards");
+    name_folder(cfg_.web_dir, "web");
+    std::stable_sort(public_names_.begin(), public_names_.end(), [](const auto& a, const auto& b) { return a.first.size() > b.first.size(); });
     store_ = std::make_unique<RunStore>((fs::path(cfg_.data_dir) / "runs.db").string());
     if (const int n = store_->mark_dead_interrupted(); n > 0) spdlog::warn("{} run(s) of a previous service that stopped without finishing are marked interrupted", n);
     runs_ = std::make_unique<RunManager>(*store_, store_mu_, cfg_.workers);
@@ -212,6 +370,49 @@ Service::Service(ServiceConfig cfg) : cfg_(std::move(cfg)) {
 }
 
 Service::~Service() { shutdown(); }
+
+void Service::set_bound_address(const std::string& host) {
+    std::string h = lower(host);
+    if (h.find(':') != std::string::npos && h.front() != '[') h = "[" + h + "]";
+    cfg_.bind_host = h;
+}
+
+std::string Service::public_text(std::string s) const {
+    for (const auto& [dir, name] : public_names_) {
+        for (std::size_t pos = s.find(dir); pos != std::string::npos; pos = s.find(dir, pos)) {
+            const std::size_t end = pos + dir.size();
+            // Whole folder names only: /data is not a prefix of /database or /data.old (a
+            // sentence's full stop is not part of the name).
+            const auto name_char = [&](std::size_t k) {
+                return k < s.size() && (std::isalnum(static_cast<unsigned char>(s[k])) || s[k] == '-' || s[k] == '_');
+            };
+            if (name_char(end) || (end < s.size() && s[end] == '.' && name_char(end + 1)) || (pos > 0 && (name_char(pos - 1) || s[pos - 1] == '.'))) {
+                pos = end;
+                continue;
+            }
+            s.replace(pos, dir.size(), name);
+            pos += name.size();
+        }
+    }
+    return s;
+}
+
+std::optional<HttpResponse> Service::check_host(const HttpRequest& req) const {
+    const auto it = req.headers.find("host");
+    if (it == req.headers.end()) return std::nullopt;  // HTTP/1.0 (the server refuses HTTP/1.1 without one)
+    const std::string name = host_name(it->second);
+    if (name.empty()) return json_error(400, "bad_host", "the Host header is not host[:port]", "host");
+    bool ok = name == "localhost" || name == "127.0.0.1" || name == "[::1]" || name == cfg_.bind_host;
+    // Bound to every interface: any address of this host; a DNS-rebinding page sends a name.
+    if (cfg_.bind_host == "0.0.0.0" || cfg_.bind_host == "[::]") ok = ok || ip_literal(name);
+    for (const auto& h : cfg_.allow_hosts) ok = ok || name == host_name(h);
+    if (ok) return std::nullopt;
+    return json_error(421, "misdirected_request",
+                      "this service does not answer to the name '" + name +
+                          "' (a page that reaches it under another name may be a DNS-rebinding attack); it answers to localhost, 127.0.0.1, [::1], "
+                          "its bound address and names the operator adds with fringe serve --allow-host NAME",
+                      "host");
+}
 
 void Service::shutdown() {
     if (runs_) runs_->shutdown();
@@ -242,47 +443,78 @@ std::optional<HttpResponse> Service::check_token(const HttpRequest& req, bool st
 }
 
 std::optional<HttpResponse> Service::precheck(const HttpRequest& head, std::uint64_t content_length, bool has_length) const {
-    const std::string path = head.target.substr(0, head.target.find('?'));
-    if (path.rfind("/api/", 0) != 0) {
-        if (head.method != "GET") return json_error(405, "method_not_allowed", "static files are GET only");
+    try {
+        // Before anything else: a page under a foreign name learns nothing here.
+        if (auto wrong = check_host(head)) return wrong;
+        const std::string path = head.target.substr(0, head.target.find('?'));
+        if (path.rfind("/api/", 0) != 0) {
+            if (head.method != "GET") {
+                auto r = json_error(405, "method_not_allowed", "static files are GET only");
+                r.headers.emplace_back("Allow", "GET");
+                return r;
+            }
+            return std::nullopt;
+        }
+        if (head.method != "GET" && head.method != "POST") {
+            auto r = json_error(405, "method_not_allowed", "the API uses GET to read and POST to change state");
+            r.headers.emplace_back("Allow", "GET, POST");
+            return r;
+        }
+        if (auto denied = check_token(head, head.method == "POST")) return denied;
+        const std::uint64_t limit = is_upload(head.method, head.target) ? cfg_.max_upload_bytes : cfg_.max_body_bytes;
+        if (has_length && content_length > limit)
+            return json_error(413, "body_too_large", "the body is " + std::to_string(content_length) + " bytes; the limit here is " + std::to_string(limit));
         return std::nullopt;
+    } catch (const std::exception& e) {
+        return json_error(500, "internal", public_text(e.what()));
     }
-    if (head.method != "GET" && head.method != "POST") {
-        auto r = json_error(405, "method_not_allowed", "the API uses GET to read and POST to change state");
-        r.headers.emplace_back("Allow", "GET, POST");
-        return r;
-    }
-    if (auto denied = check_token(head, head.method == "POST")) return denied;
-    const std::uint64_t limit = is_upload(head.method, head.target) ? cfg_.max_upload_bytes : cfg_.max_body_bytes;
-    if (has_length && content_length > limit)
-        return json_error(413, "body_too_large", "the body is " + std::to_string(content_length) + " bytes; the limit here is " + std::to_string(limit));
-    return std::nullopt;
 }
 
 HttpResponse Service::handle(const HttpRequest& req) {
-    std::string path;
-    std::map<std::string, std::string> query;
-    split_target(req.target, path, query);
     try {
+        return handle_request(req);
+    } catch (...) {
+        // Failed while answering a failure (out of memory): still an answer, never an
+        // exception into the server's I/O loop.
+        HttpResponse r;
+        r.status = 500;
+        r.body = R"({"error":{"code":"internal","message":"internal error","field":null}})";
+        return r;
+    }
+}
+
+HttpResponse Service::handle_request(const HttpRequest& req) {
+    try {
+        std::string path;
+        std::map<std::string, std::string> query;
+        split_target(req.target, path, query);
+        if (auto early = precheck(req, req.body.size(), true)) return *early;
         if (path.find("..") != std::string::npos || path.find('\\') != std::string::npos || path.find('\0') != std::string::npos)
             return json_error(400, "bad_path", "the path may not contain '..' or backslashes");
-        if (auto early = precheck(req, req.body.size(), true)) return *early;
+        require_utf8(path, "path", "the path");
+        for (const auto& [k, v] : query) {
+            require_utf8(k, "query", "a query parameter's name (percent-decoded)");
+            require_utf8(v, k, "the value of query parameter '" + k + "' (percent-decoded)");
+        }
+        if (!is_upload(req.method, req.target)) require_utf8(req.body, "body", "the request body");  // uploads are binary files
         if (path.rfind("/api/", 0) != 0) return static_file(path);
         return route(req, path, query);
+    } catch (const HttpError& e) {
+        return json_error(e.status, e.code, public_text(e.what()), e.field);
     } catch (const ConfigError& e) {
-        return json_error(400, "invalid", e.message(), e.field());
+        return json_error(400, "invalid", public_text(e.message()), e.field());
     } catch (const CaptureError& e) {
-        return json_error(400, "bad_capture", e.what());
+        return json_error(400, "bad_capture", public_text(e.what()));
     } catch (const est::EstimatorError& e) {
-        return json_error(400, "estimator_error", e.what());
+        return json_error(400, "estimator_error", public_text(e.what()));
     } catch (const dev::DeviceError& e) {
-        return json_error(502, "device_error", e.what());
+        return json_error(502, "device_error", public_text(e.what()));
     } catch (const StoreError& e) {
-        spdlog::error("{}", e.what());
-        return json_error(500, "store_error", e.what());
+        spdlog::error("{}", log_escape(e.what()));
+        return json_error(500, "store_error", public_text(e.what()));
     } catch (const std::exception& e) {
-        spdlog::error("{} {}: {}", req.method, req.target, e.what());
-        return json_error(500, "internal", e.what());
+        spdlog::error("{} {}: {}", log_escape(req.method), log_escape(req.target), log_escape(e.what()));
+        return json_error(500, "internal", public_text(e.what()));
     }
 }
 
@@ -388,17 +620,84 @@ json Service::sandbox_scenario(json j) const {
             if (e.value("name", "") == "external" && !cfg_.allow_external)
                 throw ConfigError(f + ".name", "the external estimator runs a command on this host; start the service with --allow-external to permit it");
         }
-    if (j.contains("device") && j["device"].is_string()) {
-        std::string uri = j["device"].get<std::string>();
-        if (uri.rfind("capture:", 0) == 0) {
-            const auto q = uri.find('?');
-            const std::string id = uri.substr(8, q == std::string::npos ? std::string::npos : q - 8);
-            const std::string p = valid_id(id) ? capture_path(id) : "";
-            if (p.empty()) throw ConfigError("scenario.device", "capture:" + id + " is not an uploaded capture (POST /api/v1/captures, then capture:ID)");
-            j["device"] = "capture:" + p + (q == std::string::npos ? "" : uri.substr(q));
+    if (j.contains("device") && j["device"].is_string()) j["device"] = sandbox_device(j["device"].get<std::string>());
+    return j;
+}
+
+std::string Service::sandbox_device(const std::string& uri) const {
+    const std::string field = "scenario.device";
+    const auto q = uri.find('?');
+    const std::string query = q == std::string::npos ? "" : uri.substr(q);
+    if (uri.rfind("capture:", 0) == 0) {
+        const std::string id = uri.substr(8, q == std::string::npos ? std::string::npos : q - 8);
+        const std::string p = valid_id(id) ? capture_path(id) : "";
+        if (p.empty()) throw ConfigError(field, "capture:" + id + " is not an uploaded capture (POST /api/v1/captures, then capture:ID)");
+        return "capture:" + p + query;
+    }
+    dev::UriParts parts;
+    try {
+        parts = dev::check_uri(uri);
+    } catch (const ConfigError& e) {
+        throw e.prefixed("scenario");
+    }
+    if (parts.scheme == "loopback") return uri;
+    // A board profile is a file: over HTTP only the configured profiles, by name.
+    if (parts.settings.contains("board") && parts.settings["board"].is_string()) {
+        const std::string b = parts.settings["board"].get<std::string>();
+        const auto names = dev::board_names();
+        if (!valid_id(b) || std::find(names.begin(), names.end(), b) == names.end()) {
+            std::string known;
+            for (const auto& n : names) known += (known.empty() ? "" : ", ") + n;
+            throw ConfigError(field, (valid_id(b) ? "no board profile named '" + b + "'" : std::string("over HTTP a board profile is given by name, not by path")) +
+                                         " (known: " + known + "; GET /api/v1/devices lists them)");
         }
     }
-    return j;
+    // What the allow-list matches: the device without its settings, in one spelling.
+    std::string ident;
+    auto refuse = [&](const std::string& why) {
+        return HttpError(403, "device_not_allowed", why + "; over HTTP only loopback:, uploaded capture:ID and devices the operator allows with " +
+                                                        "fringe serve --allow-device PATTERN (repeatable, glob: 'modbus+tcp://192.168.1.50:502', " +
+                                                        "'modbus+rtu:/dev/ttyUSB*', 'usb:1209:*') may be used", field);
+    };
+    if (parts.scheme == "modbus+tcp") {
+        const std::string hp = parts.path.rfind("//", 0) == 0 ? parts.path.substr(2) : parts.path;
+        std::string host = hp, port = "502";
+        const auto close = hp.rfind(']');
+        const auto colon = hp.rfind(':');
+        if (colon != std::string::npos && (hp[0] != '[' || (close != std::string::npos && colon > close))) {
+            host = hp.substr(0, colon);
+            port = hp.substr(colon + 1);
+        }
+        const bool port_ok = !port.empty() && port.size() <= 5 && std::all_of(port.begin(), port.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); }) &&
+                             std::stoi(port) >= 1 && std::stoi(port) <= 65535;
+        if (host.empty() || host_name(host) != lower(host) || !port_ok)
+            throw ConfigError(field, "modbus+tcp needs host:port, e.g. modbus+tcp://192.168.1.50:502?board=NAME");
+        ident = "modbus+tcp://" + lower(host) + ":" + std::to_string(std::stoi(port));
+    } else if (parts.scheme == "modbus+rtu") {
+        if (parts.path.empty() || parts.path[0] != '/' || fs::path(parts.path).lexically_normal().string() != parts.path)
+            throw refuse("modbus+rtu:" + parts.path + " is not a plain serial device path");
+        ident = "modbus+rtu:" + parts.path;
+    } else if (parts.scheme == "usb") {
+        unsigned vid = dev::usbp::kTestVid, pid = dev::usbp::kTestPid;
+        if (!parts.path.empty()) {
+            const auto c = parts.path.find(':');
+            const auto hex4 = [](const std::string& h) {
+                return !h.empty() && h.size() <= 4 && std::all_of(h.begin(), h.end(), [](char x) { return std::isxdigit(static_cast<unsigned char>(x)); });
+            };
+            if (c == std::string::npos || !hex4(parts.path.substr(0, c)) || !hex4(parts.path.substr(c + 1)))
+                throw ConfigError(field, "usb: expects usb:VID:PID in hex (e.g. usb:1209:ec01)");
+            vid = static_cast<unsigned>(std::stoul(parts.path.substr(0, c), nullptr, 16));
+            pid = static_cast<unsigned>(std::stoul(parts.path.substr(c + 1), nullptr, 16));
+        }
+        char id[16];
+        std::snprintf(id, sizeof id, "%04x:%04x", vid, pid);
+        ident = std::string("usb:") + id;
+    } else {
+        ident = parts.scheme + ":" + parts.path;
+    }
+    for (const auto& pattern : cfg_.allow_devices)
+        if (glob_match(pattern.substr(0, pattern.find('?')), ident)) return uri;
+    throw refuse(ident + " is not on this service's device allow-list");
 }
 
 HttpResponse Service::create_run(const HttpRequest& req) {
@@ -429,7 +728,8 @@ HttpResponse Service::create_run(const HttpRequest& req) {
         }
     }
     if (body.contains("seed")) {
-        if (!body["seed"].is_number_unsigned()) throw ConfigError("seed", "expected a non-negative integer");
+        if (!body["seed"].is_number_unsigned() || body["seed"].get<std::uint64_t>() > kMaxSeed)
+            throw ConfigError("seed", "expected an integer from 0 to 2^53 (9007199254740992)");
         sc.seed = body["seed"].get<std::uint64_t>();
     }
     try {
@@ -488,7 +788,11 @@ HttpResponse Service::list_runs(const std::map<std::string, std::string>& query)
 }
 
 std::optional<RunSnapshot> Service::run_state(const std::string& id) {
-    if (auto s = runs_->snapshot(id)) return s;
+    if (auto s = runs_->snapshot(id)) {
+        s->error = public_text(s->error);
+        s->device = public_text(s->device);
+        return s;
+    }
     std::optional<RunRow> row;
     std::optional<json> rep;
     {
@@ -505,12 +809,12 @@ std::optional<RunSnapshot> Service::run_state(const std::string& id) {
     s.status = row->status;
     s.verdict = row->verdict;
     if (rep) {
-        if ((*rep)["error"].is_string()) s.error = (*rep)["error"].get<std::string>();
+        if ((*rep)["error"].is_string()) s.error = public_text((*rep)["error"].get<std::string>());
         if ((*rep)["samples"].is_object()) {
             s.done = (*rep)["samples"].value("processed", std::uint64_t{0});
             s.total = (*rep)["samples"].value("planned", std::uint64_t{0});
         }
-        if ((*rep)["device"].is_object()) s.device = (*rep)["device"].value("uri", "");
+        if ((*rep)["device"].is_object()) s.device = public_text((*rep)["device"].value("uri", ""));
     }
     s.seq = 1;
     return s;
@@ -543,18 +847,19 @@ std::shared_ptr<const Service::Cached> Service::cached_report(const std::string&
     }
     if (!rep) return nullptr;
     auto c = std::make_shared<Cached>();
-    c->json_full = rep->dump();
+    // The service's folders by short names (capture:ID plays DATA/captures/ID.fcap).
+    c->json_full = public_text(dump_safe(*rep));
     json traces = rep->contains("traces") ? (*rep)["traces"] : json::object();
     json slim = *rep;
     slim.erase("traces");
-    c->json = slim.dump();
+    c->json = public_text(dump_safe(slim));
     json tr{{"id", id}, {"traces", traces}, {"estimators", json::array()}};
     for (const auto& e : (*rep)["estimators"])
         tr["estimators"].push_back({{"label", e.value("label", "")}, {"name", e.value("name", "")},
                                     {"harmonics", e.contains("metrics") ? e["metrics"].value("harmonics", json::array()) : json::array()}});
-    c->traces = tr.dump();
-    c->xml = junit_xml(*rep);
-    c->html = report_html(*rep);
+    c->traces = dump_safe(tr);
+    c->xml = public_text(junit_xml(*rep));
+    c->html = public_text(report_html(*rep));
     std::lock_guard<std::mutex> l(cache_mu_);
     if (auto it = cache_.find(id); it != cache_.end()) return it->second.first;
     lru_.push_front(id);
@@ -594,8 +899,13 @@ HttpResponse Service::run_artifact(const std::string& id, const std::string& wha
 }
 
 std::string Service::sse_event(const RunSnapshot& s) {
-    json j = s;
-    return "id: " + std::to_string(s.seq) + "\nevent: " + (s.finished() ? "end" : "progress") + "\ndata: " + j.dump() + "\n\n";
+    std::string data;
+    try {
+        data = dump_safe(json(s));
+    } catch (const std::exception&) {
+        data = R"({"error":"the run's state could not be serialised"})";
+    }
+    return "id: " + std::to_string(s.seq) + "\nevent: " + (s.finished() ? "end" : "progress") + "\ndata: " + data + "\n\n";
 }
 
 // ---- catalogue ------------------------------------------------------------------------
@@ -624,7 +934,7 @@ HttpResponse Service::fixtures() {
             f["runnable"] = !sc.estimators.empty();
         } catch (const std::exception& e) {
             f["runnable"] = false;
-            f["problem"] = e.what();
+            f["problem"] = public_text(e.what());
         }
         list.push_back(std::move(f));
     }
@@ -670,7 +980,7 @@ HttpResponse Service::devices() {
             boards.push_back({{"name", b.name}, {"kind", b.kind}, {"description", b.description}, {"dut_position", b.has_dut_position()},
                               {"uri_template", "modbus+tcp://HOST:PORT?board=" + b.name}});
         } catch (const std::exception& e) {
-            boards.push_back({{"name", name}, {"problem", e.what()}});
+            boards.push_back({{"name", name}, {"problem", public_text(e.what())}});
         }
     }
     return json_ok({{"devices", list}, {"boards", boards}});

@@ -34,6 +34,13 @@ struct ServiceConfig {
     std::uint64_t max_upload_bytes = 256ull << 20;    // capture uploads, streamed to disk
     unsigned workers = 2;
     bool allow_external = false;  // the `external` estimator runs a shell command: off over HTTP unless asked for
+    // Devices a client's scenario may name besides loopback: and uploaded captures: glob
+    // patterns over the device without its query (modbus+tcp://127.0.0.1:1502,
+    // modbus+rtu:/dev/ttyUSB*, usb:1209:*). Fixtures are the operator's files and not limited.
+    std::vector<std::string> allow_devices;
+    // Host header names answered besides loopback names and the bound address (DNS rebinding).
+    std::vector<std::string> allow_hosts;
+    std::string bind_host;  // the bound address (HttpServer sets it); 0.0.0.0 / :: accept any IP literal
 };
 
 struct HttpRequest {
@@ -75,10 +82,19 @@ public:
 
     RunManager& runs() { return *runs_; }
     const ServiceConfig& config() const { return cfg_; }
+    // The address the server listens on (before it serves): Host headers may name it.
+    void set_bound_address(const std::string& host);
     // Stops the queue: running runs end "interrupted" with their partial reports stored.
     void shutdown();
 
 private:
+    HttpResponse handle_request(const HttpRequest& req);
+    std::optional<HttpResponse> check_host(const HttpRequest& req) const;
+    // Makes a client's device URI safe to open here (capture:ID -> the uploaded file, board
+    // profiles by name, other devices from allow_devices); throws naming scenario.device.
+    std::string sandbox_device(const std::string& uri) const;
+    // Text for a client: the service's absolute folders replaced by short names.
+    std::string public_text(std::string s) const;
     HttpResponse route(const HttpRequest& req, const std::string& path, const std::map<std::string, std::string>& query);
     HttpResponse create_run(const HttpRequest& req);
     HttpResponse list_runs(const std::map<std::string, std::string>& query);
@@ -104,6 +120,7 @@ private:
     std::shared_ptr<const Cached> cached_report(const std::string& id);
 
     ServiceConfig cfg_;
+    std::vector<std::pair<std::string, std::string>> public_names_;  // absolute folder -> name for clients, longest first
     std::mutex store_mu_;
     std::unique_ptr<RunStore> store_;
     std::unique_ptr<RunManager> runs_;

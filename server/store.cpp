@@ -115,7 +115,8 @@ void RunStore::finish(const nlohmann::json& r) {
     st.bind(4, scen_dut.empty() ? dut : scen_dut);
     st.bind(5, r.value("status", std::string()));
     st.bind(6, r.value("verdict", std::string()));
-    st.bind(7, r.dump());
+    // A device's message may quote bytes that are not UTF-8: stored as U+FFFD, the report is kept.
+    st.bind(7, r.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace));
     if (sqlite3_step(st.s) != SQLITE_DONE) throw StoreError(std::string("run store: ") + sqlite3_errmsg(db_));
 }
 

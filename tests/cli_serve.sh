@@ -2,7 +2,9 @@
 # fringe serve through the real executable on 127.0.0.1: the stdlib Python client and
 # `fringe run --server` get the same verdicts (exit 0 PASS, 1 FAIL); SIGTERM mid-run stores the run as interrupted with its
 # partial report and exits 0; kill -9 mid-run, restart: the run is interrupted, completed
-# reports are intact, the token is reused.
+# reports are intact, the token is reused. Hostile requests: --allow-device and --allow-host
+# decide which devices and Host names are answered; bytes that are not UTF-8 are a 400 and
+# control characters in a scenario name are escaped in the log.
 set -euo pipefail
 FRINGE="$1"; SRC="$(cd "$2" && pwd)"
 PY=/usr/bin/python3
@@ -11,9 +13,9 @@ dir=$(mktemp -d); pid=
 trap 'kill -9 $pid 2>/dev/null || true; rm -rf "$dir"' EXIT
 fail() { echo "FAIL: $*" >&2; [ -f "$dir/serve.log" ] && cat "$dir/serve.log" >&2; exit 1; }
 
-start() {  # start the server on a free port; sets pid and URL
+start() {  # start the server on a free port (extra serve options as arguments); sets pid and URL
   : > "$dir/serve.log"  # fail() shows it
-  "$FRINGE" serve --bind 127.0.0.1:0 --data "$dir/data" > "$dir/serve.out" 2> "$dir/serve.log" &
+  "$FRINGE" serve --bind 127.0.0.1:0 --data "$dir/data" "$@" > "$dir/serve.out" 2> "$dir/serve.log" &
   pid=$!
   URL=$(poll_log "$dir/serve.out" 's/.*serving \(http:[^ ]*\) .*/\1/p' 100 0.1) || fail "fringe serve did not start"
 }
@@ -89,5 +91,50 @@ start
 api "${URL}api/v1/runs/$id2/report.json" | grep -q '"not_finished"' || fail "a killed run has no report (409)"
 api "${URL}api/v1/runs/$done_id/report.json" > "$dir/after.json"
 cmp -s "$dir/before.json" "$dir/after.json" || fail "completed report changed across a kill -9"
+
+# Without --allow-device/--allow-host: only loopback names and simulated devices.
+code_of() { api -o "$dir/body.json" -w '%{http_code}' "$@"; }
+scenario_on() {  # a short fig10c body on device $1, named $2
+  $PY - "$SRC/fixtures/scenarios/fig10c-loopback.json" "$1" "${2:-fig10c}" <<'PY'
+import json, sys
+sc = json.load(open(sys.argv[1]))
+sc.update(device=sys.argv[2], name=sys.argv[3], duration_s=0.05, limits=[])
+print(json.dumps({"scenario": sc}))
+PY
+}
+post_device() { code_of -X POST -H "Authorization: Bearer $(cat "$T")" -d "$(scenario_on "$1")" "${URL}api/v1/runs"; }
+err_code() { $PY -c 'import json,sys; print(json.load(open(sys.argv[1]))["error"]["code"])' "$dir/body.json"; }
+[ "$(code_of -H 'Host: evil.example' "${URL}api/v1/runs")" = 421 ] && [ "$(err_code)" = misdirected_request ] || fail "foreign Host should be 421"
+[ "$(code_of -H 'Host: bench.lab:8080' "${URL}")" = 421 ] || fail "foreign Host on a UI file should be 421"
+[ "$(code_of -H 'Host: localhost' "${URL}api/v1/health")" = 200 ] || fail "Host localhost should be answered"
+[ "$(post_device 'modbus+tcp://127.0.0.1:1502?board=generic-aio')" = 403 ] && [ "$(err_code)" = device_not_allowed ] \
+  || fail "a Modbus board not allowed: 403, got $(cat "$dir/body.json")"
+[ "$(code_of "${URL}api/v1/runs?%C3=1")" = 400 ] && [ "$(err_code)" = bad_encoding ] || fail "a query key that is not UTF-8: 400 bad_encoding"
+[ "$(code_of "${URL}api/v1/health")" = 200 ] || fail "the service should still answer"
+# CR/LF in a scenario name: one log line, escaped.
+rid=$(api -X POST -H "Authorization: Bearer $(cat "$T")" -d "$(scenario_on loopback: $'evil\r\nFAKE-LOG-LINE')" "${URL}api/v1/runs" \
+  | $PY -c 'import json,sys; print(json.load(sys.stdin)["id"])') || fail "run with CR/LF in its name"
+for _ in $(seq 200); do [ "$(status_of "$rid")" = "done PASS" ] && break; sleep 0.05; done
+for _ in $(seq 50); do grep -q "$rid" "$dir/serve.log" && break; sleep 0.05; done
+grep -qF 'evil\r\nFAKE-LOG-LINE' "$dir/serve.log" || fail "the scenario name should be logged escaped"
+! grep -q '^FAKE-LOG-LINE' "$dir/serve.log" || fail "a scenario name split the log"
+kill -TERM $pid; wait $pid
+
+# Bad patterns are refused at start.
+set +e
+"$FRINGE" serve --bind 127.0.0.1:0 --data "$dir/data" --allow-device 'file:/etc/passwd' > /dev/null 2> "$dir/bad.txt"; rc=$?
+set -e
+[ $rc -ne 0 ] && grep -q "not a device pattern" "$dir/bad.txt" || fail "--allow-device file:/etc/passwd should be refused, got $rc: $(cat "$dir/bad.txt")"
+
+# With them: the allowed board and name are answered, others still refused.
+start --allow-device 'modbus+tcp://127.0.0.1:15*' --allow-device 'usb:1209:*' --allow-host bench.lab
+grep -q "devices clients may use: .*modbus+tcp://127.0.0.1:15\*, usb:1209:\*" "$dir/serve.out" || fail "start line names the allowed devices"
+[ "$(code_of -H 'Host: bench.lab:8080' "${URL}api/v1/health")" = 200 ] || fail "--allow-host bench.lab should be answered"
+[ "$(code_of -H 'Host: evil.example' "${URL}api/v1/health")" = 421 ] || fail "other names still 421"
+[ "$(post_device 'modbus+tcp://127.0.0.1:1502?board=generic-aio')" = 201 ] || fail "allowed Modbus board: 201, got $(cat "$dir/body.json")"
+[ "$(post_device 'modbus+tcp://127.0.0.1:22?board=generic-aio')" = 403 ] || fail "port 22 is not allowed"
+[ "$(post_device 'modbus+tcp://127.0.0.1:1502?board=/etc/passwd')" = 400 ] || fail "a board path: 400"
+! grep -q "root:" "$dir/body.json" || fail "a board path must not reveal the file"
+[ "$(post_device 'modbus+rtu:/dev/ttyUSB0')" = 403 ] || fail "serial ports not allowed here"
 kill -TERM $pid; wait $pid
 echo "cli.serve: ok"

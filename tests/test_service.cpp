@@ -308,7 +308,9 @@ TEST_CASE("service: two runs on one Modbus board queue, a loopback run overtakes
     test::SimThread sim(dev::BoardSimOptions{});
     REQUIRE(sim.where.rfind("tcp://", 0) == 0);
     TempDir d;
-    Service s(config(d));
+    auto cfg = config(d);
+    cfg.allow_devices = {"modbus+tcp://127.0.0.1:*"};  // a client's scenario names the board: the operator allows it
+    Service s(cfg);
     json sc = body_of(s.handle(req("GET", "/api/v1/fixtures/modbus-step-sweep")))["scenario"];
     // 128 steps with 3 ms settle: about 0.4 s on the board
     sc["device"] = "modbus+tcp://" + sim.where.substr(6) + "?board=generic-aio&settle_s=0.003";
@@ -438,11 +440,11 @@ TEST_CASE("http server: real socket on 127.0.0.1", "[service][socket]") {
 
     SECTION("keep-alive: two requests on one connection") {
         const int fd = connect_to(port);
-        send_all(fd, "GET /api/v1/health HTTP/1.1\r\nHost: x\r\n\r\n");
+        send_all(fd, "GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
         auto r1 = read_response(fd);
         CHECK(r1.rfind("HTTP/1.1 200", 0) == 0);
         CHECK(r1.find("\"status\":\"ok\"") != std::string::npos);
-        send_all(fd, "GET /api/v1/runs/a$b HTTP/1.1\r\nHost: x\r\n\r\n");
+        send_all(fd, "GET /api/v1/runs/a$b HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n");
         auto r2 = read_response(fd);
         CHECK(r2.rfind("HTTP/1.1 400", 0) == 0);
         CHECK(r2.find("bad_id") != std::string::npos);
@@ -450,7 +452,7 @@ TEST_CASE("http server: real socket on 127.0.0.1", "[service][socket]") {
     }
     SECTION("a body over the limit is refused before it is read") {
         const int fd = connect_to(port);
-        send_all(fd, std::string("POST /api/v1/runs HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer ") + kToken +
+        send_all(fd, std::string("POST /api/v1/runs HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer ") + kToken +
                          "\r\nContent-Type: application/json\r\nContent-Length: 50000000\r\n\r\n{");
         auto r = read_response(fd, true);
         CHECK(r.rfind("HTTP/1.1 413", 0) == 0);
@@ -458,28 +460,28 @@ TEST_CASE("http server: real socket on 127.0.0.1", "[service][socket]") {
     }
     SECTION("no token: 401 over the wire") {
         const int fd = connect_to(port);
-        send_all(fd, "POST /api/v1/runs HTTP/1.1\r\nHost: x\r\nContent-Length: 2\r\n\r\n{}");
+        send_all(fd, "POST /api/v1/runs HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Length: 2\r\n\r\n{}");
         CHECK(read_response(fd, true).rfind("HTTP/1.1 401", 0) == 0);
         ::close(fd);
     }
     SECTION("create a run, follow its events to the end, fetch the report") {
         int fd = connect_to(port);
         const std::string body = R"({"fixture":"fig10c-loopback"})";
-        send_all(fd, std::string("POST /api/v1/runs HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer ") + kToken +
+        send_all(fd, std::string("POST /api/v1/runs HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer ") + kToken +
                          "\r\nContent-Type: application/json\r\nContent-Length: " + std::to_string(body.size()) + "\r\n\r\n" + body);
         auto r = read_response(fd);
         REQUIRE(r.rfind("HTTP/1.1 201", 0) == 0);
         const std::string id = json::parse(r.substr(r.find("\r\n\r\n") + 4))["id"];
         ::close(fd);
         fd = connect_to(port);
-        send_all(fd, "GET /api/v1/runs/" + id + "/events HTTP/1.1\r\nHost: x\r\nAccept: text/event-stream\r\n\r\n");
+        send_all(fd, "GET /api/v1/runs/" + id + "/events HTTP/1.1\r\nHost: 127.0.0.1\r\nAccept: text/event-stream\r\n\r\n");
         const auto ev = read_response(fd, true);  // the server closes after the end event
         ::close(fd);
         CHECK(ev.find("Content-Type: text/event-stream") != std::string::npos);
         CHECK(ev.find("event: end") != std::string::npos);
         CHECK(ev.find("\"verdict\":\"PASS\"") != std::string::npos);
         fd = connect_to(port);
-        send_all(fd, "GET /api/v1/runs/" + id + "/report.xml HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n");
+        send_all(fd, "GET /api/v1/runs/" + id + "/report.xml HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
         auto x = read_response(fd, true);
         ::close(fd);
         CHECK(x.rfind("HTTP/1.1 200", 0) == 0);
