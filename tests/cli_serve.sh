@@ -98,7 +98,7 @@ scenario_on() {  # a short fig10c body on device $1, named $2
   $PY - "$SRC/fixtures/scenarios/fig10c-loopback.json" "$1" "${2:-fig10c}" <<'PY'
 import json, sys
 sc = json.load(open(sys.argv[1]))
-sc.update(device=sys.argv[2], name=sys.argv[3], duration_s=0.05, limits=[])
+sc.update(device=sys.argv[2], name=sys.argv[3], duration_s=0.05, settle_s=0.01, limits=[])
 print(json.dumps({"scenario": sc}))
 PY
 }

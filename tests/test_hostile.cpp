@@ -413,6 +413,7 @@ TEST_CASE("hostile: control characters in a scenario name: JUnit stays well-form
     json sc = json::parse(fixture_text("fig10c-loopback"));
     sc["name"] = std::string("evil\0name\r\nFAKE LOG LINE\x01", 26);
     sc["duration_s"] = 0.05;
+    sc["settle_s"] = 0.01;  // the settle time must leave something to score (preflight)
     sc["limits"] = json::array();
     const auto created = s.post("/api/v1/runs", json{{"scenario", sc}}.dump());
     REQUIRE(created.status == 201);
