@@ -5,6 +5,8 @@
 #include "drivers/device.hpp"
 #include "estimator/estimator.hpp"
 #include "scoring.hpp"
+#include "spectrum.hpp"
+#include "traces.hpp"
 #include "signal_gen/config.hpp"
 #include "signal_gen/fastmath.hpp"
 #include "signal_gen/generator.hpp"
@@ -98,7 +100,10 @@ struct Lane {  // one estimator under test
     Scorer scorer;
     std::vector<double> th, om;
     std::vector<std::uint8_t> valid;
-    json trace_err = json::array();
+    std::vector<double> err;              // theta_hat - theta_true, NaN where invalid (traces)
+    std::vector<double> err_wrapped;      // scored error for the spectrum
+    std::vector<std::uint8_t> scored;     // valid and after the settle time
+    std::unique_ptr<ErrorSpectrum> spectrum;
     explicit Lane(const EstimatorSpec* s, double settle) : spec(s), scorer(settle) {}
 };
 
@@ -176,8 +181,15 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
     dev::DeviceInfo dinfo;
     const std::uint64_t total = sc.samples();
     std::uint64_t processed = 0;
-    json trace_t = json::array(), trace_th = json::array(), trace_s = json::array(), trace_c = json::array();
-    const std::uint64_t stride = std::max<std::uint64_t>(1, total / std::max<std::size_t>(o.trace_points, 1));
+    // Traces: per-bucket envelopes and angle folds at the full rate (never stride samples).
+    std::optional<TraceRecorder> traces;
+    const double settle_end_s = sc.t0_s + sc.settle_s;
+    // Electrical frequency for the spectrum's segment length (constant motion), and the mean true
+    // rate over scored samples for its order axis.
+    const double plan_fe_hz = sc.motion.kind == MotionKind::Constant
+                                  ? std::fabs(sc.motion.velocity_rad_s) * sc.encoder.lines_per_rev / kTwoPi : 0.0;
+    double sum_abs_omega = 0;
+    std::uint64_t n_omega = 0;
     try {
         device = dev::open(sc.device);
         dinfo = device->info();
@@ -194,6 +206,16 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
         // A board that reports its own interpolated position is scored like an estimator, "dut".
         static const EstimatorSpec dut_spec{"dut", "dut", nlohmann::json::object(), std::nullopt};
         if (dinfo.dut_position) lanes.push_back(std::make_unique<Lane>(&dut_spec, sc.settle_s));
+        {
+            std::vector<std::string> labels;
+            const auto scored_plan = static_cast<std::uint64_t>(std::max(0.0, static_cast<double>(total) - sc.settle_s * sc.sample_rate_hz));
+            const std::size_t seg = ErrorSpectrum::choose_segment(sc.sample_rate_hz, plan_fe_hz, scored_plan);
+            for (auto& lane : lanes) {
+                labels.push_back(lane->spec->label);
+                lane->spectrum = std::make_unique<ErrorSpectrum>(sc.sample_rate_hz, seg);
+            }
+            traces.emplace(total, o.trace_points, labels, settle_end_s);
+        }
         // Step mode (Modbus boards): one static pair per sample, settle, read back.
         const bool step_mode = !dinfo.streaming && dinfo.step_mode;
         std::vector<double> dut_th;
@@ -312,17 +334,22 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
                 for (std::size_t i = 0; i < m; ++i) lane->valid[i] = lane->valid[i] && known[i];
                 lane->scorer.add(m, t_s.data(), th_true.data(), om_true.data(), lane->th.data(), lane->om.data(), lane->valid.data());
             }
-            for (std::size_t i = 0; i < m; ++i) {
-                if ((k + i) % stride) continue;
-                trace_t.push_back(t_s[i]);
-                trace_th.push_back(known[i] ? json(wrap_pi(th_true[i])) : json());
-                trace_s.push_back(in_s[i]);
-                trace_c.push_back(in_c[i]);
-                for (auto& lane : lanes) {
+            std::vector<const double*> errs;
+            for (auto& lane : lanes) {
+                lane->err.resize(m); lane->err_wrapped.resize(m); lane->scored.resize(m);
+                for (std::size_t i = 0; i < m; ++i) {
                     const double e = lane->th[i] - th_true[i];
-                    lane->trace_err.push_back(lane->valid[i] && std::isfinite(e) ? json(wrap_pi(e)) : json());
+                    const bool v = lane->valid[i] && std::isfinite(e);
+                    lane->err[i] = v ? e : std::numeric_limits<double>::quiet_NaN();
+                    lane->scored[i] = v && t_s[i] >= settle_end_s;
+                    lane->err_wrapped[i] = v ? e - kTwoPi * std::floor(e * (1 / kTwoPi) + 0.5) : 0.0;  // wrapped, cheaply
                 }
+                lane->spectrum->add(m, lane->err_wrapped.data(), lane->scored.data());
+                errs.push_back(lane->err.data());
             }
+            for (std::size_t i = 0; i < m; ++i)
+                if (known[i] && t_s[i] >= settle_end_s && std::isfinite(om_true[i])) { sum_abs_omega += std::fabs(om_true[i]); ++n_omega; }
+            traces->add(m, t_s.data(), in_s.data(), in_c.data(), th_true.data(), known.data(), errs);
             k += m;
             processed = k;
             if (o.progress) o.progress(k, total);
@@ -355,6 +382,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
         ej["state"] = lane->e ? lane->e->state() : json();
         ej["metrics"] = to_json(m, lines);
         ej["bounds"] = m.scored > 0 && lane->e ? bounds_json(sc.encoder, *lane->e, sc.sample_rate_hz, m.scored, m.rms_rad) : json();
+        if (lane->spectrum) ej["spectrum"] = lane->spectrum->to_json(n_omega ? sum_abs_omega / static_cast<double>(n_omega) / kTwoPi : 0.0);
         estimators.push_back(ej);
     }
     for (const auto& l : sc.limits) {
@@ -390,11 +418,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
     report["samples"] = {{"planned", total}, {"processed", processed}};
     report["estimators"] = estimators;
     report["measurements"] = measurements;
-    json traces{{"stride", stride}, {"t_s", trace_t}, {"theta_true_wrapped_rad", trace_th}, {"sin_v", trace_s}, {"cos_v", trace_c}};
-    json errs = json::object();
-    for (auto& lane : lanes) errs[lane->spec->label] = std::move(lane->trace_err);
-    traces["error_rad"] = errs;
-    report["traces"] = traces;
+    report["traces"] = traces ? traces->to_json() : json::object();
     report["finished_at"] = iso_now();
     report["wall_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
     return report;
