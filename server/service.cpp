@@ -551,7 +551,8 @@ std::shared_ptr<const Service::Cached> Service::cached_report(const std::string&
     json tr{{"id", id}, {"traces", traces}, {"estimators", json::array()}};
     for (const auto& e : (*rep)["estimators"])
         tr["estimators"].push_back({{"label", e.value("label", "")}, {"name", e.value("name", "")},
-                                    {"harmonics", e.contains("metrics") ? e["metrics"].value("harmonics", json::array()) : json::array()}});
+                                    {"harmonics", e.contains("metrics") ? e["metrics"].value("harmonics", json::array()) : json::array()},
+                                    {"spectrum", e.value("spectrum", json())}});  // null in reports older than issue 11
     c->traces = tr.dump();
     c->xml = junit_xml(*rep);
     c->html = report_html(*rep);
