@@ -5,6 +5,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <complex>
 #include <cstdint>
 #include <vector>
 
@@ -40,6 +41,8 @@ private:
     std::size_t segments_ = 0;
     std::vector<double> window_, buf_;  // buf_: the current run of contiguous valid samples (< n_)
     std::vector<double> power_;         // sum over segments of |X_k|^2, k = 0..n_/2
+    std::vector<double> x_;             // windowed segment (scratch)
+    std::vector<std::complex<double>> X_;  // its transform (scratch)
     double s1_ = 0, s2_ = 0;            // sum of window, sum of window^2
 };
 

@@ -13,17 +13,19 @@ constexpr double kPi = 3.14159265358979323846;
 constexpr double kTwoPi = 2 * kPi;
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-// Wrap to (-pi, pi].
+// Wrap to (-pi, pi]. Rounding instead of std::remainder: this runs per sample and lane.
 double wrap_pi(double x) {
-    const double y = std::remainder(x, kTwoPi);
-    return y <= -kPi ? y + kTwoPi : y;
+    double y = x - kTwoPi * std::floor(x * (1 / kTwoPi) + 0.5);
+    if (y <= -kPi) y += kTwoPi;
+    else if (y > kPi) y -= kTwoPi;
+    return y;
 }
 
 // Bin of an electrical angle wrapped to [0, 2 pi).
 std::size_t angle_bin(double theta_rad, std::size_t bins) {
-    double w = std::fmod(theta_rad, kTwoPi);
-    if (w < 0) w += kTwoPi;
-    const auto b = static_cast<std::size_t>(w * (static_cast<double>(bins) / kTwoPi));
+    const double turns = theta_rad * (1 / kTwoPi);
+    const double frac = turns - std::floor(turns);
+    const auto b = static_cast<std::size_t>(frac * static_cast<double>(bins));
     return b < bins ? b : bins - 1;
 }
 

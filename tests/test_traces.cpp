@@ -16,13 +16,13 @@ constexpr double kPi = 3.14159265358979323846;
 // Feeds a recorder a constant-speed run: theta = 2 pi fe t, ideal quadrature of amplitude amp_v,
 // one lane whose error is err(theta, t) (unwrapped, any multiple of 2 pi).
 template <class Err>
-void feed(TraceRecorder& r, std::uint64_t total, double fs, double fe, double amp_v, Err err, std::size_t block = 65536) {
+void feed(TraceRecorder& r, std::uint64_t total, double fs, double fe, double amp_v, Err err, std::size_t block = 65536, double theta0_rad = 0) {
     std::vector<double> t(block), s(block), c(block), th(block), e(block);
     for (std::uint64_t k = 0; k < total; k += block) {
         const std::size_t m = static_cast<std::size_t>(std::min<std::uint64_t>(block, total - k));
         for (std::size_t i = 0; i < m; ++i) {
             t[i] = static_cast<double>(k + i) / fs;
-            th[i] = 2 * kPi * fe * t[i];
+            th[i] = theta0_rad + 2 * kPi * fe * t[i];
             s[i] = amp_v * std::sin(th[i]);
             c[i] = amp_v * std::cos(th[i]);
             e[i] = err(th[i], t[i]);
@@ -126,7 +126,9 @@ TEST_CASE("traces: by_angle recovers a known 1x error; samples before fold_from_
     const std::size_t K = TraceRecorder::kAngleBins;
     TraceRecorder r(total, 2000, {"ekf"}, 0.1);
     // Before 0.1 s a large transient, which must not reach the fold.
-    feed(r, total, fs, fe, 1.0, [&](double th, double t) { return t < 0.1 ? 1.0 : a * std::cos(th - phase); });
+    // theta0 puts no sample on a bin edge (at 937 samples per period every 937th would sit on 0).
+    const double theta0 = 1e-3;
+    feed(r, total, fs, fe, 1.0, [&](double th, double t) { return t < 0.1 ? 1.0 : a * std::cos(th - phase); }, 65536, theta0);
     const json j = r.to_json();
     const auto& f = j["by_angle"]["error_rad"]["ekf"];
     const double dth = 2 * kPi / static_cast<double>(K);
@@ -135,7 +137,7 @@ TEST_CASE("traces: by_angle recovers a known 1x error; samples before fold_from_
     std::vector<double> sum(K, 0.0);
     std::vector<double> cnt(K, 0.0);
     for (std::uint64_t i = 10000; i < total; ++i) {
-        const double th = 2 * kPi * fe * (static_cast<double>(i) / fs);
+        const double th = theta0 + 2 * kPi * fe * (static_cast<double>(i) / fs);
         double w = std::fmod(th, 2 * kPi);
         if (w < 0) w += 2 * kPi;
         const auto k = std::min<std::size_t>(static_cast<std::size_t>(w * (static_cast<double>(K) / (2 * kPi))), K - 1);
