@@ -547,6 +547,9 @@ std::shared_ptr<const Service::Cached> Service::cached_report(const std::string&
     json traces = rep->contains("traces") ? (*rep)["traces"] : json::object();
     json slim = *rep;
     slim.erase("traces");
+    // Plot data stays out of the plain report.json as the traces do (hundreds of KB per estimator):
+    // /traces and ?traces=1 carry it.
+    for (auto& e : slim["estimators"]) e.erase("spectrum");
     c->json = slim.dump();
     json tr{{"id", id}, {"traces", traces}, {"estimators", json::array()}};
     for (const auto& e : (*rep)["estimators"])

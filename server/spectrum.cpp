@@ -5,6 +5,8 @@
 #include <algorithm>
 #include <cmath>
 #include <complex>
+#include <cstdio>
+#include <cstdlib>
 
 namespace fringe {
 
@@ -12,6 +14,13 @@ using nlohmann::json;
 
 namespace {
 constexpr double kPi = 3.14159265358979323846;
+
+// Plot values to `digits` significant digits: the JSON halves in size, far beyond what a plot resolves.
+double sig(double v, int digits = 6) {
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.*g", digits, v);
+    return std::strtod(buf, nullptr);
+}
 
 std::size_t pow2_floor(std::uint64_t x) {
     std::size_t p = 1;
@@ -112,10 +121,10 @@ json ErrorSpectrum::to_json(double electrical_hz) const {
             dmax = std::max(dmax, d[k]);
         }
         const double fk = static_cast<double>(best) * fs_ / static_cast<double>(n_);
-        f.push_back(fk);
-        order.push_back(electrical_hz > 0 ? json(fk / electrical_hz) : json());
-        asd.push_back(dmax);
-        amp.push_back(a[best]);
+        f.push_back(sig(fk, 8));
+        order.push_back(electrical_hz > 0 ? json(sig(fk / electrical_hz)) : json());
+        asd.push_back(sig(dmax));
+        amp.push_back(sig(a[best]));
     }
     out["f_hz"] = std::move(f); out["order"] = std::move(order); out["asd_rad_per_sqrt_hz"] = std::move(asd);
     out["amplitude_rad"] = std::move(amp); out["decimation"] = group;

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 
 namespace fringe {
 
@@ -39,7 +41,14 @@ std::uint64_t scatter(std::uint64_t b, std::uint64_t len) {
     return len > 1 ? x % len : 0;
 }
 
-json num_or_null(double v) { return std::isfinite(v) ? json(v) : json(); }
+// Plot values to `digits` significant digits: the JSON halves in size, far beyond what a plot resolves.
+double sig(double v, int digits = 6) {
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.*g", digits, v);
+    return std::strtod(buf, nullptr);
+}
+
+json num_or_null(double v, int digits = 6) { return std::isfinite(v) ? json(sig(v, digits)) : json(); }
 
 json minmax_json(const std::vector<double>& lo, const std::vector<double>& hi, std::size_t n) {
     json a = json::array(), b = json::array();
@@ -128,18 +137,18 @@ void TraceRecorder::add(std::size_t m, const double* t_s, const double* sin_v, c
 json TraceRecorder::to_json() const {
     const std::size_t n = used_;
     json t = json::array();
-    for (std::size_t b = 0; b < n; ++b) t.push_back(num_or_null(t_start_[b]));
+    for (std::size_t b = 0; b < n; ++b) t.push_back(num_or_null(t_start_[b], 10));
     json errs = json::object();
     for (std::size_t j = 0; j < labels_.size(); ++j) errs[labels_[j]] = minmax_json(err_[j].lo, err_[j].hi, n);
     json ps = json::array(), pc = json::array();
     for (std::size_t b = 0; b < n; ++b)
-        if (std::isfinite(pt_sin_[b])) { ps.push_back(pt_sin_[b]); pc.push_back(pt_cos_[b]); }
+        if (std::isfinite(pt_sin_[b])) { ps.push_back(sig(pt_sin_[b])); pc.push_back(sig(pt_cos_[b])); }
     json th = json::array(), cs = json::array(), cc = json::array();
     for (std::size_t k = 0; k < bins_; ++k) {
-        th.push_back((static_cast<double>(k) + 0.5) * kTwoPi / static_cast<double>(bins_));
+        th.push_back(sig((static_cast<double>(k) + 0.5) * kTwoPi / static_cast<double>(bins_), 8));
         const double cnt = static_cast<double>(cyc_n_[k]);
-        cs.push_back(cyc_n_[k] ? json(cyc_sin_[k] / cnt) : json());
-        cc.push_back(cyc_n_[k] ? json(cyc_cos_[k] / cnt) : json());
+        cs.push_back(cyc_n_[k] ? json(sig(cyc_sin_[k] / cnt)) : json());
+        cc.push_back(cyc_n_[k] ? json(sig(cyc_cos_[k] / cnt)) : json());
     }
     json folds = json::object();
     for (std::size_t j = 0; j < labels_.size(); ++j) {
@@ -147,9 +156,9 @@ json TraceRecorder::to_json() const {
         json mean = json::array(), lo = json::array(), hi = json::array(), count = json::array();
         for (std::size_t k = 0; k < bins_; ++k) {
             const bool any = f.count[k] > 0;
-            mean.push_back(any ? json(f.sum[k] / static_cast<double>(f.count[k])) : json());
-            lo.push_back(any ? json(f.lo[k]) : json());
-            hi.push_back(any ? json(f.hi[k]) : json());
+            mean.push_back(any ? json(sig(f.sum[k] / static_cast<double>(f.count[k]))) : json());
+            lo.push_back(any ? json(sig(f.lo[k])) : json());
+            hi.push_back(any ? json(sig(f.hi[k])) : json());
             count.push_back(f.count[k]);
         }
         folds[labels_[j]] = json{{"mean", std::move(mean)}, {"min", std::move(lo)}, {"max", std::move(hi)}, {"count", std::move(count)}};

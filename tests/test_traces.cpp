@@ -97,7 +97,7 @@ TEST_CASE("traces: the folded Lissajous cycle is a closed curve of short segment
     REQUIRE(ps.size() == 2000);
     std::vector<int> octant(8, 0);
     for (std::size_t i = 0; i < ps.size(); ++i) {
-        CHECK(std::hypot(ps[i].get<double>(), pc[i].get<double>()) == Approx(A).epsilon(1e-9));
+        CHECK(std::hypot(ps[i].get<double>(), pc[i].get<double>()) == Approx(A).epsilon(1e-5));
         double ang = std::atan2(ps[i].get<double>(), pc[i].get<double>());
         if (ang < 0) ang += 2 * kPi;
         ++octant[static_cast<int>(ang / (2 * kPi) * 8) % 8];
@@ -148,7 +148,7 @@ TEST_CASE("traces: by_angle recovers a known 1x error; samples before fold_from_
     for (std::size_t k = 0; k < K; ++k) {
         const double th = j["by_angle"]["theta_rad"][k].get<double>();
         CHECK(th == Approx((static_cast<double>(k) + 0.5) * dth));
-        CHECK(f["mean"][k].get<double>() == Approx(sum[k] / cnt[k]).margin(1e-12));
+        CHECK(f["mean"][k].get<double>() == Approx(sum[k] / cnt[k]).epsilon(1e-5));  // the JSON keeps 6 digits
         // and it is the 1x curve at the bin centre, to within the bin's width
         CHECK(f["mean"][k].get<double>() == Approx(a * std::cos(th - phase)).margin(a * dth / 2));
         CHECK(f["min"][k].get<double>() <= f["mean"][k].get<double>());
@@ -215,18 +215,16 @@ TEST_CASE("traces: size is independent of the run length", "[traces]") {
     const json a = size_run(100000), b = size_run(10000000);
     CHECK(a["t_s"].size() == b["t_s"].size());
     CHECK(a["lissajous"]["points"]["sin_v"].size() == b["lissajous"]["points"]["sin_v"].size());
-    const double ratio = static_cast<double>(b.dump().size()) / static_cast<double>(a.dump().size());
-    CHECK(ratio > 0.9);
-    CHECK(ratio < 1.1);
+    // 100x the samples, no bigger (numbers keep 6 significant digits, so the text may shrink)
+    CHECK(b.dump().size() <= a.dump().size() * 11 / 10);
+    CHECK(b.dump().size() < 300000);  // one lane, 2000 buckets, 256 angle bins
 }
 
 TEST_CASE("traces: 10^8 samples, same JSON size as 10^5", "[traces][.long][long]") {
     const json a = size_run(100000), b = size_run(100000000);
     CHECK(b["samples"] == 100000000);
     CHECK(a["t_s"].size() == b["t_s"].size());
-    const double ratio = static_cast<double>(b.dump().size()) / static_cast<double>(a.dump().size());
-    CHECK(ratio > 0.9);
-    CHECK(ratio < 1.1);
+    CHECK(b.dump().size() <= a.dump().size() * 11 / 10);
 }
 
 // ---- spectrum --------------------------------------------------------------------------
