@@ -128,63 +128,307 @@ std::string junit_xml(const json& r) {
 
 namespace {
 
+constexpr double kPi = 3.14159265358979323846;
 const char* kColours[] = {"#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b"};
 
-// A scatter/line plot as inline SVG. Points with null y are skipped.
-std::string svg_plot(const std::string& title, const std::string& xlabel, const std::string& ylabel,
-                     const std::vector<std::pair<std::string, std::pair<const json*, const json*>>>& series, bool dots,
-                     bool square = false) {
-    const double W = square ? 360 : 640, H = 360, L = 70, R = 10, T = 28, B = 40;
-    double xmin = 1e300, xmax = -1e300, ymin = 1e300, ymax = -1e300;
-    for (const auto& [name, xy] : series) {
-        const json& xs = *xy.first;
-        const json& ys = *xy.second;
-        for (std::size_t i = 0; i < xs.size() && i < ys.size(); ++i) {
-            if (!xs[i].is_number() || !ys[i].is_number()) continue;
-            xmin = std::min(xmin, xs[i].get<double>()); xmax = std::max(xmax, xs[i].get<double>());
-            ymin = std::min(ymin, ys[i].get<double>()); ymax = std::max(ymax, ys[i].get<double>());
-        }
+// Inline SVG plot (issue 11): linear or log axes with tick values and units, and layers that
+// never join samples that are not neighbours: points, polylines broken at nulls, min/max bands.
+struct Axis {
+    std::string label;
+    bool log = false;
+    double lo = 1e300, hi = -1e300;
+    void see(const json& v) {
+        if (!v.is_number()) return;
+        const double x = v.get<double>();
+        if (!std::isfinite(x) || (log && x <= 0)) return;
+        lo = std::min(lo, x);
+        hi = std::max(hi, x);
     }
-    if (xmin > xmax) { xmin = 0; xmax = 1; ymin = 0; ymax = 1; }
-    if (xmax == xmin) xmax = xmin + 1;
-    if (ymax == ymin) { ymax += 1e-12 + std::fabs(ymax) * 0.1; ymin -= 1e-12 + std::fabs(ymin) * 0.1; }
-    if (square) { const double a = std::max({std::fabs(xmin), std::fabs(xmax), std::fabs(ymin), std::fabs(ymax)}); xmin = ymin = -a; xmax = ymax = a; }
-    auto X = [&](double x) { return L + (x - xmin) / (xmax - xmin) * (W - L - R); };
-    auto Y = [&](double y) { return H - B - (y - ymin) / (ymax - ymin) * (H - T - B); };
-    std::ostringstream s;
-    s.precision(5);
-    s << "<svg class=\"plot\" xmlns=\"http://www.w3.org/2000/svg\" width=\"" << W << "\" height=\"" << H << "\" viewBox=\"0 0 " << W << " " << H << "\">";
-    s << "<text x=\"" << W / 2 << "\" y=\"16\" text-anchor=\"middle\" font-weight=\"bold\">" << xml_escape(title) << "</text>";
-    s << "<rect x=\"" << L << "\" y=\"" << T << "\" width=\"" << W - L - R << "\" height=\"" << H - T - B << "\" fill=\"none\" stroke=\"#999\"/>";
-    s << "<text x=\"" << (L + W - R) / 2 << "\" y=\"" << H - 6 << "\" text-anchor=\"middle\">" << xml_escape(xlabel) << "</text>";
-    s << "<text x=\"12\" y=\"" << (T + H - B) / 2 << "\" transform=\"rotate(-90 12 " << (T + H - B) / 2 << ")\" text-anchor=\"middle\">" << xml_escape(ylabel) << "</text>";
-    s << "<text x=\"" << L - 4 << "\" y=\"" << T + 10 << "\" text-anchor=\"end\" font-size=\"10\">" << ymax << "</text>";
-    s << "<text x=\"" << L - 4 << "\" y=\"" << H - B << "\" text-anchor=\"end\" font-size=\"10\">" << ymin << "</text>";
-    s << "<text x=\"" << L << "\" y=\"" << H - B + 12 << "\" font-size=\"10\">" << xmin << "</text>";
-    s << "<text x=\"" << W - R << "\" y=\"" << H - B + 12 << "\" text-anchor=\"end\" font-size=\"10\">" << xmax << "</text>";
-    int ci = 0;
-    for (const auto& [name, xy] : series) {
-        const json& xs = *xy.first;
-        const json& ys = *xy.second;
-        const char* col = kColours[ci++ % 6];
-        if (dots) {
-            s << "<g fill=\"" << col << "\">";
-            for (std::size_t i = 0; i < xs.size() && i < ys.size(); ++i)
-                if (xs[i].is_number() && ys[i].is_number())
-                    s << "<circle cx=\"" << X(xs[i].get<double>()) << "\" cy=\"" << Y(ys[i].get<double>()) << "\" r=\"1.3\"/>";
-            s << "</g>";
-        } else {
-            s << "<polyline fill=\"none\" stroke=\"" << col << "\" stroke-width=\"1\" points=\"";
-            for (std::size_t i = 0; i < xs.size() && i < ys.size(); ++i)
-                if (xs[i].is_number() && ys[i].is_number()) s << X(xs[i].get<double>()) << "," << Y(ys[i].get<double>()) << " ";
-            s << "\"/>";
-        }
-        s << "<text x=\"" << L + 8 << "\" y=\"" << T + 14 + 14 * (ci - 1) << "\" fill=\"" << col << "\" font-size=\"11\">" << xml_escape(name) << "</text>";
+    void see_all(const json& a) {
+        if (a.is_array())
+            for (const auto& v : a) see(v);
     }
-    s << "</svg>";
-    return s.str();
+    void finish(double pad = 0.05) {
+        if (lo > hi) { lo = log ? 1 : -1; hi = log ? 10 : 1; }
+        if (!log && pad == 0 && hi > lo) return;
+        if (log) {
+            if (hi <= lo) hi = lo * 10;
+            lo = std::pow(10, std::floor(std::log10(lo)));
+            hi = std::pow(10, std::ceil(std::log10(hi)));
+            return;
+        }
+        double d = (hi - lo) * pad;
+        if (d == 0) d = std::fabs(hi) * 0.1 + 1e-12;
+        lo -= d;
+        hi += d;
+    }
+    double frac(double v) const { return log ? (std::log10(v) - std::log10(lo)) / (std::log10(hi) - std::log10(lo)) : (v - lo) / (hi - lo); }
+    std::vector<double> ticks() const {
+        std::vector<double> t;
+        if (log) {
+            const int step = std::max(1, static_cast<int>(std::ceil((std::log10(hi) - std::log10(lo)) / 6)));
+            for (int e = static_cast<int>(std::floor(std::log10(lo))); e <= static_cast<int>(std::ceil(std::log10(hi))); e += step) {
+                const double v = std::pow(10.0, e);
+                if (v >= lo * 0.999 && v <= hi * 1.001) t.push_back(v);
+            }
+            return t;
+        }
+        const double raw = (hi - lo) / 5, mag = std::pow(10, std::floor(std::log10(raw)));
+        const double n = raw / mag, step = (n < 1.5 ? 1 : n < 3.5 ? 2 : n < 7.5 ? 5 : 10) * mag;
+        for (double v = std::ceil(lo / step) * step; v <= hi + step * 1e-9; v += step) t.push_back(std::fabs(v) < step * 1e-9 ? 0 : v);
+        return t;
+    }
+};
+
+std::string fmt_num(double v) {
+    std::ostringstream os;
+    os.precision(3);
+    os << v;
+    return os.str();
 }
 
+class SvgPlot {
+public:
+    SvgPlot(std::string id, std::string title, Axis x, Axis y, double w = 640, double h = 360)
+        : id_(std::move(id)), title_(std::move(title)), x_(std::move(x)), y_(std::move(y)), W(w), H(h) {
+        s_.precision(5);
+    }
+    bool in(double x, double y) const {
+        return std::isfinite(x) && std::isfinite(y) && (!x_.log || x > 0) && (!y_.log || y > 0);
+    }
+    double X(double x) const { return L + std::clamp(x_.frac(x), -0.02, 1.02) * (W - L - R); }
+    double Y(double y) const { return H - B - std::clamp(y_.frac(y), -0.02, 1.02) * (H - T - B); }
+    // Points only: no line between samples.
+    void points(const json& xs, const json& ys, const char* col, double r = 1.3) {
+        s_ << "<g class=\"points\" fill=\"" << col << "\">";
+        for (std::size_t i = 0; i < xs.size() && i < ys.size(); ++i)
+            if (xs[i].is_number() && ys[i].is_number() && in(xs[i].get<double>(), ys[i].get<double>()))
+                s_ << "<circle cx=\"" << X(xs[i].get<double>()) << "\" cy=\"" << Y(ys[i].get<double>()) << "\" r=\"" << r << "\"/>";
+        s_ << "</g>";
+    }
+    // A line through consecutive entries, broken where either is null; closed joins the last to the first.
+    void line(const json& xs, const json& ys, const char* col, bool closed = false, double width = 1.2) {
+        std::vector<std::vector<std::pair<double, double>>> runs(1);
+        const std::size_t n = std::min(xs.size(), ys.size());
+        for (std::size_t i = 0; i < n; ++i) {
+            if (xs[i].is_number() && ys[i].is_number() && in(xs[i].get<double>(), ys[i].get<double>()))
+                runs.back().push_back({X(xs[i].get<double>()), Y(ys[i].get<double>())});
+            else if (!runs.back().empty())
+                runs.emplace_back();
+        }
+        if (closed && runs.size() == 1 && runs[0].size() == n && n > 2) runs[0].push_back(runs[0].front());
+        for (const auto& r : runs) {
+            if (r.empty()) continue;
+            s_ << "<polyline fill=\"none\" stroke=\"" << col << "\" stroke-width=\"" << width << "\" points=\"";
+            for (const auto& [px, py] : r) s_ << px << "," << py << " ";
+            s_ << "\"/>";
+        }
+    }
+    // The region between lo and hi over x, one polygon per run of entries where both are numbers.
+    void band(const json& xs, const json& lo, const json& hi, const char* col, double opacity = 0.35) {
+        const std::size_t n = std::min({xs.size(), lo.size(), hi.size()});
+        std::size_t i = 0;
+        while (i < n) {
+            auto ok = [&](std::size_t k) { return xs[k].is_number() && lo[k].is_number() && hi[k].is_number(); };
+            if (!ok(i)) { ++i; continue; }
+            std::size_t j = i;
+            while (j < n && ok(j)) ++j;
+            s_ << "<polygon fill=\"" << col << "\" fill-opacity=\"" << opacity << "\" stroke=\"" << col << "\" stroke-width=\"0.6\" points=\"";
+            for (std::size_t k = i; k < j; ++k) s_ << X(xs[k].get<double>()) << "," << Y(hi[k].get<double>()) << " ";
+            for (std::size_t k = j; k-- > i;) s_ << X(xs[k].get<double>()) << "," << Y(lo[k].get<double>()) << " ";
+            s_ << "\"/>";
+            i = j;
+        }
+    }
+    // A labelled vertical marker (e.g. a harmonic order on a frequency axis), drawn at the top.
+    void vmark(double x, const std::string& text) {
+        if (!in(x, y_.log ? y_.hi : 0) || x < x_.lo || x > x_.hi) return;
+        s_ << "<line x1=\"" << X(x) << "\" x2=\"" << X(x) << "\" y1=\"" << T << "\" y2=\"" << H - B << "\" stroke=\"#bbb\" stroke-dasharray=\"2,3\"/>";
+        if (!text.empty()) s_ << "<text x=\"" << X(x) << "\" y=\"" << T - 3 << "\" text-anchor=\"middle\" font-size=\"9\">" << xml_escape(text) << "</text>";
+    }
+    void legend(const std::string& name, const char* col) {
+        s_ << "<text x=\"" << L + 8 << "\" y=\"" << T + 14 + 14 * legends_++ << "\" fill=\"" << col << "\" font-size=\"11\">" << xml_escape(name) << "</text>";
+    }
+    void note(const std::string& text) {
+        s_ << "<text x=\"" << (L + W - R) / 2 << "\" y=\"" << (T + H - B) / 2 << "\" text-anchor=\"middle\" fill=\"#666\">" << xml_escape(text) << "</text>";
+    }
+    std::string str() const {
+        std::ostringstream o;
+        o.precision(5);
+        o << "<svg id=\"" << id_ << "\" class=\"plot\" xmlns=\"http://www.w3.org/2000/svg\" width=\"" << W << "\" height=\"" << H << "\" viewBox=\"0 0 " << W
+          << " " << H << "\">";
+        o << "<text x=\"" << W / 2 << "\" y=\"14\" text-anchor=\"middle\" font-weight=\"bold\">" << xml_escape(title_) << "</text>";
+        o << "<rect x=\"" << L << "\" y=\"" << T << "\" width=\"" << W - L - R << "\" height=\"" << H - T - B << "\" fill=\"none\" stroke=\"#999\"/>";
+        for (double t : x_.ticks()) {
+            const double px = L + x_.frac(t) * (W - L - R);
+            o << "<line x1=\"" << px << "\" x2=\"" << px << "\" y1=\"" << H - B << "\" y2=\"" << H - B + 4 << "\" stroke=\"#999\"/>";
+            o << "<text x=\"" << px << "\" y=\"" << H - B + 14 << "\" text-anchor=\"middle\" font-size=\"10\">" << fmt_num(t) << "</text>";
+        }
+        for (double t : y_.ticks()) {
+            const double py = H - B - y_.frac(t) * (H - T - B);
+            o << "<line x1=\"" << L - 4 << "\" x2=\"" << W - R << "\" y1=\"" << py << "\" y2=\"" << py << "\" stroke=\"#eee\"/>";
+            o << "<text x=\"" << L - 6 << "\" y=\"" << py + 3 << "\" text-anchor=\"end\" font-size=\"10\">" << fmt_num(t) << "</text>";
+        }
+        o << "<text class=\"xlabel\" x=\"" << (L + W - R) / 2 << "\" y=\"" << H - 6 << "\" text-anchor=\"middle\">" << xml_escape(x_.label) << "</text>";
+        o << "<text class=\"ylabel\" x=\"12\" y=\"" << (T + H - B) / 2 << "\" transform=\"rotate(-90 12 " << (T + H - B) / 2
+          << ")\" text-anchor=\"middle\">" << xml_escape(y_.label) << "</text>";
+        o << s_.str() << "</svg>";
+        return o.str();
+    }
+
+private:
+    std::string id_, title_;
+    Axis x_, y_;
+    double W, H;
+    static constexpr double L = 70, R = 12, T = 30, B = 40;
+    std::ostringstream s_;
+    int legends_ = 0;
+};
+
+// One colour per estimator across every plot: its place in the report's estimators.
+struct Palette {
+    std::vector<std::string> order;
+    explicit Palette(const json& estimators) {
+        for (const auto& e : estimators) order.push_back(e.value("label", std::string()));
+    }
+    const char* operator()(const std::string& label) const {
+        for (std::size_t i = 0; i < order.size(); ++i)
+            if (order[i] == label) return kColours[i % 6];
+        return "#57606a";
+    }
+};
+
+// Amplitude spectrum of each estimator's error (computed at the full rate by the scorer):
+// log-log, Hz below, harmonic orders of the electrical frequency marked along the top.
+std::string svg_spectrum(const json& estimators) {
+    Axis x{"frequency (Hz); top: orders of the electrical frequency", true}, y{"amplitude (rad)", true};
+    std::vector<const json*> with;
+    double fe = 0;
+    std::string why = "no spectrum in this report";
+    for (const auto& e : estimators) {
+        if (!e.contains("spectrum") || !e["spectrum"].is_object()) continue;
+        const auto& sp = e["spectrum"];
+        if (sp["f_hz"].empty()) {
+            why = "no spectrum: no run of " + sp["segment_samples"].dump() + " contiguous scored samples";
+            continue;
+        }
+        with.push_back(&e);
+        x.see_all(sp["f_hz"]);
+        y.see_all(sp["amplitude_rad"]);
+        if (fe == 0 && sp["electrical_hz"].is_number()) fe = sp["electrical_hz"].get<double>();
+    }
+    if (with.empty()) return "<p id=\"plot-spectrum\" class=\"no-spectrum\">" + xml_escape(why) + "</p>";
+    y.lo = std::max(y.lo, y.hi * 1e-7);  // noise-free runs reach 1e-20: keep the peaks readable
+    x.finish();
+    y.finish();
+    const auto& sp0 = (*with.front())["spectrum"];
+    SvgPlot p("plot-spectrum", "Error spectrum (full rate, Welch, " + sp0["segment_samples"].dump() + "-sample Hann segments)", x, y);
+    if (fe > 0)
+        for (int k = 1; k <= 16; ++k) p.vmark(k * fe, (k <= 4 || k % 4 == 0) ? std::to_string(k) + "x" : "");
+    const Palette colour(estimators);
+    for (const json* e : with) {
+        const char* col = colour((*e)["label"].get<std::string>());
+        p.line((*e)["spectrum"]["f_hz"], (*e)["spectrum"]["amplitude_rad"], col);
+        p.legend((*e)["label"].get<std::string>(), col);
+    }
+    return p.str();
+}
+
+// Reports written before issue 11: traces are every stride-th sample. Drawn as points only
+// (a line through them would invent the signal between samples), with a note saying so.
+std::string stride_plots(const json& tr, const json& estimators) {
+    const Palette colour(estimators);
+    std::string out = "<p class=\"old-traces\">Old report: traces are stride samples (every " + tr.value("stride", json()).dump() +
+                      "th sample), drawn as points; lines between them would alias.</p>\n";
+    const json none = json::array();
+    auto arr = [&](const char* k) -> const json& { return tr.contains(k) ? tr[k] : none; };
+    {
+        Axis x{"cos (V)"}, y{"sin (V)"};
+        x.see_all(arr("cos_v")); y.see_all(arr("sin_v"));
+        x.finish(); y.finish();
+        SvgPlot p("plot-lissajous", "Lissajous (stride samples)", x, y, 380, 380);
+        p.points(arr("cos_v"), arr("sin_v"), kColours[0]);
+        out += p.str();
+    }
+    const json& errs = tr.contains("error_rad") && tr["error_rad"].is_object() ? tr["error_rad"] : json::object();
+    {
+        Axis x{"electrical angle (rad)"}, y{"error (rad)"};
+        x.lo = -kPi; x.hi = kPi;
+        for (const auto& [label, e] : errs.items()) y.see_all(e);
+        y.finish();
+        SvgPlot p("plot-by-angle", "Error vs electrical angle (stride samples)", x, y);
+        for (const auto& [label, e] : errs.items()) {
+            p.points(arr("theta_true_wrapped_rad"), e, colour(label));
+            p.legend(label, colour(label));
+        }
+        out += p.str();
+    }
+    {
+        Axis x{"time (s)"}, y{"error (rad)"};
+        x.see_all(arr("t_s"));
+        x.finish(0.0);
+        for (const auto& [label, e] : errs.items()) y.see_all(e);
+        y.finish();
+        SvgPlot p("plot-time", "Error vs time (stride samples)", x, y);
+        for (const auto& [label, e] : errs.items()) {
+            p.points(arr("t_s"), e, colour(label));
+            p.legend(label, colour(label));
+        }
+        out += p.str();
+    }
+    return out;
+}
+
+// Plots from "kind":"envelope" traces (TraceRecorder) and each estimator's "spectrum" (ErrorSpectrum).
+std::string envelope_plots(const json& tr, const json& estimators) {
+    std::string out;
+    const Palette colour(estimators);
+    const auto& liss = tr["lissajous"];
+    {  // Lissajous: real samples as points, the folded electrical cycle as one closed line
+        Axis x{"cos (V)"}, y{"sin (V)"};
+        x.see_all(liss["points"]["cos_v"]); y.see_all(liss["points"]["sin_v"]);
+        x.see_all(liss["cycle"]["cos_v"]); y.see_all(liss["cycle"]["sin_v"]);
+        const double a = std::max({std::fabs(x.lo), std::fabs(x.hi), std::fabs(y.lo), std::fabs(y.hi), 1e-9}) * 1.05;
+        x.lo = y.lo = -a; x.hi = y.hi = a;
+        SvgPlot p("plot-lissajous", "Lissajous: samples, folded cycle", x, y, 380, 380);
+        p.line(liss["cycle"]["cos_v"], liss["cycle"]["sin_v"], kColours[0], true, 1.6);
+        p.points(liss["points"]["cos_v"], liss["points"]["sin_v"], "#57606a", 1.1);  // over the mean: their spread shows
+        p.legend("samples", "#57606a");
+        p.legend("folded cycle", kColours[0]);
+        out += p.str();
+    }
+    {  // error vs electrical angle: mean line, min/max band
+        const auto& ba = tr["by_angle"];
+        Axis x{"electrical angle (rad)"}, y{"error (rad)"};
+        x.lo = 0; x.hi = 2 * kPi;
+        for (const auto& [label, f] : ba["error_rad"].items()) { y.see_all(f["min"]); y.see_all(f["max"]); }
+        y.finish();
+        SvgPlot p("plot-by-angle", "Error vs electrical angle (mean, min..max)", x, y);
+        for (const auto& [label, f] : ba["error_rad"].items()) {
+            const char* col = colour(label);
+            p.band(ba["theta_rad"], f["min"], f["max"], col, 0.2);
+            p.line(ba["theta_rad"], f["mean"], col);
+            p.legend(label, col);
+        }
+        out += p.str();
+    }
+    {  // error vs time: per-bucket min/max envelope at the full rate
+        Axis x{"time (s)"}, y{"error (rad)"};
+        x.see_all(tr["t_s"]);
+        x.finish(0.0);
+        for (const auto& [label, e] : tr["error_rad"].items()) { y.see_all(e["min"]); y.see_all(e["max"]); }
+        y.finish();
+        SvgPlot p("plot-time", "Error vs time (min..max per " + tr["bucket_samples"].dump() + " samples)", x, y);
+        for (const auto& [label, e] : tr["error_rad"].items()) {
+            const char* col = colour(label);
+            p.band(tr["t_s"], e["min"], e["max"], col, 0.45);
+            p.legend(label, col);
+        }
+        out += p.str();
+    }
+    out += svg_spectrum(estimators);
+    return out;
+}
 std::string svg_bars(const json& estimators) {
     const double W = 640, H = 300, L = 70, B = 40, T = 28;
     double vmax = 0;
@@ -198,6 +442,8 @@ std::string svg_bars(const json& estimators) {
     const std::size_t ne = std::max<std::size_t>(estimators.size(), 1);
     const double group = (W - L - 10) / 6.0, bw = group * 0.8 / static_cast<double>(ne);
     s << "<text x=\"12\" y=\"" << T + 10 << "\" font-size=\"10\">" << vmax << "</text>";
+    s << "<text x=\"" << (L + W) / 2 << "\" y=\"" << H - 6 << "\" text-anchor=\"middle\">harmonic order (x electrical frequency)</text>";
+    s << "<text x=\"12\" y=\"" << (T + H - B) / 2 << "\" transform=\"rotate(-90 12 " << (T + H - B) / 2 << ")\" text-anchor=\"middle\">amplitude (rad)</text>";
     for (int k = 1; k <= 6; ++k)
         s << "<text x=\"" << L + group * (k - 0.5) << "\" y=\"" << H - B + 14 << "\" text-anchor=\"middle\">" << k << "x</text>";
     std::size_t ei = 0;
@@ -266,19 +512,17 @@ std::string report_html(const json& r) {
           << "</td><td>" << bget("per_sample_crb_rad") << "</td><td>" << bget("pcrb_rad") << "</td><td>" << bget("efficiency") << "</td></tr>\n";
     }
     h << "</table>\n<h2>Plots</h2><div class=\"plots\">\n";
-    const auto& tr = r.contains("traces") ? r["traces"] : json::object();
-    if (!tr.contains("t_s") || tr["t_s"].empty()) {
+    const json& tr = r.contains("traces") && r["traces"].is_object() ? r["traces"] : json::object();
+    const bool envelope = tr.value("kind", std::string()) == "envelope";
+    if (envelope ? tr["t_s"].empty() : (!tr.contains("t_s") || tr["t_s"].empty())) {
         h << "<p>No traces: the run processed no samples.</p>";
-    } else {
-        h << svg_plot("Lissajous (ADC input)", "cos (V)", "sin (V)", {{"input", {&tr["cos_v"], &tr["sin_v"]}}}, true, true);
-        std::vector<std::pair<std::string, std::pair<const json*, const json*>>> by_angle, by_time;
-        for (const auto& [label, errs] : tr["error_rad"].items()) {
-            by_angle.push_back({label, {&tr["theta_true_wrapped_rad"], &errs}});
-            by_time.push_back({label, {&tr["t_s"], &errs}});
-        }
-        h << svg_plot("Error vs electrical angle", "electrical angle (rad)", "error (rad)", by_angle, true);
-        h << svg_plot("Error vs time", "time (s)", "error (rad)", by_time, false);
+    } else if (envelope) {
+        h << envelope_plots(tr, r["estimators"]);
         h << svg_bars(r["estimators"]);
+    } else {
+        h << stride_plots(tr, r["estimators"]);
+        h << svg_bars(r["estimators"]);
+        h << svg_spectrum(r["estimators"]);
     }
     // dump() escapes every control character inside strings: its own line breaks stay raw.
     std::string scenario = r["scenario"].dump(2, ' ', false, json::error_handler_t::replace), pre;

@@ -6,6 +6,8 @@
 #include "estimator/estimator.hpp"
 #include "frame_source.hpp"
 #include "scoring.hpp"
+#include "spectrum.hpp"
+#include "traces.hpp"
 #include "signal_gen/config.hpp"
 #include "signal_gen/fastmath.hpp"
 
@@ -129,8 +131,14 @@ struct Lane {
     ConventionCheck conventions;
     std::vector<double> th, om;
     std::vector<std::uint8_t> valid;
-    json trace_err = json::array();
-    Lane(const EstimatorSpec* s, const Scenario& sc) : spec(s), scorer(ScoringOptions{sc.settle_s, 0.1, sc.scoring.max_harmonic}) {}
+    std::vector<double> err;  // theta_hat - theta_true, NaN where invalid (plot traces)
+    // The error spectrum at the full rate, fed by the scorer with the scored errors in order.
+    std::unique_ptr<ErrorSpectrum> spectrum;
+    Lane(const EstimatorSpec* s, const Scenario& sc, std::size_t segment)
+        : spec(s), scorer(ScoringOptions{sc.settle_s, 0.1, sc.scoring.max_harmonic}),
+          spectrum(std::make_unique<ErrorSpectrum>(sc.sample_rate_hz, segment)) {
+        scorer.set_sink([this](std::size_t n, const double* e_rad, const std::uint8_t* ok) { spectrum->add(n, e_rad, ok); });
+    }
 
     void process(const Frames& f) {
         const std::size_t m = f.size();
@@ -147,34 +155,21 @@ struct Lane {
         for (std::size_t i = 0; i < m; ++i) valid[i] = valid[i] && f.truth_known[i];
         scorer.add(m, f.t_s.data(), f.theta_true_rad.data(), f.omega_true_rad_s.data(), th.data(), e ? om.data() : nullptr, valid.data());
         conventions.add(m, f.theta_true_rad.data(), th.data(), valid.data());
+        err.resize(m);
+        for (std::size_t i = 0; i < m; ++i) err[i] = valid[i] ? th[i] - f.theta_true_rad[i] : std::numeric_limits<double>::quiet_NaN();
     }
 };
 
-// Plot traces: a fixed number of points over the run.
-struct Traces {
-    std::uint64_t stride;
-    json t = json::array(), th = json::array(), s = json::array(), c = json::array();
-    void add(std::uint64_t k0, const Frames& f, std::vector<std::unique_ptr<Lane>>& lanes) {
-        for (std::size_t i = 0; i < f.size(); ++i) {
-            if ((k0 + i) % stride) continue;
-            t.push_back(f.t_s[i]);
-            th.push_back(f.truth_known[i] ? json(wrap_pi(f.theta_true_rad[i])) : json());
-            s.push_back(f.sin_v[i]);
-            c.push_back(f.cos_v[i]);
-            for (auto& lane : lanes) {
-                const double e = lane->th[i] - f.theta_true_rad[i];
-                lane->trace_err.push_back(lane->valid[i] && std::isfinite(e) ? json(wrap_pi(e)) : json());
-            }
-        }
-    }
-    json to_json(std::vector<std::unique_ptr<Lane>>& lanes) {
-        json tr{{"stride", stride}, {"t_s", t}, {"theta_true_wrapped_rad", th}, {"sin_v", s}, {"cos_v", c}};
-        json errs = json::object();
-        for (auto& lane : lanes) errs[lane->spec->label] = std::move(lane->trace_err);
-        tr["error_rad"] = errs;
-        return tr;
-    }
-};
+// The spectrum's segment length wants the electrical frequency: the mean planned rate.
+double planned_electrical_hz(const Scenario& sc) {
+    constexpr std::size_t n = 1000;
+    std::vector<double> t(n), phi(n), om(n), al(n);
+    for (std::size_t i = 0; i < n; ++i) t[i] = sc.t0_s + sc.duration_s * static_cast<double>(i) / (n - 1);
+    sc.motion.evaluate(t.data(), n, phi.data(), om.data(), al.data());
+    double sum = 0;
+    for (double w : om) sum += std::fabs(w);
+    return sum / n * sc.encoder.lines_per_rev / kTwoPi;
+}
 
 class Recorder {
 public:
@@ -215,6 +210,7 @@ json score_lanes(const Scenario& sc, const dev::DeviceInfo& dinfo, std::vector<s
         ej["params"] = lane->spec->params;
         ej["state"] = lane->e ? lane->e->state() : json();
         ej["metrics"] = to_json(m, sc.encoder.lines_per_rev);
+        ej["spectrum"] = lane->spectrum->to_json(m.mean_abs_omega_true_rad_s / kTwoPi);
         if (m.scored > 0 && lane->e) {
             ej["bounds"] = bounds_json(delivered, *lane->e, sc.sample_rate_hz, m.scored, m.rms_rad);
             ej["bounds"]["signal_as_delivered"] = basis;
@@ -253,19 +249,27 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
     dev::DeviceInfo dinfo;
     const std::uint64_t total = sc.samples();
     std::uint64_t processed = 0;
-    Traces traces{std::max<std::uint64_t>(1, total / std::max<std::size_t>(o.trace_points, 1))};
+    std::optional<TraceRecorder> traces;
     static const EstimatorSpec dut_spec{"dut", "dut", nlohmann::json::object(), std::nullopt};
+    const std::size_t segment = ErrorSpectrum::choose_segment(
+        sc.sample_rate_hz, planned_electrical_hz(sc), static_cast<std::uint64_t>(std::max(0.0, (sc.duration_s - sc.settle_s) * sc.sample_rate_hz)));
     try {
         auto device = dev::open(sc.device);
         dinfo = device->info();
         for (const auto& f : preflight_device(sc, dinfo)) warnings.push_back(f);
         for (const auto& spec : sc.estimators) {
-            auto lane = std::make_unique<Lane>(&spec, sc);
+            auto lane = std::make_unique<Lane>(&spec, sc, segment);
             lane->e = est::make(spec.name, estimator_config(sc, spec));
             lanes.push_back(std::move(lane));
         }
         // A board that reports its own interpolated position is scored like an estimator, "dut".
-        if (dinfo.dut_position) lanes.push_back(std::make_unique<Lane>(&dut_spec, sc));
+        if (dinfo.dut_position) lanes.push_back(std::make_unique<Lane>(&dut_spec, sc, segment));
+        {
+            std::vector<std::string> labels;
+            for (auto& lane : lanes) labels.push_back(lane->spec->label);
+            // Angle folds from the settle time on, so a lock transient does not swamp them.
+            traces.emplace(total, o.trace_points, labels, sc.t0_s + sc.settle_s);
+        }
         auto source = make_frame_source(sc, *device, dinfo, o.block);
         dinfo = device->info();  // started: converter figures at the run's rate
         report["device"] = dinfo;
@@ -279,7 +283,9 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             if (f.size()) {
                 if (recorder) recorder->add(f);
                 for (auto& lane : lanes) lane->process(f);
-                traces.add(processed, f, lanes);
+                std::vector<const double*> errs;
+                for (auto& lane : lanes) errs.push_back(lane->err.data());
+                traces->add(f.size(), f.t_s.data(), f.sin_v.data(), f.cos_v.data(), f.theta_true_rad.data(), f.truth_known.data(), errs);
                 processed += f.size();
                 if (o.progress) o.progress(processed, total);
             }
@@ -312,7 +318,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
     report["warnings"] = warnings;
     report["samples"] = {{"planned", total}, {"processed", processed}};
     report["estimators"] = estimators;
-    report["traces"] = traces.to_json(lanes);
+    report["traces"] = traces ? traces->to_json() : json::object();
     report["finished_at"] = iso_now();
     report["wall_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
     return report;

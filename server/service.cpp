@@ -852,11 +852,15 @@ std::shared_ptr<const Service::Cached> Service::cached_report(const std::string&
     json traces = rep->contains("traces") ? (*rep)["traces"] : json::object();
     json slim = *rep;
     slim.erase("traces");
+    // Plot data stays out of the plain report.json as the traces do (hundreds of KB per estimator):
+    // /traces and ?traces=1 carry it.
+    for (auto& e : slim["estimators"]) e.erase("spectrum");
     c->json = public_text(dump_safe(slim));
     json tr{{"id", id}, {"traces", traces}, {"estimators", json::array()}};
     for (const auto& e : (*rep)["estimators"])
         tr["estimators"].push_back({{"label", e.value("label", "")}, {"name", e.value("name", "")},
-                                    {"harmonics", e.contains("metrics") ? e["metrics"].value("harmonics", json::array()) : json::array()}});
+                                    {"harmonics", e.contains("metrics") ? e["metrics"].value("harmonics", json::array()) : json::array()},
+                                    {"spectrum", e.value("spectrum", json())}});  // null in reports older than issue 11
     c->traces = dump_safe(tr);
     c->xml = public_text(junit_xml(*rep));
     c->html = public_text(report_html(*rep));

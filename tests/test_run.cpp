@@ -14,6 +14,7 @@
 #include <catch2/catch.hpp>
 
 #include <filesystem>
+#include <sstream>
 #include <unistd.h>
 
 using namespace fringe;
@@ -249,6 +250,78 @@ TEST_CASE("report renderings: JUnit testcases per measurement, HTML with plots",
     CHECK(h.find("src=") == std::string::npos);
     CHECK(h.find("<link") == std::string::npos);
     CHECK(r["traces"]["t_s"].size() <= 2001);
+}
+
+namespace {
+// The <svg id="ID" ...>...</svg> element of a page, or "".
+std::string svg_by_id(const std::string& h, const std::string& id) {
+    const auto a = h.find("<svg id=\"" + id + "\"");
+    if (a == std::string::npos) return "";
+    return h.substr(a, h.find("</svg>", a) + 6 - a);
+}
+// Every segment of every <polyline> in s: {count, longest length (SVG px)}.
+std::pair<std::size_t, double> polyline_segments(const std::string& s) {
+    std::size_t n = 0;
+    double longest = 0;
+    for (auto p = s.find("<polyline"); p != std::string::npos; p = s.find("<polyline", p + 1)) {
+        const auto q = s.find("points=\"", p) + 8;
+        std::istringstream pts(s.substr(q, s.find('"', q) - q));
+        double x, y, px = 0, py = 0;
+        char comma;
+        bool first = true;
+        while (pts >> x >> comma >> y) {
+            if (!first) { longest = std::max(longest, std::hypot(x - px, y - py)); ++n; }
+            px = x; py = y; first = false;
+        }
+    }
+    return {n, longest};
+}
+}  // namespace
+
+TEST_CASE("offline HTML: Lissajous joins only the folded cycle, error spectrum present, old reports honest", "[run][report]") {
+    Scenario sc = short_run(1.0);  // stride 50: a polyline through stride samples jumps 1/19 of the circle
+    const auto r = execute_run(sc);
+    REQUIRE(r["traces"]["kind"] == "envelope");
+    const std::string h = report_html(r);
+    const std::string liss = svg_by_id(h, "plot-lissajous");
+    REQUIRE_FALSE(liss.empty());
+    CHECK(liss.find("<circle") != std::string::npos);  // the samples, as points
+    const auto [n, longest] = polyline_segments(liss);
+    // The plot is 380 px with the curve's radius ~140 px: the folded cycle's 256 segments are ~3.5 px.
+    CHECK(n == 256);
+    CHECK(longest < 8);
+    const std::string spec = svg_by_id(h, "plot-spectrum");
+    REQUIRE_FALSE(spec.empty());
+    CHECK(polyline_segments(spec).first > 100);
+    CHECK_THAT(spec, Catch::Contains("amplitude (rad)") && Catch::Contains("frequency (Hz)") && Catch::Contains(">8x<"));
+    const std::string t = svg_by_id(h, "plot-time");
+    CHECK_THAT(t, Catch::Contains("<polygon") && Catch::Contains("time (s)") && Catch::Contains("error (rad)"));
+    CHECK(polyline_segments(t).first == 0);  // bands, not a line through samples
+    CHECK_THAT(svg_by_id(h, "plot-by-angle"), Catch::Contains("electrical angle (rad)") && Catch::Contains("<polygon"));
+
+    // A report from before issue 11: stride samples as points, a note, and no invented spectrum.
+    json old = r;
+    json tr{{"stride", 50}, {"t_s", json::array()}, {"theta_true_wrapped_rad", json::array()}, {"sin_v", json::array()}, {"cos_v", json::array()}};
+    json e = json::array();
+    for (int i = 0; i < 2000; ++i) {
+        const double th = kTwoPi * 106.7 * i * 5e-4;
+        tr["t_s"].push_back(i * 5e-4);
+        tr["theta_true_wrapped_rad"].push_back(wrap_pi(th));
+        tr["sin_v"].push_back(0.5 * std::sin(th));
+        tr["cos_v"].push_back(0.5 * std::cos(th));
+        e.push_back(i % 7 ? json(1e-4 * std::sin(8 * th)) : json());
+    }
+    tr["error_rad"] = {{"ekf-diffraction", e}};
+    old["traces"] = tr;
+    for (auto& est : old["estimators"]) est.erase("spectrum");
+    const std::string oh = report_html(old);
+    CHECK_THAT(oh, Catch::Contains("Old report: traces are stride samples") && Catch::Contains("no spectrum in this report"));
+    CHECK(polyline_segments(svg_by_id(oh, "plot-lissajous")).first == 0);
+    CHECK(polyline_segments(svg_by_id(oh, "plot-time")).first == 0);
+    CHECK(svg_by_id(oh, "plot-lissajous").find("<circle") != std::string::npos);
+    // No traces at all (a run that processed nothing) still renders.
+    old["traces"] = json::object();
+    CHECK_THAT(report_html(old), Catch::Contains("No traces"));
 }
 
 TEST_CASE("run history: begin, finish, list, interrupted runs", "[store]") {

@@ -240,10 +240,19 @@ TEST_CASE("service: a run from a fixture, its reports, and cancel", "[service]")
     CHECK(rep["schema"] == "fringe.report");
     CHECK(rep["seed"] == 5);
     CHECK_FALSE(rep.contains("traces"));
-    CHECK(body_of(s.handle(req("GET", "/api/v1/runs/" + id + "/report.json?traces=1", "", false)))["traces"]["t_s"].size() > 100);
+    CHECK_FALSE(rep["estimators"][0].contains("spectrum"));
+    const json full = body_of(s.handle(req("GET", "/api/v1/runs/" + id + "/report.json?traces=1", "", false)));
+    CHECK(full["traces"]["t_s"].size() > 100);
+    CHECK(full["estimators"][0]["spectrum"]["f_hz"].size() > 100);
     auto tr = body_of(s.handle(req("GET", "/api/v1/runs/" + id + "/traces", "", false)));
     CHECK(tr["traces"]["error_rad"].contains("ekf-diffraction"));
     CHECK(tr["estimators"].size() == 3);
+    // Issue 11: the plots' data: full-rate envelopes, and each estimator's spectrum from the report.
+    CHECK(tr["traces"]["kind"] == "envelope");
+    for (const auto& e : tr["estimators"]) {
+        CHECK(e["spectrum"]["segments"].get<int>() > 0);
+        CHECK(e["spectrum"]["f_hz"].size() == e["spectrum"]["amplitude_rad"].size());
+    }
     auto xml = s.handle(req("GET", "/api/v1/runs/" + id + "/report.xml", "", false));
     CHECK(xml.content_type == "application/xml");
     CHECK(xml.body.find("<testsuites") != std::string::npos);

@@ -278,15 +278,10 @@ async function report(id, into) {
     h('h2', {}, 'Estimators'), estimatorsTable(r),
     h('h2', {}, 'Plots'), plotBox);
   const t = tr.traces || {};
-  // One colour per estimator across every plot: the report's order.
-  const labels = (tr.estimators || []).map((e) => e.label).filter((l) => t.error_rad && l in t.error_rad);
-  if (!t.t_s || !t.t_s.length) { plotBox.append(h('p', { class: 'muted' }, 'no traces (the run processed no samples)')); return; }
+  const empty = !t.t_s || !t.t_s.length;
+  if (empty) { plotBox.append(h('p', { class: 'muted' }, 'no traces (the run processed no samples)')); return; }
   try {
-    plots.lissajous(plotBox, t);
-    plots.errorVsAngle(plotBox, t, labels);
-    plots.errorVsTime(plotBox, t, labels);
-    plots.harmonicBars(plotBox, tr.estimators);
-    plots.errorSpectrum(plotBox, t, labels);
+    plots.reportPlots(plotBox, t, tr.estimators || []);
   } catch (e) { plotBox.append(showError(e)); }
 }
 
@@ -316,18 +311,40 @@ async function compare(a, b) {
       rows.push(h('tr', {}, h('td', {}, l), h('td', {}, name), h('td', { class: 'num' }, fmt(va)), h('td', { class: 'num' }, fmt(vb)),
         h('td', { class: 'num' }, va && vb ? `${(vb / va).toFixed(3)}×` : '-')));
     }
-  const plotBox = h('div', { class: 'plots' });
+  // Limits and outcomes of each run, side by side: the runs may differ in limits as well as in values.
+  const key = (m) => `${m.estimator}\u0000${m.metric}`;
+  const ma = new Map((ra.measurements || []).map((m) => [key(m), m])), mb = new Map((rb.measurements || []).map((m) => [key(m), m]));
+  const limitText = (m) => {
+    if (!m || !m.limit) return '-';
+    const parts = [];
+    if (m.limit.min != null) parts.push(`≥ ${fmt(m.limit.min)}`);
+    if (m.limit.max != null) parts.push(`≤ ${fmt(m.limit.max)}`);
+    return parts.join(' ') || '-';
+  };
+  const limitRows = [...new Set([...ma.keys(), ...mb.keys()])].map((k) => {
+    const x = ma.get(k), y = mb.get(k), m = x || y;
+    return h('tr', {}, h('td', {}, m.estimator), h('td', {}, m.metric), h('td', {}, m.unit || ''),
+      h('td', { class: 'num' }, x ? fmt(x.value) : '-'), h('td', {}, limitText(x)), h('td', {}, x ? verdictBadge(x.outcome) : '-'),
+      h('td', { class: 'num' }, y ? fmt(y.value) : '-'), h('td', {}, limitText(y)), h('td', {}, y ? verdictBadge(y.outcome) : '-'));
+  });
+  const plotBox = h('div', { class: 'plots compare-plots', id: 'compare-plots' });
   view.append(
     h('table', { id: 'compare' }, h('thead', {}, h('tr', {},
       h('th', {}, 'estimator'), h('th', {}, 'metric'), h('th', {}, h('a', { href: `#/run/${a}` }, 'A '), verdictBadge(ra.verdict)),
       h('th', {}, h('a', { href: `#/run/${b}` }, 'B '), verdictBadge(rb.verdict)), h('th', {}, 'B / A'))), h('tbody', {}, rows)),
-    h('h2', {}, 'Error vs time'), plotBox);
-  const common = labels.filter((l) => ta.traces.error_rad && ta.traces.error_rad[l] && tb.traces.error_rad && tb.traces.error_rad[l]);
-  for (const l of common) {
-    const n = Math.min(ta.traces.t_s.length, tb.traces.t_s.length);
-    const merged = { t_s: ta.traces.t_s.slice(0, n), error_rad: { [`A ${l}`]: ta.traces.error_rad[l].slice(0, n), [`B ${l}`]: tb.traces.error_rad[l].slice(0, n) } };
-    plots.errorVsTime(plotBox, merged, [`A ${l}`, `B ${l}`], `${l}: error vs time (rad)`);
-  }
+    h('h2', {}, 'Limits and outcomes'),
+    h('table', { id: 'compare-limits' }, h('thead', {}, h('tr', {},
+      ['estimator', 'metric', 'unit', 'A value', 'A limit', 'A outcome', 'B value', 'B limit', 'B outcome'].map((c) => h('th', {}, c)))),
+    h('tbody', {}, limitRows)),
+    h('h2', {}, 'Error vs time (each run on its own time axis)'), plotBox);
+  // Each run keeps its own time base: never B's errors on A's times.
+  const ta_ = ta.traces || {}, tb_ = tb.traces || {};
+  const common = labels.filter((l) => ta_.error_rad && ta_.error_rad[l] && tb_.error_rad && tb_.error_rad[l]);
+  for (const l of common)
+    for (const [run, t, idr] of [['A', ta_, a], ['B', tb_, b]]) {
+      const div = plots.errorVsTime(plotBox, t, [l], `${run} (${idr}): ${l}, error vs time`, `compare-${run}-${l}`);
+      div.dataset.run = run;
+    }
 }
 
 // ---- router --------------------------------------------------------------------------

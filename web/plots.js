@@ -1,89 +1,186 @@
 // Report plots with uPlot (vendored from npm into /vendor by scripts/setup).
+// Issue 11: traces are per-bucket min/max envelopes and per-angle folds computed at the full
+// rate ("kind":"envelope"); no plot joins samples that are not neighbours, and the error spectrum
+// comes from the report (the scorer's full-rate Welch estimate), never from the traces.
+// Each plot's container records what it drew in `div.fringe` (data coordinates), for the tests.
 import uPlot from './vendor/uPlot.esm.js';
 
 const COLORS = ['#0969da', '#cf222e', '#1a7f37', '#9a6700', '#8250df', '#bc4c00', '#57606a'];
-const color = (i) => COLORS[i % COLORS.length];
+export const color = (i) => COLORS[i % COLORS.length];
 
-function box(parent, title) {
+function box(parent, title, id) {
   const div = document.createElement('div');
   div.className = 'plot';
+  if (id) div.id = id;
   const h = document.createElement('h3');
   h.textContent = title;
   div.append(h);
   parent.append(div);
+  div.fringe = {};
   return div;
+}
+
+function note(div, text) {
+  const p = document.createElement('p');
+  p.className = 'muted plot-note';
+  p.textContent = text;
+  div.append(p);
+  return p;
 }
 
 function width(parent) { return Math.max(480, Math.min(620, (parent.clientWidth || 1100) / 2 - 40)); }
 
-const pointsOnly = { show: true, size: 3 };
 const expTicks = (u, vals) => vals.map((v) => (v == null ? '' : v.toExponential(0)));
 // Error axes span 1e-6..1e-1 rad: exponents below 1e-3, else three significant digits.
 const errTicks = (u, vals) => vals.map((v) => (v == null ? '' : v !== 0 && Math.abs(v) < 1e-3 ? v.toExponential(1) : String(+v.toPrecision(3))));
-function range(a, pad = 0.05) {
+function range(arrays, pad = 0.05) {
   let lo = Infinity, hi = -Infinity;
-  for (const v of a) if (v != null && Number.isFinite(v)) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
+  for (const a of arrays) for (const v of a || []) if (v != null && Number.isFinite(v)) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
   if (!Number.isFinite(lo)) return [-1, 1];
   const d = (hi - lo) * pad || Math.abs(hi) * pad || 1;
   return [lo - d, hi + d];
 }
 const noPath = () => null;
 
-// A polyline through the points in sample order: uPlot's built-in linear path decimates per
-// pixel column, which assumes x sorted; a Lissajous curve is not.
-function polyline(u, seriesIdx) {
+// xy mode (uPlot mode 2): samples as small squares, never joined.
+function dots(u, seriesIdx) {
   const [xs, ys] = u.data[seriesIdx];
   const p = new Path2D();
+  const r = 1.5 * (devicePixelRatio || 1);
   for (let i = 0; i < xs.length; i++) {
-    const x = u.valToPos(xs[i], 'x', true), y = u.valToPos(ys[i], 'y', true);
-    if (i) p.lineTo(x, y); else p.moveTo(x, y);
+    if (xs[i] == null || ys[i] == null) continue;
+    p.rect(u.valToPos(xs[i], 'x', true) - r / 2, u.valToPos(ys[i], 'y', true) - r / 2, r, r);
   }
-  return { stroke: p, fill: null, clip: null, band: null, gaps: null, flags: 0 };
+  return { stroke: null, fill: p, clip: null, band: null, gaps: null, flags: 0 };
 }
 
-// Lissajous: cos on x, sin on y, in volts.
-export function lissajous(parent, tr) {
-  const div = box(parent, 'Lissajous: sin vs cos (V)');
+// xy mode: a line through consecutive entries, broken at nulls; `closed` joins the last entry to
+// the first when nothing is missing (one folded electrical cycle). The segments drawn are kept in
+// record.segments, in data coordinates.
+function polyline(record, closed = false) {
+  return (u, seriesIdx) => {
+    const [xs, ys] = u.data[seriesIdx];
+    const p = new Path2D();
+    const segs = [];
+    let prev = null;
+    const n = xs.length;
+    const full = closed && n > 2 && xs.every((v, i) => v != null && ys[i] != null);
+    for (let i = 0; i < n + (full ? 1 : 0); i++) {
+      const k = i % n;
+      if (xs[k] == null || ys[k] == null) { prev = null; continue; }
+      const x = u.valToPos(xs[k], 'x', true), y = u.valToPos(ys[k], 'y', true);
+      if (prev) { p.lineTo(x, y); segs.push([prev[0], prev[1], xs[k], ys[k]]); } else p.moveTo(x, y);
+      prev = [xs[k], ys[k]];
+    }
+    if (record) record.segments = (record.segments || []).concat(segs);
+    return { stroke: p, fill: null, clip: null, band: null, gaps: null, flags: 0 };
+  };
+}
+
+const isEnvelope = (t) => t && t.kind === 'envelope';
+
+// Lissajous, cos on x and sin on y in volts: the recorded samples as points, and (envelope
+// traces) the mean over one folded electrical cycle as a closed line.
+export function lissajous(parent, t) {
+  const env = isEnvelope(t);
+  const div = box(parent, env ? 'Lissajous: samples (points), one folded electrical cycle (line)' : 'Lissajous: stride samples (points)', 'plot-lissajous');
+  const pts = env ? t.lissajous.points : { cos_v: t.cos_v || [], sin_v: t.sin_v || [] };
+  const cyc = env ? t.lissajous.cycle : { cos_v: [], sin_v: [] };
+  const a = Math.max(...range([pts.cos_v, cyc.cos_v, pts.sin_v, cyc.sin_v], 0.05).map(Math.abs));
   const w = width(parent);
-  return new uPlot({
-    mode: 2, width: w, height: w * 0.8,
-    // xy mode takes an x range from the first and last sample only: give both ranges.
-    scales: { x: { time: false, auto: false, range: range(tr.cos_v) }, y: { auto: false, range: range(tr.sin_v) } },
+  const record = { segments: [] };
+  div.fringe = { kind: 'lissajous', envelope: env, record, points: pts.cos_v.length, cycle: cyc.cos_v.length };
+  // The folded cycle first, the samples over it (their spread around the mean stays visible).
+  const series = [{}];
+  const data = [null];
+  if (env) {
+    series.push({ label: 'folded cycle', stroke: color(0), width: 2, paths: polyline(record, true), points: { show: false } });
+    data.push([cyc.cos_v, cyc.sin_v]);
+  }
+  series.push({ label: 'samples', stroke: '#57606a', fill: '#57606a99', paths: dots, points: { show: false } });
+  data.push([pts.cos_v, pts.sin_v]);
+  new uPlot({
+    mode: 2, width: w, height: w * 0.85,
+    // xy mode takes an x range from the first and last sample only: give both ranges (square).
+    scales: { x: { time: false, auto: false, range: [-a, a] }, y: { auto: false, range: [-a, a] } },
     axes: [{ label: 'cos (V)' }, { label: 'sin (V)' }],
     legend: { show: false },
-    series: [{}, { label: 'sin vs cos', stroke: color(0), paths: polyline, points: { show: false } }],
-  }, [null, [tr.cos_v, tr.sin_v]], div);
-}
-
-// Error against the true electrical angle (wrapped to [0, 2 pi)), one series per estimator.
-export function errorVsAngle(parent, tr, labels) {
-  const div = box(parent, 'Error vs electrical angle (rad)');
-  const th = tr.theta_true_wrapped_rad.map((v) => ((v % (2 * Math.PI)) + 2 * Math.PI) % (2 * Math.PI));
-  const idx = th.map((_, i) => i).sort((a, b) => th[a] - th[b]);
-  const data = [idx.map((i) => th[i])];
-  for (const l of labels) data.push(idx.map((i) => tr.error_rad[l][i]));
-  return new uPlot({
-    width: width(parent), height: 300,
-    scales: { x: { time: false } },
-    axes: [{ label: 'theta (rad)' }, { label: 'error (rad)', size: 70, values: errTicks }],
-    series: [{ label: 'theta' }, ...labels.map((l, i) => ({ label: l, stroke: color(i), paths: noPath, points: { ...pointsOnly, fill: color(i) } }))],
+    series,
   }, data, div);
+  return div;
 }
 
-export function errorVsTime(parent, tr, labels, title = 'Error vs time (rad)') {
-  const div = box(parent, title);
-  return new uPlot({
-    width: width(parent), height: 300,
-    scales: { x: { time: false } },
-    axes: [{ label: 't (s)' }, { label: 'error (rad)', size: 70, values: errTicks }],
-    series: [{ label: 't' }, ...labels.map((l, i) => ({ label: l, stroke: color(i), width: 1 }))],
-  }, [tr.t_s, ...labels.map((l) => tr.error_rad[l])], div);
+// Error against the true electrical angle: mean per angle bin (line) and min..max (band), at the
+// full rate; x in electrical radians [0, 2 pi). Old reports: the stride samples as points.
+export function errorVsAngle(parent, t, labels) {
+  const div = box(parent, 'Error vs electrical angle', 'plot-by-angle');
+  div.fringe = { kind: 'by_angle' };
+  const axes = [{ label: 'electrical angle (rad)' }, { label: 'error (rad)', size: 70, values: errTicks }];
+  if (!isEnvelope(t)) {
+    const th = (t.theta_true_wrapped_rad || []).map((v) => (v == null ? null : ((v % (2 * Math.PI)) + 2 * Math.PI) % (2 * Math.PI)));
+    const idx = th.map((_, i) => i).filter((i) => th[i] != null).sort((a, b) => th[a] - th[b]);
+    const data = [idx.map((i) => th[i]), ...labels.map((l) => idx.map((i) => t.error_rad[l][i]))];
+    new uPlot({
+      width: width(parent), height: 300, scales: { x: { time: false } }, axes,
+      series: [{ label: 'angle (rad)' }, ...labels.map((l, i) => ({ label: l, stroke: color(i), paths: noPath, points: { show: true, size: 3, fill: color(i) } }))],
+    }, data, div);
+    return div;
+  }
+  const ba = t.by_angle;
+  const data = [ba.theta_rad];
+  const series = [{ label: 'angle (rad)' }];
+  const bands = [];
+  labels.forEach((l, i) => {
+    const f = ba.error_rad[l];
+    if (!f) return;
+    const base = series.length;
+    data.push(f.max, f.min, f.mean);
+    series.push({ label: `${l} max`, stroke: color(i) + '66', width: 1 }, { label: `${l} min`, stroke: color(i) + '66', width: 1 },
+      { label: `${l} mean`, stroke: color(i), width: 1.5 });
+    bands.push({ series: [base, base + 1], fill: color(i) + '22' });
+  });
+  new uPlot({ width: width(parent), height: 300, scales: { x: { time: false, auto: false, range: [0, 2 * Math.PI] } }, axes, series, bands }, data, div);
+  return div;
+}
+
+// Error against time: for envelope traces the min..max of every bucket at the full rate (a band
+// per estimator: a fast error fills its band instead of beating). Old reports: points only.
+export function errorVsTime(parent, t, labels, title = 'Error vs time', id = 'plot-time') {
+  const div = box(parent, title, id);
+  const axes = [{ label: 'time (s)' }, { label: 'error (rad)', size: 70, values: errTicks }];
+  div.fringe = { kind: 'time', envelope: isEnvelope(t) };
+  // The x range uPlot settles on (after its deferred first layout): each plot's own time base.
+  const hooks = { setScale: [(uu, key) => {
+    if (key !== 'x') return;
+    div.fringe.xmin = uu.scales.x.min; div.fringe.xmax = uu.scales.x.max;
+    div.dataset.xmin = uu.scales.x.min; div.dataset.xmax = uu.scales.x.max;
+  }] };
+  if (!isEnvelope(t)) {
+    new uPlot({
+      width: width(parent), height: 300, scales: { x: { time: false } }, axes, hooks,
+      series: [{ label: 'time (s)' }, ...labels.map((l, i) => ({ label: l, stroke: color(i), paths: noPath, points: { show: true, size: 3, fill: color(i) } }))],
+    }, [t.t_s, ...labels.map((l) => t.error_rad[l])], div);
+  } else {
+    const data = [t.t_s];
+    const series = [{ label: 'time (s)' }];
+    const bands = [];
+    labels.forEach((l, i) => {
+      const e = t.error_rad[l];
+      if (!e) return;
+      const base = series.length;
+      data.push(e.max, e.min);
+      series.push({ label: `${l} max`, stroke: color(i), width: 1 }, { label: `${l} min`, stroke: color(i), width: 1 });
+      bands.push({ series: [base, base + 1], fill: color(i) + '55' });
+    });
+    new uPlot({ width: width(parent), height: 300, scales: { x: { time: false } }, axes, series, bands, hooks }, data, div);
+  }
+  return div;
 }
 
 // Harmonics 1x..6x of the error per electrical cycle (MODEL.md 7), grouped per estimator:
 // each estimator's bar sits at its own x offset within the harmonic's slot.
 export function harmonicBars(parent, estimators) {
-  const div = box(parent, 'Error harmonics (amplitude, rad) per electrical cycle');
+  const div = box(parent, 'Error harmonics per electrical cycle', 'plot-harmonics');
   const n = 6;
   const k = Math.max(estimators.length, 1);
   const slot = 0.8 / k;
@@ -102,54 +199,114 @@ export function harmonicBars(parent, estimators) {
     data.push(y);
     series.push({ label: e.label, stroke: color(i), fill: color(i) + 'cc', paths: bars, points: { show: false } });
   });
-  return new uPlot({
+  new uPlot({
     width: width(parent), height: 300,
     scales: { x: { time: false, auto: false, range: [0.5, n + 0.5] }, y: { distr: 3 } },
-    axes: [{ label: 'harmonic (x electrical)', incrs: [1], values: (u, v) => v.map((t) => (Number.isInteger(t) ? `${t}x` : '')) },
-      { label: 'rad', size: 70, values: expTicks }],
+    axes: [{ label: 'harmonic order (x electrical frequency)', incrs: [1], values: (u, v) => v.map((t) => (Number.isInteger(t) ? `${t}x` : '')) },
+      { label: 'amplitude (rad)', size: 70, values: expTicks }],
     series,
   }, data, div);
+  return div;
 }
 
-// Amplitude spectrum of the (decimated) error trace: radix-2 FFT, Hann window.
-export function spectrum(values, dt) {
-  let n = 1;
-  while (n * 2 <= values.length) n *= 2;
-  const re = new Float64Array(n), im = new Float64Array(n);
-  let mean = 0;
-  for (let i = 0; i < n; i++) mean += values[i];
-  mean /= n;
-  for (let i = 0; i < n; i++) re[i] = (values[i] - mean) * (0.5 - 0.5 * Math.cos((2 * Math.PI * i) / (n - 1)));
-  for (let i = 1, j = 0; i < n; i++) {  // bit reversal
-    let bit = n >> 1;
-    for (; j & bit; bit >>= 1) j ^= bit;
-    j ^= bit;
-    if (i < j) { [re[i], re[j]] = [re[j], re[i]]; [im[i], im[j]] = [im[j], im[i]]; }
+// Error spectrum from the report (estimators[i].spectrum: Welch at the full sample rate), log-log;
+// x switchable between Hz and orders of the electrical frequency (dashed markers at 1x..16x).
+export function errorSpectrum(parent, estimators) {
+  const div = box(parent, 'Error spectrum (full rate)', 'plot-spectrum');
+  const specs = (estimators || []).map((e, i) => ({ e, i, s: e.spectrum })).filter((x) => x.s && x.s.f_hz && x.s.f_hz.length);
+  div.fringe = { kind: 'spectrum', series: specs.length };
+  if (!specs.length) {
+    const short = (estimators || []).find((e) => e.spectrum && e.spectrum.segments === 0);
+    note(div, short ? `no spectrum: no run of ${short.spectrum.segment_samples} contiguous scored samples` : 'no spectrum in this report');
+    return div;
   }
-  for (let len = 2; len <= n; len <<= 1) {
-    const ang = (-2 * Math.PI) / len;
-    for (let i = 0; i < n; i += len)
-      for (let k = 0; k < len / 2; k++) {
-        const wr = Math.cos(ang * k), wi = Math.sin(ang * k);
-        const a = i + k, b = i + k + len / 2;
-        const tr = re[b] * wr - im[b] * wi, ti = re[b] * wi + im[b] * wr;
-        re[b] = re[a] - tr; im[b] = im[a] - ti; re[a] += tr; im[a] += ti;
-      }
-  }
-  const f = [], amp = [];
-  for (let k = 1; k < n / 2; k++) { f.push(k / (n * dt)); amp.push((4 * Math.hypot(re[k], im[k])) / n); }  // Hann gain 1/2
-  return { f, amp };
+  const fe = (specs.find((x) => x.s.electrical_hz > 0) || {}).s?.electrical_hz || 0;
+  const s0 = specs[0].s;
+  note(div, `Welch, ${s0.segment_samples}-sample Hann segments, ${s0.segments} averaged, resolution ${(+s0.resolution_hz).toPrecision(3)} Hz`
+    + (fe ? `, electrical frequency ${(+fe).toPrecision(5)} Hz` : ''));
+  const sel = document.createElement('select');
+  sel.className = 'spectrum-axis';
+  sel.innerHTML = '<option value="hz">x: frequency (Hz)</option><option value="order">x: order of the electrical frequency</option>';
+  if (!fe) sel.options[1].disabled = true;
+  const label = document.createElement('label');
+  label.append('axis ', sel);
+  div.append(label);
+  const holder = document.createElement('div');
+  div.append(holder);
+  let ymax = 0;
+  for (const { s } of specs) for (const v of s.amplitude_rad) if (v > ymax) ymax = v;
+  const floor = ymax > 0 ? ymax * 1e-7 : 1e-12;  // noise-free runs reach 1e-20: keep the peaks readable
+  let u = null;
+  const draw = () => {
+    if (u) u.destroy();
+    const byOrder = sel.value === 'order';
+    const data = [null];
+    const series = [{}];
+    let lo = Infinity, hi = 0;
+    for (const { e, i, s } of specs) {
+      const x = byOrder ? s.order : s.f_hz;
+      data.push([x, s.amplitude_rad.map((v) => Math.max(v, floor))]);
+      series.push({ label: e.label, stroke: color(i), width: 1, paths: polyline(null), points: { show: false } });
+      for (const v of x) if (v > 0) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
+    }
+    lo = 10 ** Math.floor(Math.log10(lo));  // whole decades: ticks at 1, 10, 100 ...
+    hi = 10 ** Math.ceil(Math.log10(hi));
+    const unit = byOrder ? 1 : fe;
+    u = new uPlot({
+      mode: 2, width: width(parent), height: 300,
+      scales: { x: { time: false, distr: 3, auto: false, range: [lo, hi] }, y: { distr: 3, auto: false, range: [floor, ymax * 2 || 1] } },
+      axes: [{ label: byOrder ? 'order (x electrical frequency)' : 'frequency (Hz)', values: (uu, v) => v.map((t) => (t == null ? '' : +t.toPrecision(3))) },
+        { label: 'amplitude (rad)', size: 70, values: expTicks }],
+      legend: { show: false },
+      series,
+      hooks: {
+        draw: [(uu) => {
+          if (!fe) return;
+          const ctx = uu.ctx;
+          ctx.save();
+          ctx.strokeStyle = '#8c959f';
+          ctx.fillStyle = '#57606a';
+          ctx.setLineDash([2, 3]);
+          ctx.font = `${10 * devicePixelRatio}px sans-serif`;
+          ctx.textAlign = 'center';
+          for (let k = 1; k <= 16; k++) {
+            const x = k * unit;
+            if (x < lo || x > hi) continue;
+            const px = uu.valToPos(x, 'x', true);
+            ctx.beginPath();
+            ctx.moveTo(px, uu.bbox.top);
+            ctx.lineTo(px, uu.bbox.top + uu.bbox.height);
+            ctx.stroke();
+            if (k <= 4 || k % 4 === 0) ctx.fillText(`${k}x`, px, uu.bbox.top + 10 * devicePixelRatio);
+          }
+          ctx.restore();
+        }],
+      },
+    }, data, holder);
+    div.fringe.axis = sel.value;
+  };
+  sel.addEventListener('change', draw);
+  draw();
+  return div;
 }
 
-export function errorSpectrum(parent, tr, labels) {
-  const div = box(parent, 'Error spectrum (decimated trace, rad)');
-  const dt = tr.t_s.length > 1 ? tr.t_s[1] - tr.t_s[0] : 1;
-  const specs = labels.map((l) => spectrum(tr.error_rad[l], dt));
-  const f = specs.length ? specs[0].f : [];
-  return new uPlot({
-    width: width(parent), height: 300,
-    scales: { x: { time: false }, y: { distr: 3 } },
-    axes: [{ label: 'Hz' }, { label: 'rad', size: 70, values: expTicks }],
-    series: [{ label: 'f' }, ...labels.map((l, i) => ({ label: l, stroke: color(i), width: 1 }))],
-  }, [f, ...specs.map((s) => s.amp.map((v) => Math.max(v, 1e-12)))], div);
+// Labels of estimators present in the traces, in the report's order (one colour each across plots).
+export function traceLabels(t, estimators) {
+  return (estimators || []).map((e) => e.label).filter((l) => t.error_rad && l in t.error_rad);
+}
+
+// All report plots into `parent`; an honest note for reports older than the envelope traces.
+export function reportPlots(parent, t, estimators) {
+  const labels = traceLabels(t, estimators);
+  if (!isEnvelope(t)) {
+    const p = document.createElement('p');
+    p.className = 'muted old-traces';
+    p.textContent = `Old report: traces are stride samples (every ${t.stride || '?'}th sample), drawn as points; a line through them would alias.`;
+    parent.append(p);
+  }
+  lissajous(parent, t);
+  errorVsAngle(parent, t, labels);
+  errorVsTime(parent, t, labels);
+  harmonicBars(parent, estimators);
+  errorSpectrum(parent, estimators);
 }

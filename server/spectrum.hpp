@@ -1,0 +1,49 @@
+// Spectrum of a lane's scored error at the full sample rate (issue 11): Welch's method, streamed
+// (Hann window, 50 % overlap, mean removed per segment), so a run of any length needs one segment
+// of memory and no harmonic is aliased by decimation.
+#pragma once
+
+#include <nlohmann/json.hpp>
+
+#include <complex>
+#include <cstdint>
+#include <vector>
+
+namespace fringe {
+
+class ErrorSpectrum {
+public:
+    static constexpr std::size_t kMaxSegment = 65536;
+    static constexpr std::size_t kMinSegment = 16;
+    static constexpr std::size_t kMaxBins = 2000;  // frequency axis in the JSON
+    // segment_samples: a power of two >= kMinSegment (rounded down to one otherwise).
+    ErrorSpectrum(double sample_rate_hz, std::size_t segment_samples);
+    // Resolution first: a power of two giving >= 8 bins between harmonics of electrical_hz (Hann's
+    // main lobe is 4 bins wide, so up to the 16x and beyond stay apart), but no longer than a
+    // quarter of the run (>= 7 averaged segments), within [kMinSegment, kMaxSegment].
+    // electrical_hz 0 (static or unknown): 4096, within the same run-length bound.
+    static std::size_t choose_segment(double sample_rate_hz, double electrical_hz, std::uint64_t scored_samples);
+    // Scored error samples (rad) in order; ok[i]==0 (invalid) ends the current segment (gaps are not bridged).
+    // ok may be null (all valid); a non-finite e_rad also ends the segment.
+    void add(std::size_t n, const double* e_rad, const std::uint8_t* ok);
+    std::size_t segments() const { return segments_; }
+    std::size_t segment_samples() const { return n_; }
+    // f_hz, order (f / electrical_hz; null when electrical_hz is 0), asd_rad_per_sqrt_hz, amplitude_rad (peak
+    // amplitude of a sinusoid in that bin: at local maxima corrected for Hann scalloping by the two-bin ratio,
+    // see spectrum.cpp), segments, segment_samples, resolution_hz. DC is left out (the mean is removed).
+    // At most kMaxBins frequencies: groups of adjacent bins keep the bin of largest amplitude (peaks survive).
+    nlohmann::json to_json(double electrical_hz) const;
+
+private:
+    void segment();
+    double fs_;
+    std::size_t n_;
+    std::size_t segments_ = 0;
+    std::vector<double> window_, buf_;  // buf_: the current run of contiguous valid samples (< n_)
+    std::vector<double> power_;         // sum over segments of |X_k|^2, k = 0..n_/2
+    std::vector<double> x_;             // windowed segment (scratch)
+    std::vector<std::complex<double>> X_;  // its transform (scratch)
+    double s1_ = 0, s2_ = 0;            // sum of window, sum of window^2
+};
+
+}  // namespace fringe
