@@ -440,12 +440,15 @@ std::string svg_bars(const json& estimators) {
     s << "<svg class=\"plot\" xmlns=\"http://www.w3.org/2000/svg\" width=\"" << W << "\" height=\"" << H << "\">";
     s << "<text x=\"" << W / 2 << "\" y=\"16\" text-anchor=\"middle\" font-weight=\"bold\">Error harmonics (amplitude, rad)</text>";
     const std::size_t ne = std::max<std::size_t>(estimators.size(), 1);
-    const double group = (W - L - 10) / 6.0, bw = group * 0.8 / static_cast<double>(ne);
+    int orders = 6;  // every fitted order (16 by default), at least 1x..6x
+    for (const auto& e : estimators)
+        for (const auto& h : e["metrics"]["harmonics"]) orders = std::max(orders, h["order"].get<int>());
+    const double group = (W - L - 10) / static_cast<double>(orders), bw = group * 0.8 / static_cast<double>(ne);
     s << "<text x=\"12\" y=\"" << T + 10 << "\" font-size=\"10\">" << vmax << "</text>";
     s << "<text x=\"" << (L + W) / 2 << "\" y=\"" << H - 6 << "\" text-anchor=\"middle\">harmonic order (x electrical frequency)</text>";
     s << "<text x=\"12\" y=\"" << (T + H - B) / 2 << "\" transform=\"rotate(-90 12 " << (T + H - B) / 2 << ")\" text-anchor=\"middle\">amplitude (rad)</text>";
-    for (int k = 1; k <= 6; ++k)
-        s << "<text x=\"" << L + group * (k - 0.5) << "\" y=\"" << H - B + 14 << "\" text-anchor=\"middle\">" << k << "x</text>";
+    for (int k = 1; k <= orders; ++k)
+        s << "<text x=\"" << L + group * (k - 0.5) << "\" y=\"" << H - B + 14 << "\" text-anchor=\"middle\" font-size=\"" << (orders > 8 ? 10 : 14) << "\">" << k << "x</text>";
     std::size_t ei = 0;
     for (const auto& e : estimators) {
         const char* col = kColours[ei % 6];

@@ -243,18 +243,31 @@ async function runPage(id) {
 function measurementsTable(r) {
   return h('table', { id: 'measurements' },
     h('thead', {}, h('tr', {}, ['estimator', 'metric', 'value', 'unit', 'min', 'max', 'outcome'].map((c) => h('th', {}, c)))),
-    h('tbody', {}, (r.measurements || []).map((m) => h('tr', {},
-      h('td', {}, m.estimator), h('td', {}, m.metric), h('td', { class: 'num' }, fmt(m.value)), h('td', {}, m.unit || ''),
-      h('td', { class: 'num' }, fmt(m.limit && m.limit.min)), h('td', { class: 'num' }, fmt(m.limit && m.limit.max)), h('td', {}, verdictBadge(m.outcome))))));
+    h('tbody', {}, (r.measurements || []).map((m) => h('tr', { class: m.implicit ? 'evidence' : '' },
+      h('td', {}, m.estimator), h('td', {}, m.metric, m.implicit ? h('span', { class: 'muted', title: 'implicit check: a verdict needs this much evidence' }, ' (evidence)') : ''),
+      h('td', { class: 'num' }, m.value == null ? 'not measured' : fmt(m.value)), h('td', {}, m.unit || ''),
+      h('td', { class: 'num' }, fmt(m.limit && m.limit.min)), h('td', { class: 'num' }, fmt(m.limit && m.limit.max)),
+      h('td', {}, verdictBadge(m.outcome), m.reason ? h('span', { class: 'muted reason' }, ` ${m.reason}`) : '')))));
+}
+
+// Preflight and convention warnings: what the verdict was reached under.
+function warningsList(r) {
+  const w = r.warnings || [];
+  if (!w.length) return '';
+  return h('div', {}, h('h2', {}, 'Warnings'),
+    h('ul', { id: 'warnings' }, w.map((x) => h('li', {}, h('code', {}, x.code), ' ', x.message))));
 }
 
 function estimatorsTable(r) {
   return h('table', { id: 'estimators' },
-    h('thead', {}, h('tr', {}, ['estimator', 'rms (rad)', 'max|e| (rad)', 'mean (rad)', 'slipped', 'PCRB (rad)', 'efficiency', 'lock (s)'].map((c) => h('th', {}, c)))),
+    h('thead', {}, h('tr', {}, ['estimator', 'rms (rad)', 'max|e| (rad)', 'mean (rad)', 'slipped', 'scored samples', 'scored cycles', 'valid',
+      'PCRB (rad)', 'efficiency', 'lock (s)'].map((c) => h('th', {}, c)))),
     h('tbody', {}, (r.estimators || []).map((e) => {
-      const m = e.metrics || {}, b = e.bounds || {};
+      const m = e.metrics || {}, b = e.bounds || {}, ev = m.evidence || {};
       return h('tr', {}, h('td', {}, e.label), h('td', { class: 'num' }, fmt(m.rms && m.rms.rad)), h('td', { class: 'num' }, fmt(m.max_abs && m.max_abs.rad)),
-        h('td', { class: 'num' }, fmt(m.mean && m.mean.rad)), h('td', { class: 'num' }, fmt(m.slipped_samples)), h('td', { class: 'num' }, fmt(b.pcrb_rad)),
+        h('td', { class: 'num' }, fmt(m.mean && m.mean.rad)), h('td', { class: 'num' }, fmt(m.slipped_samples)),
+        h('td', { class: 'num' }, fmt(ev.scored_samples)), h('td', { class: 'num' }, fmt(ev.scored_cycles)),
+        h('td', { class: 'num' }, ev.valid_fraction == null ? '' : `${(100 * ev.valid_fraction).toFixed(1)} %`), h('td', { class: 'num' }, fmt(b.pcrb_rad)),
         h('td', { class: 'num' }, fmt(b.efficiency)), h('td', { class: 'num' }, fmt(m.lock_time_s)));
     })));
 }
@@ -269,6 +282,7 @@ async function report(id, into) {
   into.replaceChildren(
     h('p', {}, verdictBadge(r.verdict, 'banner'), ' ', h('span', { id: 'verdict-text' }, `${r.scenario.name} · ${r.status} · seed ${r.seed} · ${r.samples ? r.samples.processed : 0} samples · device ${r.device ? r.device.uri : '-'}`)),
     r.error ? h('p', { class: 'error' }, r.error) : '',
+    warningsList(r),
     h('p', { class: 'downloads' }, 'Download: ',
       h('a', { href: `${base}/report.json?download=1&traces=1`, download: '', id: 'dl-json' }, 'JSON'),
       h('a', { href: `${base}/report.xml?download=1`, download: '', id: 'dl-junit' }, 'JUnit XML'),
@@ -303,7 +317,8 @@ async function compare(a, b) {
   const labels = [...new Set([...Object.keys(ea), ...Object.keys(eb)])];
   const rows = [];
   const metric = (e, f) => (e ? f(e) : null);
-  const defs = [['rms (rad)', (e) => e.metrics.rms.rad], ['max|e| (rad)', (e) => e.metrics.max_abs.rad], ['slipped', (e) => e.metrics.slipped_samples],
+  const defs = [['rms (rad)', (e) => e.metrics.rms && e.metrics.rms.rad], ['max|e| (rad)', (e) => e.metrics.max_abs && e.metrics.max_abs.rad],
+    ['slipped', (e) => e.metrics.slipped_samples],
     ['efficiency', (e) => e.bounds && e.bounds.efficiency]];
   for (const l of labels)
     for (const [name, f] of defs) {

@@ -181,7 +181,9 @@ export function errorVsTime(parent, t, labels, title = 'Error vs time', id = 'pl
 // each estimator's bar sits at its own x offset within the harmonic's slot.
 export function harmonicBars(parent, estimators) {
   const div = box(parent, 'Error harmonics per electrical cycle', 'plot-harmonics');
-  const n = 6;
+  // every fitted order (16 by default), at least 1x..6x
+  let n = 6;
+  for (const e of estimators) for (const v of e.harmonics || []) if (v && v.order > n) n = v.order;
   const k = Math.max(estimators.length, 1);
   const slot = 0.8 / k;
   const x = [];

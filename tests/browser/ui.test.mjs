@@ -135,6 +135,10 @@ try {
   const verdict = await page.getAttribute('.banner', 'data-verdict');
   check(verdict === 'PASS', `report verdict ${verdict}`);
   check(await page.$$eval('#measurements tbody tr', (r) => r.length) >= 3, 'measurements table lists limits and outcomes');
+  const evidence = await page.$$eval('#measurements tbody tr.evidence', (r) => r.map((x) => x.textContent));
+  check(evidence.length >= 3 && evidence.some((t) => t.includes('scored_samples')) && evidence.some((t) => t.includes('valid_fraction')),
+    `the report states its evidence beside the limits (${evidence.length} evidence rows)`);
+  check((await page.$$eval('#estimators th', (c) => c.map((x) => x.textContent))).includes('scored cycles'), 'the estimators table shows scored cycles');
   await page.waitForFunction(() => document.querySelectorAll('#plots canvas').length >= 5);
   const ink = await inkedCanvases(page);
   check(ink.length >= 5 && ink.every((f) => f > 0.003), `all ${ink.length} plot canvases drew (inked fractions ${ink.map((f) => f.toFixed(3)).join(', ')})`);
