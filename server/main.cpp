@@ -11,6 +11,7 @@
 #include "server/report_formats.hpp"
 #include "server/run.hpp"
 #include "server/store.hpp"
+#include "server/verdict.hpp"
 #include "server/sweep.hpp"
 #include "server/scenario.hpp"
 #include "server/text.hpp"
@@ -32,9 +33,11 @@
 #include <algorithm>
 #include <atomic>
 #include <csignal>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <ctime>
 #include <filesystem>
 #include <thread>
 #include <unistd.h>
@@ -236,6 +239,11 @@ int run_estimate(const EstimateOptions& o) {
                         m["rms"]["percent_period"].get<double>(), m["std"]["rad"].get<double>(), m["mean"]["rad"].get<double>(),
                         m["max_abs"]["rad"].get<double>(), static_cast<unsigned long long>(m["slipped_samples"].get<std::uint64_t>()));
             print_harmonics(m);
+            // fringe estimate has no limits; say when a run would not have had enough evidence.
+            if (m["scored"].get<std::uint64_t>() < 1000 || ev["scored_cycles"].get<double>() < 3)
+                std::printf("warning: only %llu scored samples over %.2f electrical cycles: below a run's evidence minimum (1000 samples, 3 cycles); "
+                            "treat these figures as indicative\n",
+                            static_cast<unsigned long long>(m["scored"].get<std::uint64_t>()), ev["scored_cycles"].get<double>());
             const auto& b = r["bounds"];
             if (b.is_object() && b.contains("per_sample_crb_rad")) {
                 std::printf("bounds: per-sample CRB %.3e rad", b["per_sample_crb_rad"].get<double>());
@@ -294,8 +302,9 @@ void print_run_summary(const json& r, const std::string& name) {
         if (l.contains("max")) lim += std::string(lim.empty() ? "" : ", ") + "<= " + fmt(l["max"]);
         char val[32];
         std::snprintf(val, sizeof val, "%s", fmt(m["value"]).c_str());
-        std::printf("  %-8s %s %s = %s %s (limit %s%s)%s\n", m["outcome"].get<std::string>().c_str(), m["estimator"].get<std::string>().c_str(),
-                    m["metric"].get<std::string>().c_str(), val, m["unit"].get<std::string>().c_str(), lim.c_str(),
+        const std::string unit = m["value"].is_number() && !m["unit"].get<std::string>().empty() ? " " + m["unit"].get<std::string>() : "";
+        std::printf("  %-8s %s %s = %s%s (limit %s%s)%s\n", m["outcome"].get<std::string>().c_str(), m["estimator"].get<std::string>().c_str(),
+                    m["metric"].get<std::string>().c_str(), val, unit.c_str(), lim.c_str(),
                     m.value("implicit", false) ? ", evidence" : "", m.contains("reason") ? ("; " + m["reason"].get<std::string>()).c_str() : "");
     }
 }
@@ -406,25 +415,75 @@ struct RunsOptions {
     bool as_json = false;
 };
 
+// --since: an ISO date or time (2026-11-21, 2026-11-21T15:00:00Z), "today", "yesterday" or
+// "Nd" (N days ago), as the store's ISO UTC text; anything else is an error, not an empty list.
+std::string parse_since(const std::string& v) {
+    auto day_start = [](std::time_t t) {
+        std::tm tm{};
+        gmtime_r(&t, &tm);
+        char b[32];
+        std::strftime(b, sizeof b, "%Y-%m-%dT00:00:00Z", &tm);
+        return std::string(b);
+    };
+    const std::time_t now = std::time(nullptr);
+    if (v == "today") return day_start(now);
+    if (v == "yesterday") return day_start(now - 86400);
+    if (v.size() >= 2 && v.back() == 'd' && v.find_first_not_of("0123456789") == v.size() - 1)
+        return day_start(now - 86400 * static_cast<std::time_t>(std::stoll(v.substr(0, v.size() - 1))));
+    std::tm tm{};
+    const char* end = strptime(v.c_str(), "%Y-%m-%d", &tm);
+    if (end && *end == 0) return v + "T00:00:00Z";
+    if (end && (*end == 'T' || *end == ' ')) {
+        const char* e2 = strptime(end + 1, "%H:%M", &tm);
+        if (e2 && *e2 == ':') e2 = strptime(e2 + 1, "%S", &tm);
+        if (e2 && (*e2 == 0 || (e2[0] == 'Z' && e2[1] == 0))) {
+            char b[32];
+            std::strftime(b, sizeof b, "%Y-%m-%dT%H:%M:%SZ", &tm);
+            return b;
+        }
+    }
+    throw ConfigError("since", "expected a date or time in UTC (2026-11-21, 2026-11-21T15:00:00Z), today, yesterday or Nd (N days ago); got '" + v + "'");
+}
+
 int run_runs(const RunsOptions& o) {
     RunStore store((o.data.empty() ? default_data_dir() : o.data) + "/runs.db");
     if (!o.show.empty()) {
         auto r = store.report(o.show);
-        if (!r) throw ConfigError("id", "no completed report for run '" + o.show + "'");
-        std::printf("%s\n", r->dump(2).c_str());
+        if (!r) {
+            if (store.row(o.show)) throw ConfigError("id", "run '" + o.show + "' has no report yet (it is queued or running, or ended without one)");
+            throw ConfigError("id", "no run '" + o.show + "' in this history (fringe runs lists them)");
+        }
+        if (o.as_json) std::printf("%s\n", r->dump(2, ' ', false, json::error_handler_t::replace).c_str());
+        else print_run_summary(*r, (*r)["scenario"].value("name", std::string("run")));
         return kExitOk;
     }
-    const auto rows = store.list({o.verdict, o.scenario, o.since, o.limit});
+    RunFilter f{o.verdict, o.scenario, o.since, o.limit};
+    if (!o.verdict.empty()) {
+        const auto v = verdict_from(o.verdict);
+        if (!v) throw ConfigError("verdict", "expected PASS, MARGINAL, FAIL, ERROR or ABORTED (any case); got '" + o.verdict + "'");
+        f.verdict = to_string(*v);
+    }
+    if (!o.since.empty()) f.since = parse_since(o.since);
+    const auto rows = store.list(f);
     if (o.as_json) {
         json a = json::array();
         for (const auto& r : rows)
             a.push_back({{"id", r.id}, {"created_at", r.created_at}, {"scenario", r.scenario}, {"dut", r.dut}, {"status", r.status}, {"verdict", r.verdict}});
-        std::printf("%s\n", a.dump(2).c_str());
+        std::printf("%s\n", a.dump(2, ' ', false, json::error_handler_t::replace).c_str());
         return kExitOk;
     }
-    std::printf("%-22s %-20s %-24s %-12s %-11s %s\n", "id", "started", "scenario", "dut", "status", "verdict");
-    for (const auto& r : rows)
-        std::printf("%-22s %-20s %-24s %-12s %-11s %s\n", r.id.c_str(), r.created_at.c_str(), r.scenario.c_str(), r.dut.c_str(), r.status.c_str(), r.verdict.c_str());
+    // Columns as wide as their widest cell.
+    std::vector<std::array<std::string, 6>> cells{{"id", "started", "scenario", "dut", "status", "verdict"}};
+    for (const auto& r : rows) cells.push_back({r.id, r.created_at, r.scenario, r.dut, r.status, r.verdict});
+    std::array<std::size_t, 6> w{};
+    for (const auto& c : cells)
+        for (std::size_t k = 0; k < 6; ++k) w[k] = std::max(w[k], c[k].size());
+    for (const auto& c : cells) {
+        std::string line;
+        for (std::size_t k = 0; k < 6; ++k) line += c[k] + (k + 1 < 6 ? std::string(w[k] - c[k].size() + 2, ' ') : "");
+        std::printf("%s\n", line.c_str());
+    }
+    if (rows.empty()) std::fprintf(stderr, "no runs match\n");
     return kExitOk;
 }
 
@@ -666,11 +725,11 @@ int main(int argc, char** argv) {
     RunsOptions runs_o;
     auto* rs = app.add_subcommand("runs", "List the run history (newest first), or print one run's report");
     rs->add_option("--data", runs_o.data, "Data directory (default $FRINGE_DATA or ~/.local/share/fringe)");
-    rs->add_option("--verdict", runs_o.verdict, "Only runs with this verdict (PASS, MARGINAL, FAIL, ERROR, ABORTED)");
+    rs->add_option("--verdict", runs_o.verdict, "Only runs with this verdict (PASS, MARGINAL, FAIL, ERROR, ABORTED; any case)");
     rs->add_option("--scenario", runs_o.scenario, "Only runs of this scenario name");
-    rs->add_option("--since", runs_o.since, "Only runs started at or after this ISO time");
+    rs->add_option("--since", runs_o.since, "Only runs started at or after this UTC date or time (2026-11-21, 2026-11-21T15:00:00Z), today, yesterday or Nd");
     rs->add_option("--limit", runs_o.limit, "At most this many")->check(CLI::PositiveNumber);
-    rs->add_option("--show", runs_o.show, "Print the report of this run id");
+    rs->add_option("--show", runs_o.show, "Print the summary of this run (its whole report with --json)");
     rs->add_flag("--json", runs_o.as_json, "As JSON");
 
     SweepOptions sw_o;

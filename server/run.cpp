@@ -109,6 +109,10 @@ std::vector<Finding> validate_run(const Scenario& sc) {
             }
         }
     }
+    // The device URI's form and settings (the device itself is opened when the run starts).
+    const auto uri = dev::check_uri(sc.device);
+    if (uri.scheme == "loopback" && !uri.path.empty())
+        throw ConfigError("device", "loopback takes no path (got '" + uri.path + "'); use loopback:?key=value");
     return preflight(sc);
 }
 

@@ -107,7 +107,13 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
 
 Scenario load_scenario(const std::string& path) {
     json j = load_json_file(path);
-    return scenario_from_json(j, fs::path(path).parent_path().string());
+    try {
+        return scenario_from_json(j, fs::path(path).parent_path().string());
+    } catch (const ConfigError& e) {
+        // Every scenario error names its file (an encoder file's errors name theirs already).
+        if (e.message().find(" (in ") != std::string::npos) throw;
+        throw ConfigError(e.field(), e.message() + " (in " + path + ")");
+    }
 }
 
 void to_json(json& j, const Scenario& s) {

@@ -158,7 +158,9 @@ ErrorMetrics Scorer::finish() {
             // The highest order the visited angles support: start from a quarter of the bins
             // visited and lower it until the normal equations are well conditioned (samples
             // at a few distinct angles, as with synchronous sampling, support only a few).
-            const int K0 = std::min(o_.max_harmonic, std::max(1, covered / 4));
+            // Never more unknowns than a quarter of the scored samples, so the fit is not of noise.
+            const auto by_samples = static_cast<int>(std::min<std::uint64_t>(64, (m.scored / 4 > 1 ? (m.scored / 4 - 1) / 2 : 0)));
+            const int K0 = std::min({o_.max_harmonic, std::max(1, covered / 4), std::max(1, by_samples)});
             auto C = [&](int k) { return sum_cos_[static_cast<std::size_t>(std::abs(k))]; };
             auto S = [&](int k) { return k < 0 ? -sum_sin_[static_cast<std::size_t>(-k)] : sum_sin_[static_cast<std::size_t>(k)]; };
             for (int K = K0; K >= 1 && m.harmonics.empty(); --K) {
@@ -194,8 +196,10 @@ ErrorMetrics Scorer::finish() {
                 m.harmonic_power_fraction = var > 0 ? std::min(1.0, power / var) : 0.0;
                 m.broadband_rms_rad = std::sqrt(std::max(0.0, var - power));
                 if (K < o_.max_harmonic)
-                    m.harmonics_note = "orders above " + std::to_string(K) + "x not fitted: the scored samples visit too few distinct electrical angles (" +
-                                       std::to_string(covered) + " of " + std::to_string(kAngleBins) + " angle bins) to separate more";
+                    m.harmonics_note = "orders above " + std::to_string(K) + "x not fitted: " +
+                                       (K == by_samples && K < covered / 4 ? std::to_string(m.scored) + " scored samples support no more (at most a quarter as many unknowns)"
+                                                                           : "the scored samples visit too few distinct electrical angles (" + std::to_string(covered) + " of " +
+                                                                                 std::to_string(kAngleBins) + " angle bins) to separate more");
             }
             if (m.harmonics.empty()) m.harmonics_note = "the scored samples visit too few distinct electrical angles to separate harmonics";
         }

@@ -47,8 +47,10 @@ ErrorSpectrum::ErrorSpectrum(double sample_rate_hz, std::size_t segment_samples)
 }
 
 std::size_t ErrorSpectrum::choose_segment(double sample_rate_hz, double electrical_hz, std::uint64_t scored_samples) {
+    // At least 4096 samples either way: a fast encoder's harmonics are far apart, but a tracker's
+    // error lives below its loop bandwidth, which a short segment cannot resolve.
     std::size_t want = 4096;
-    if (electrical_hz > 0 && sample_rate_hz > 0) want = pow2_ceil(8.0 * sample_rate_hz / electrical_hz);
+    if (electrical_hz > 0 && sample_rate_hz > 0) want = std::max(want, pow2_ceil(8.0 * sample_rate_hz / electrical_hz));
     want = std::clamp(want, kMinSegment, kMaxSegment);
     const std::size_t fit = std::max(pow2_floor(scored_samples / 4), kMinSegment);
     return std::min(want, fit);

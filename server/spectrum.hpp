@@ -19,9 +19,9 @@ public:
     // segment_samples: a power of two >= kMinSegment (rounded down to one otherwise).
     ErrorSpectrum(double sample_rate_hz, std::size_t segment_samples);
     // Resolution first: a power of two giving >= 8 bins between harmonics of electrical_hz (Hann's
-    // main lobe is 4 bins wide, so up to the 16x and beyond stay apart), but no longer than a
+    // main lobe is 4 bins wide, so up to the 16x and beyond stay apart) and at least 4096 (so the
+    // low frequencies where a tracker's error lives are resolved too), but no longer than a
     // quarter of the run (>= 7 averaged segments), within [kMinSegment, kMaxSegment].
-    // electrical_hz 0 (static or unknown): 4096, within the same run-length bound.
     static std::size_t choose_segment(double sample_rate_hz, double electrical_hz, std::uint64_t scored_samples);
     // Scored error samples (rad) in order; ok[i]==0 (invalid) ends the current segment (gaps are not bridged).
     // ok may be null (all valid); a non-finite e_rad also ends the segment.

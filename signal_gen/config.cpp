@@ -2,6 +2,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 
@@ -28,7 +29,10 @@ std::string JsonReader::path_of(const std::string& key) const {
     return path_.empty() ? key : path_ + "." + key;
 }
 
-bool JsonReader::has(const std::string& key) const { return obj_->contains(key); }
+bool JsonReader::has(const std::string& key) const {
+    asked_.insert(key);
+    return obj_->contains(key);
+}
 
 bool JsonReader::has_object(const std::string& key) const {
     return obj_->contains(key) && (*obj_)[key].is_object();
@@ -113,9 +117,33 @@ JsonReader JsonReader::object(const std::string& key) {
     return JsonReader(v, path_of(key));
 }
 
+namespace {
+// Levenshtein distance, for "did you mean" on misspelt keys.
+std::size_t edit_distance(const std::string& a, const std::string& b) {
+    std::vector<std::size_t> prev(b.size() + 1), cur(b.size() + 1);
+    for (std::size_t j = 0; j <= b.size(); ++j) prev[j] = j;
+    for (std::size_t i = 1; i <= a.size(); ++i) {
+        cur[0] = i;
+        for (std::size_t j = 1; j <= b.size(); ++j)
+            cur[j] = std::min({prev[j] + 1, cur[j - 1] + 1, prev[j - 1] + (a[i - 1] == b[j - 1] ? 0 : 1)});
+        std::swap(prev, cur);
+    }
+    return prev[b.size()];
+}
+}  // namespace
+
 void JsonReader::finish() const {
-    for (auto it = obj_->begin(); it != obj_->end(); ++it)
-        if (!used_.count(it.key())) throw ConfigError(path_of(it.key()), "unknown key");
+    for (auto it = obj_->begin(); it != obj_->end(); ++it) {
+        if (used_.count(it.key())) continue;
+        std::string best;
+        std::size_t best_d = std::max<std::size_t>(2, it.key().size() / 3) + 1;
+        for (const auto& k : asked_) {
+            if (used_.count(k)) continue;  // given already
+            const std::size_t d = edit_distance(it.key(), k);
+            if (d < best_d) { best_d = d; best = k; }
+        }
+        throw ConfigError(path_of(it.key()), best.empty() ? "unknown key" : "unknown key (did you mean '" + best + "'?)");
+    }
 }
 
 }  // namespace fringe

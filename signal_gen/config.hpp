@@ -73,6 +73,7 @@ private:
     const nlohmann::json* obj_;
     std::string path_;
     std::set<std::string> used_;
+    mutable std::set<std::string> asked_;  // every key looked for: the candidates for 'did you mean'
 };
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
