@@ -87,8 +87,25 @@ assert by["long-run"]["status"] == "interrupted", rows
 assert by["loss-run"]["verdict"] == "ERROR", rows
 PY
 id=$($PY -c 'import json,sys; print([r for r in json.load(open(sys.argv[1])) if r["scenario"]=="fig10c-loopback"][0]["id"])' "$dir/runs.json")
-"$FRINGE" runs --data "$dir/data" --show "$id" | $PY -c 'import json,sys; assert json.load(sys.stdin)["verdict"]=="PASS"'
+"$FRINGE" runs --data "$dir/data" --show "$id" --json | $PY -c 'import json,sys; assert json.load(sys.stdin)["verdict"]=="PASS"'
+# --show without --json: the summary a person reads (verdict, limits beside values), not 100s of KB of JSON
+"$FRINGE" runs --data "$dir/data" --show "$id" > "$dir/show.txt"
+grep -q "PASS (done)" "$dir/show.txt" && grep -q "(limit <= " "$dir/show.txt" || fail "runs --show summary: $(head -5 "$dir/show.txt")"
+[ "$(wc -c < "$dir/show.txt")" -lt 20000 ] || fail "runs --show prints a summary, not the report"
 "$FRINGE" runs --data "$dir/data" --verdict FAIL | grep -q ci-failing || fail "runs --verdict"
+# filters: case-insensitive verdicts; bad values are errors naming the option, not an empty list
+"$FRINGE" runs --data "$dir/data" --verdict fail | grep -q ci-failing || fail "runs --verdict fail (lower case)"
+set +e; "$FRINGE" runs --data "$dir/data" --verdict BOGUS > /dev/null 2> "$dir/err.txt"; rc=$?; set -e
+[ $rc -eq 2 ] && grep -q "verdict" "$dir/err.txt" || fail "runs --verdict BOGUS: exit $rc, $(cat "$dir/err.txt")"
+set +e; "$FRINGE" runs --data "$dir/data" --since someday > /dev/null 2> "$dir/err.txt"; rc=$?; set -e
+[ $rc -eq 2 ] && grep -q "since" "$dir/err.txt" || fail "runs --since someday: exit $rc"
+"$FRINGE" runs --data "$dir/data" --since yesterday | grep -q ci-failing || fail "runs --since yesterday"
+"$FRINGE" runs --data "$dir/data" --since 2999-01-01 2>/dev/null | grep -q ci-failing && fail "runs --since in the future lists nothing"
+# a misspelt key: did you mean, and the file named
+$PY -c 'import json,sys; s=json.load(open(sys.argv[1])); s["setle_s"]=s.pop("settle_s"); s["encoder"]=sys.argv[1].rsplit("/",1)[0]+"/"+s["encoder"]; json.dump(s,open(sys.argv[2],"w"))' \
+  "$SRC/fixtures/scenarios/fig10c-loopback.json" "$dir/typo.json"
+set +e; "$FRINGE" run "$dir/typo.json" --no-db > /dev/null 2> "$dir/err.txt"; rc=$?; set -e
+[ $rc -eq 2 ] && grep -q "setle_s: unknown key (did you mean 'settle_s'?) (in $dir/typo.json)" "$dir/err.txt" || fail "typo: exit $rc, $(cat "$dir/err.txt")"
 # --record: the device input with aligned truth; re-estimating it gives the run's figure exactly
 "$FRINGE" run "$S/agc-drift.json" --no-db --record "$dir/rec.fcap" --report "$dir/agc.json" -q
 "$FRINGE" estimate "$dir/rec.fcap" --estimator ekf-diffraction --param agc=true --param q_gain_per_s=0.01 --report "$dir/re.json" -q
