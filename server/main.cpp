@@ -6,6 +6,7 @@
 #include "estimator/estimator.hpp"
 #include "server/evaluate.hpp"
 #include "server/http_server.hpp"
+#include "server/instance_lock.hpp"
 #include "server/remote.hpp"
 #include "server/service.hpp"
 #include "server/report_formats.hpp"
@@ -35,6 +36,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <thread>
+#include <sys/stat.h>
 #include <unistd.h>
 
 namespace {
@@ -301,6 +303,9 @@ int run_run(const RunCliOptions& o) {
     if (!o.device.empty()) sc.device = o.device;
     validate_run(sc);
     if (!o.server.empty()) return run_run_remote(o, sc);
+    // The run's row names this process's instance, whose lock we hold until the report is
+    // stored: a service on the same folder sees the run alive, and interrupted once we are gone.
+    InstanceLock instance;
     std::unique_ptr<RunStore> store;
     RunOptions ro;
     ro.run_id = new_run_id();
@@ -311,7 +316,8 @@ int run_run(const RunCliOptions& o) {
     std::signal(SIGTERM, on_interrupt);
     if (!o.no_db) {
         const std::string dir = o.data.empty() ? default_data_dir() : o.data;
-        store = std::make_unique<RunStore>(dir + "/runs.db");
+        instance.acquire_instance(dir, "cli-" + new_instance_id());
+        store = std::make_unique<RunStore>(dir + "/runs.db", instance.id());
         store->begin(ro.run_id, iso_now(), sc.name, sc.dut);
     }
     const bool tty = isatty(STDERR_FILENO) && !o.quiet;
@@ -476,11 +482,18 @@ int run_devices(const DevicesOptions& o) {
 struct ServeOptions {
     std::string bind = "127.0.0.1:8080", data, token_file, fixtures = FRINGE_SOURCE_DIR "/fixtures", web = FRINGE_SOURCE_DIR "/web";
     unsigned workers = 0, threads = 2;
-    double max_upload_mb = 256;
+    double max_upload_mb = 256, upload_quota_mb = 4096, max_report_mb = 64;
+    double max_samples = 1e9;
+    std::size_t max_estimators = 16, max_limits = 64;
+    unsigned max_connections = 256;
+    int body_timeout_s = 10;
+    double upload_min_kib_s = 64;
     bool allow_external = false;
 };
 
 int run_serve(const ServeOptions& o) {
+    // Everything the service creates (run store, uploads, locks) is for its user only, like the token.
+    ::umask(077);
     ServiceConfig cfg;
     cfg.data_dir = o.data.empty() ? default_data_dir() : o.data;
     cfg.fixtures_dir = o.fixtures;
@@ -488,6 +501,11 @@ int run_serve(const ServeOptions& o) {
     cfg.workers = o.workers ? o.workers : std::max(1u, std::thread::hardware_concurrency());
     cfg.max_upload_bytes = static_cast<std::uint64_t>(o.max_upload_mb * 1024 * 1024);
     cfg.allow_external = o.allow_external;
+    cfg.max_samples = o.max_samples;
+    cfg.max_estimators = o.max_estimators;
+    cfg.max_limits = o.max_limits;
+    cfg.max_report_bytes = static_cast<std::size_t>(o.max_report_mb * 1024 * 1024);
+    cfg.upload_quota_bytes = static_cast<std::uint64_t>(o.upload_quota_mb * 1024 * 1024);
     cfg.token_for_reads = !is_loopback_bind(o.bind);
     const std::string token_file = o.token_file.empty() ? cfg.data_dir + "/token" : o.token_file;
     bool created = false;
@@ -496,6 +514,9 @@ int run_serve(const ServeOptions& o) {
     HttpServerOptions ho;
     ho.bind = o.bind;
     ho.threads = o.threads;
+    ho.max_connections = o.max_connections;
+    ho.body_timeout_s = o.body_timeout_s;
+    ho.upload_min_bytes_per_s = o.upload_min_kib_s * 1024;
     HttpServer server(svc, ho);
     std::printf("fringe %s serving %s (data %s, %u run workers)\n", FRINGE_VERSION, server.url().c_str(), cfg.data_dir.c_str(), cfg.workers);
     if (created)
@@ -607,6 +628,20 @@ int main(int argc, char** argv) {
     sv->add_option("--workers", serve_o.workers, "Runs executed in parallel (default: cores); runs on one board always queue");
     sv->add_option("--threads", serve_o.threads, "HTTP I/O threads")->check(CLI::Range(1, 64))->capture_default_str();
     sv->add_option("--max-upload-mb", serve_o.max_upload_mb, "Largest capture upload, MiB")->check(CLI::PositiveNumber)->capture_default_str();
+    sv->add_option("--upload-quota-mb", serve_o.upload_quota_mb, "All uploaded captures together on disk, MiB (507 quota_exceeded beyond)")
+        ->check(CLI::PositiveNumber)->capture_default_str();
+    sv->add_option("--max-samples", serve_o.max_samples, "Samples per run (duration_s x sample_rate_hz; 413 too_many_samples beyond)")
+        ->check(CLI::PositiveNumber)->capture_default_str();
+    sv->add_option("--max-estimators", serve_o.max_estimators, "Estimators per run (413 too_many_estimators beyond)")->check(CLI::Range(1, 1000))->capture_default_str();
+    sv->add_option("--max-limits", serve_o.max_limits, "Limits per run (413 too_many_limits beyond)")->check(CLI::Range(1, 10000))->capture_default_str();
+    sv->add_option("--max-report-mb", serve_o.max_report_mb, "Largest report stored, MiB (a larger one ends the run as an error)")
+        ->check(CLI::PositiveNumber)->capture_default_str();
+    sv->add_option("--max-connections", serve_o.max_connections, "Connections served at once; more get 503 and are closed")
+        ->check(CLI::Range(1, 100000))->capture_default_str();
+    sv->add_option("--body-timeout", serve_o.body_timeout_s, "Seconds a JSON body may take to arrive; also the grace before the upload rate applies (408 beyond)")
+        ->check(CLI::Range(1, 3600))->capture_default_str();
+    sv->add_option("--upload-min-kibps", serve_o.upload_min_kib_s, "Slowest average upload rate accepted after --body-timeout seconds, KiB/s (408 below)")
+        ->check(CLI::NonNegativeNumber)->capture_default_str();
     sv->add_flag("--allow-external", serve_o.allow_external, "Allow the external estimator (runs a command on this host) in HTTP requests");
 
     BoardSimCli sim;
