@@ -2,7 +2,7 @@
 # fringe serve's lifecycle and resource limits through the real executable on 127.0.0.1:
 # one service per data folder (the second exits 2 naming the holder); a run killed with its
 # service is interrupted at the next start even when a live process has its old PID, and its
-# event stream ends; a `fringe run --data` beside the service stays running and is
+# event stream ends; a run's status comes from its stored summary, not its report; a `fringe run --data` beside the service stays running and is
 # interrupted once killed; files are 0600; a full disk answers 507; with no file
 # descriptors left the accept loop backs off instead of spinning, and recovers.
 set -euo pipefail
@@ -72,13 +72,20 @@ wait_status "$id2" "running " || fail "perf-1e7 did not start"
 kill -9 $pid; wait $pid 2>/dev/null || true
 # The dead service's PID, as a restarted container's PID 1 or a reused PID would be: alive.
 sleep 300 & holder=$!
-$PY - "$D/runs.db" "$id2" "$holder" <<'PY'
+# And the finished run's stored report made unreadable: a status query must not parse it (it
+# used to, under the store lock, for every GET runs/{id} and every event stream poll).
+$PY - "$D/runs.db" "$id2" "$holder" "$id" <<'PY'
 import sqlite3, sys
 db = sqlite3.connect(sys.argv[1])
 db.execute("UPDATE runs SET pid = ? WHERE id = ?", (int(sys.argv[3]), sys.argv[2]))
+db.execute("UPDATE runs SET report = '{\"not json' WHERE id = ?", (sys.argv[4],))
 db.commit()
 PY
 start "$D"
+api "${URL}api/v1/runs/$id" | $PY -c '
+import json,sys; r=json.load(sys.stdin)
+assert r["status"] == "done" and r["verdict"] == "PASS" and r["progress"]["done"] == r["progress"]["total"] == 100000, r
+assert r["device"].startswith("loopback:"), r["device"]' || fail "GET runs/{id} from the stored summary"
 st=$(status_of "$id2")
 kill $holder 2>/dev/null || true
 [ "$st" = "interrupted ABORTED" ] || fail "a killed service's run must be interrupted at restart whatever its PID, is '$st'"
