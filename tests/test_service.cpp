@@ -657,6 +657,22 @@ TEST_CASE("http server: per-run bounds and the upload quota are named 4xx/507 er
         many["estimators"].erase(16);
         CHECK(http_call(s.port(), "POST", "/api/v1/runs", json{{"scenario", many}}.dump()).status == 201);
     }
+    SECTION("a report over the size bound is not stored; the run ends as an error saying so") {
+        TempDir d2;
+        auto c2 = config(d2);
+        c2.max_report_bytes = 50000;  // fig10c's report with its traces is about 270 kB
+        Served small(c2, HttpServerOptions{});
+        const auto created = http_call(small.port(), "POST", "/api/v1/runs", R"({"fixture":"fig10c-loopback"})");
+        REQUIRE(created.status == 201);
+        const std::string id = json::parse(created.body)["id"];
+        CHECK(wait_finished(small.svc, id) == "error");
+        const auto run = json::parse(http_call(small.port(), "GET", "/api/v1/runs/" + id).body);
+        CHECK(run["verdict"] == "ERROR");
+        CHECK(run["error"].get<std::string>().find("--max-report-mb") != std::string::npos);
+        const auto rep = http_call(small.port(), "GET", "/api/v1/runs/" + id + "/report.json?traces=1");
+        CHECK(rep.status == 200);
+        CHECK(rep.body.size() < 50000);
+    }
     SECTION("uploads past the quota: refused from the header, and when streamed") {
         const std::string cap = capture_bytes(d, ".csv");  // about 330 kB: one fits, two do not
         REQUIRE(cap.size() < 500000);
