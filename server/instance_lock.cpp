@@ -103,9 +103,12 @@ void InstanceLock::acquire_instance(const std::string& data_dir, const std::stri
 bool instance_alive(const std::string& data_dir, const std::string& instance_id) {
     if (!valid_instance(instance_id)) return false;
     const std::string path = (fs::path(lock_dir(data_dir)) / (instance_id + ".lock")).string();
+    // Dead only when we know it: the file is gone, or we could lock it. Anything else (no
+    // descriptors left, EACCES) says alive, since "dead" is written to the store for good.
     const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-    if (fd < 0) return false;  // never made, or removed by its owner at exit
-    const bool held = ::flock(fd, LOCK_SH | LOCK_NB) != 0 && errno == EWOULDBLOCK;
+    if (fd < 0) return errno != ENOENT;  // ENOENT: never made, or removed by its owner at exit
+    const bool locked_by_us = ::flock(fd, LOCK_SH | LOCK_NB) == 0;
+    const bool held = !locked_by_us;  // EWOULDBLOCK: someone holds it; other errors: cannot tell
     ::close(fd);  // drops our shared lock if we got it
     return held;
 }
