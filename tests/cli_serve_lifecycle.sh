@@ -28,8 +28,8 @@ start() {  # start DATA [extra args...]: a server on a free port; sets pid and U
 api() { curl -sS --max-time 10 "$@"; }
 status_of() { api "${URL}api/v1/runs/$1" | $PY -c 'import json,sys; r=json.load(sys.stdin); print(r["status"], r["verdict"] or "")'; }
 post_run() { api -X POST -H "Authorization: Bearer $(cat "$D/token")" -d "{\"fixture\":\"$1\"}" "${URL}api/v1/runs" | $PY -c 'import json,sys; print(json.load(sys.stdin)["id"])'; }
-wait_status() {  # wait_status ID "STATUS VERDICT"
-  for _ in $(seq 200); do [ "$(status_of "$1")" = "$2" ] && return 0; sleep 0.05; done
+wait_status() {  # wait_status ID "STATUS VERDICT" [TRIES, 0.05 s apart]
+  for _ in $(seq "${3:-200}"); do [ "$(status_of "$1")" = "$2" ] && return 0; sleep 0.05; done
   return 1
 }
 
@@ -50,7 +50,7 @@ grep -q "$D" "$dir/second.log" && grep -q "pid $pid " "$dir/second.log" && grep 
 
 # --- file modes: the run store (and its WAL) and uploads are private like the token
 id=$(post_run fig10c-loopback)
-wait_status "$id" "done PASS" || fail "fig10c did not finish: $(status_of "$id")"
+wait_status "$id" "done PASS" 2400 || fail "fig10c did not finish: $(status_of "$id")"
 $PY - "$dir/cap.csv" <<'PY'
 import math, sys
 with open(sys.argv[1], "w") as f:
