@@ -6,6 +6,7 @@
 #include <boost/asio/signal_set.hpp>
 #include <boost/asio/steady_timer.hpp>
 #include <boost/asio/strand.hpp>
+#include <boost/asio/thread_pool.hpp>
 #include <boost/beast/core.hpp>
 #include <boost/beast/http.hpp>
 #include <spdlog/spdlog.h>
@@ -52,14 +53,38 @@ tcp::endpoint parse_bind(const std::string& bind) {
 struct Shared {
     Service& svc;
     HttpServerOptions opt;
+    net::thread_pool* work = nullptr;  // heavy requests
+    std::atomic<std::size_t> pending_work{0};
+    std::atomic<unsigned> sessions{0};  // connections being served (not the ones turned away)
 };
+
+bool disk_full(const beast::error_code& ec) {
+    return ec == beast::errc::no_space_on_device || ec == beast::errc::file_too_large ||
+           (ec.category() == boost::system::system_category() && ec.value() == EDQUOT);
+}
 
 class Session : public std::enable_shared_from_this<Session> {
 public:
     Session(tcp::socket&& s, Shared& sh) : stream_(std::move(s)), sh_(sh), timer_(stream_.get_executor()) {}
+    ~Session() {
+        if (counted_) --sh_.sessions;
+    }
 
     void start() {
+        counted_ = true;
+        ++sh_.sessions;
         net::dispatch(stream_.get_executor(), beast::bind_front_handler(&Session::read_header, shared_from_this()));
+    }
+
+    // Over the connection limit: answer 503 and close, without reading a request.
+    void reject() {
+        net::dispatch(stream_.get_executor(), [self = shared_from_this()] {
+            auto r = json_error(503, "too_many_connections",
+                                "this service serves " + std::to_string(self->sh_.opt.max_connections) + " connections at once; retry shortly");
+            r.headers.emplace_back("Retry-After", "1");
+            self->drain_ = true;
+            self->respond(std::move(r), false);
+        });
     }
 
 private:
@@ -113,27 +138,96 @@ private:
         if (early) {
             // The body (if any) is not read: answer and close.
             const bool has_body = (len && *len > 0) || head_->chunked();
+            drain_ = has_body;  // let the client finish sending, so it reads the answer
             return respond(std::move(*early), keep_alive_ && !has_body);
         }
+        quota_limited_ = false;
         if (sh_.svc.is_upload(req_.method, req_.target)) {
             upload_path_ = sh_.svc.new_upload_path();
             file_.emplace(std::move(*head_));
-            file_->body_limit(sh_.svc.config().max_upload_bytes);
+            const std::uint64_t room = sh_.svc.upload_room();
+            quota_limited_ = room < sh_.svc.config().max_upload_bytes;
+            file_->body_limit(std::min(room, sh_.svc.config().max_upload_bytes));
             file_->get().body().open(upload_path_.c_str(), beast::file_mode::write, ec);
-            if (ec) return respond(json_error(500, "upload", "cannot store the upload: " + ec.message()), false);
-            stream_.expires_after(std::chrono::seconds(std::max(sh_.opt.read_timeout_s, 300)));
-            http::async_read(stream_, buf_, *file_, beast::bind_front_handler(&Session::on_body, shared_from_this()));
+            if (ec) {
+                drain_ = true;
+                if (disk_full(ec)) return respond(json_error(507, "storage_full", "cannot store the upload: " + ec.message()), false);
+                return respond(json_error(500, "upload", "cannot store the upload: " + ec.message()), false);
+            }
         } else {
             str_.emplace(std::move(*head_));
             str_->body_limit(sh_.svc.config().max_body_bytes);
-            http::async_read(stream_, buf_, *str_, beast::bind_front_handler(&Session::on_body, shared_from_this()));
         }
+        // The body's pace is watched here (read_some + a watchdog), not by the stream's
+        // timeout, which would close the socket before a 408 could be sent.
+        stream_.expires_never();
+        body_start_ = std::chrono::steady_clock::now();
+        body_bytes_ = 0;
+        timed_out_ = false;
+        reading_body_ = true;
+        ++body_gen_;
+        watch_body();
+        read_body();
     }
 
-    void on_body(beast::error_code ec, std::size_t) {
+    bool body_done() const { return file_ ? file_->is_done() : str_->is_done(); }
+
+    void read_body() {
+        if (body_done()) return on_body_some({}, 0);
+        if (file_) http::async_read_some(stream_, buf_, *file_, beast::bind_front_handler(&Session::on_body_some, shared_from_this()));
+        else http::async_read_some(stream_, buf_, *str_, beast::bind_front_handler(&Session::on_body_some, shared_from_this()));
+    }
+
+    void on_body_some(beast::error_code ec, std::size_t n) {
+        body_bytes_ += n;
+        if (!ec && !timed_out_ && !body_done()) return read_body();
+        reading_body_ = false;
+        timer_.cancel();
+        on_body(ec);
+    }
+
+    void watch_body() {
+        timer_.expires_after(std::chrono::milliseconds(250));
+        timer_.async_wait([self = shared_from_this(), gen = body_gen_](beast::error_code ec) {
+            if (ec || gen != self->body_gen_ || !self->reading_body_) return;
+            const double elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - self->body_start_).count();
+            const double limit_s = self->sh_.opt.body_timeout_s;
+            const bool slow = self->file_ ? elapsed_s > limit_s && static_cast<double>(self->body_bytes_) < self->sh_.opt.upload_min_bytes_per_s * elapsed_s
+                                          : elapsed_s > limit_s;
+            if (slow) {
+                self->timed_out_ = true;
+                beast::error_code ignored;
+                self->stream_.socket().cancel(ignored);  // the pending read ends: on_body answers 408
+                return;
+            }
+            self->watch_body();
+        });
+    }
+
+    void on_body(beast::error_code ec) {
+        if (timed_out_) {
+            drop_upload();
+            spdlog::warn("{} {}: body too slow ({} bytes in {} s)", req_.method, req_.target, body_bytes_,
+                         std::chrono::duration_cast<std::chrono::seconds>(std::chrono::steady_clock::now() - body_start_).count());
+            const std::string msg = file_ ? "the upload arrived slower than " + std::to_string(static_cast<long>(sh_.opt.upload_min_bytes_per_s / 1024)) +
+                                                " KiB/s on average after " + std::to_string(sh_.opt.body_timeout_s) + " s"
+                                          : "the body did not arrive within " + std::to_string(sh_.opt.body_timeout_s) + " s";
+            return respond(json_error(408, "body_timeout", msg), false);
+        }
         if (ec == http::error::body_limit) {
             drop_upload();
+            drain_ = true;
+            if (file_ && quota_limited_)
+                return respond(json_error(507, "quota_exceeded", "uploaded captures may take " + std::to_string(sh_.svc.config().upload_quota_bytes) +
+                                                                     " bytes on disk; this upload does not fit (--upload-quota-mb)"),
+                               false);
             return respond(json_error(413, "body_too_large", "the body exceeds this endpoint's limit"), false);
+        }
+        if (ec && file_ && disk_full(ec)) {
+            drop_upload();
+            drain_ = true;
+            spdlog::error("{} {}: {}", req_.method, req_.target, ec.message());
+            return respond(json_error(507, "storage_full", "cannot store the upload: " + ec.message()), false);
         }
         if (ec) {
             spdlog::warn("{} {}: {}", log_escape(req_.method), log_escape(req_.target), ec.message());
@@ -147,7 +241,27 @@ private:
         } else {
             req_.body = std::move(str_->get().body());
         }
-        HttpResponse res = sh_.svc.handle(req_);
+        if (!sh_.svc.is_heavy(req_.method, req_.target)) return complete(sh_.svc.handle(req_));
+        // Off the I/O threads: the answer comes back to this connection's strand.
+        if (sh_.pending_work.load() >= sh_.opt.max_pending_work) {
+            auto r = json_error(503, "busy", "this service already has " + std::to_string(sh_.pending_work.load()) + " long requests waiting; retry shortly");
+            r.headers.emplace_back("Retry-After", "1");
+            return complete(std::move(r));
+        }
+        ++sh_.pending_work;
+        net::post(*sh_.work, [self = shared_from_this(), req = std::move(req_)]() {
+            HttpResponse res;
+            try {
+                res = self->sh_.svc.handle(req);
+            } catch (const std::exception& e) {
+                res = json_error(500, "internal", e.what());
+            }
+            --self->sh_.pending_work;
+            net::post(self->stream_.get_executor(), [self, res = std::move(res)]() mutable { self->complete(std::move(res)); });
+        });
+    }
+
+    void complete(HttpResponse&& res) {
         drop_upload();  // the service moved it into place if it kept it
         file_.reset();
         str_.reset();
@@ -178,8 +292,28 @@ private:
 
     void on_write(bool close_after, beast::error_code ec, std::size_t) {
         res_.reset();
+        if (!ec && close_after && drain_) return linger();
         if (ec || close_after) return close();
         read_header();
+    }
+
+    // Answered before the request's body was read: stop sending, then read and drop what the
+    // client still sends (up to 16 MiB or 2 s), so it reads the answer instead of a reset.
+    void linger() {
+        drain_ = false;
+        beast::error_code ec;
+        stream_.socket().shutdown(tcp::socket::shutdown_send, ec);
+        scratch_.resize(16384);
+        stream_.expires_after(std::chrono::seconds(2));
+        drain_more();
+    }
+
+    void drain_more() {
+        stream_.async_read_some(net::buffer(scratch_), [self = shared_from_this()](beast::error_code ec, std::size_t n) {
+            self->drained_ += n;
+            if (ec || self->drained_ > (16u << 20)) return self->close();
+            self->drain_more();
+        });
     }
 
     // ---- server-sent events: progress until the run ends, then close ----
@@ -247,6 +381,15 @@ private:
     std::string ev_id_, out_;
     std::uint64_t last_seq_ = 0;
     std::chrono::steady_clock::time_point last_write_;
+    bool counted_ = false;
+    // body pace
+    std::chrono::steady_clock::time_point body_start_;
+    std::uint64_t body_bytes_ = 0, body_gen_ = 0;
+    bool reading_body_ = false, timed_out_ = false, quota_limited_ = false;
+    // lingering close
+    bool drain_ = false;
+    std::vector<char> scratch_;
+    std::size_t drained_ = 0;
 };
 
 }  // namespace
@@ -262,9 +405,14 @@ struct HttpServer::Impl {
     std::mutex stopper_mu;  // the stopper may end the io loop before its assignment completes
     std::thread stopper;
     tcp::endpoint local;
+    net::steady_timer backoff;
+    std::chrono::steady_clock::time_point last_accept_warning;
+    net::thread_pool work;  // after ioc: joined before the io_context goes
 
     Impl(Service& s, HttpServerOptions o)
-        : sh{s, std::move(o)}, ioc(static_cast<int>(std::max(1u, sh.opt.threads))), acceptor(net::make_strand(ioc)), signals(ioc) {
+        : sh{s, std::move(o)}, ioc(static_cast<int>(std::max(1u, sh.opt.threads))), acceptor(net::make_strand(ioc)), signals(ioc),
+          backoff(acceptor.get_executor()), work(std::max(1u, sh.opt.work_threads ? sh.opt.work_threads : s.config().workers)) {
+        sh.work = &work;
         const auto ep = parse_bind(sh.opt.bind);
         beast::error_code ec;
         acceptor.open(ep.protocol(), ec);
@@ -279,10 +427,24 @@ struct HttpServer::Impl {
     void accept() {
         acceptor.async_accept(net::make_strand(ioc), [this](beast::error_code ec, tcp::socket s) {
             if (ec == net::error::operation_aborted || !acceptor.is_open()) return;
-            if (!ec) {
-                s.set_option(tcp::no_delay(true), ec);
-                std::make_shared<Session>(std::move(s), sh)->start();
+            if (ec) {
+                // EMFILE/ENFILE (slow clients hold every descriptor), ENOBUFS...: the pending
+                // connection stays in the backlog; retrying at once would spin a core.
+                const auto now = std::chrono::steady_clock::now();
+                if (now - last_accept_warning > std::chrono::seconds(10)) {
+                    spdlog::warn("accept: {}; retrying every {} ms", ec.message(), sh.opt.accept_backoff_ms);
+                    last_accept_warning = now;
+                }
+                backoff.expires_after(std::chrono::milliseconds(sh.opt.accept_backoff_ms));
+                backoff.async_wait([this](beast::error_code tec) {
+                    if (!tec && acceptor.is_open()) accept();
+                });
+                return;
             }
+            s.set_option(tcp::no_delay(true), ec);
+            auto session = std::make_shared<Session>(std::move(s), sh);
+            if (sh.sessions.load() >= sh.opt.max_connections) session->reject();
+            else session->start();
             accept();
         });
     }
@@ -301,6 +463,7 @@ struct HttpServer::Impl {
             net::post(acceptor.get_executor(), [this] {
                 beast::error_code ec;
                 acceptor.close(ec);
+                backoff.cancel();
                 signals.cancel(ec);
             });
         });
@@ -350,6 +513,8 @@ void HttpServer::run() {
     for (unsigned i = 1; i < std::max(1u, impl_->sh.opt.threads); ++i) extra.emplace_back(serve);
     serve();
     for (auto& t : extra) t.join();
+    impl_->work.stop();  // waiting heavy requests are dropped (their connections are gone)
+    impl_->work.join();
     {
         std::lock_guard<std::mutex> l(impl_->stopper_mu);
         if (impl_->stopper.joinable()) impl_->stopper.join();

@@ -6,6 +6,7 @@
 #include "estimator/estimator.hpp"
 #include "server/evaluate.hpp"
 #include "server/http_server.hpp"
+#include "server/instance_lock.hpp"
 #include "server/remote.hpp"
 #include "server/service.hpp"
 #include "server/report_formats.hpp"
@@ -40,6 +41,7 @@
 #include <ctime>
 #include <filesystem>
 #include <thread>
+#include <sys/stat.h>
 #include <unistd.h>
 
 namespace {
@@ -218,7 +220,7 @@ int run_estimate(const EstimateOptions& o) {
     if (!o.report.empty()) {
         std::FILE* f = std::fopen(o.report.c_str(), "w");
         if (!f) throw std::runtime_error(o.report + ": cannot write report");
-        const std::string text = r.dump(2) + "\n";
+        const std::string text = r.dump(2, ' ', false, json::error_handler_t::replace) + "\n";
         const bool ok = std::fwrite(text.data(), 1, text.size(), f) == text.size();
         if (std::fclose(f) != 0 || !ok) throw std::runtime_error(o.report + ": write failed");
     }
@@ -344,7 +346,7 @@ int run_run_remote(const RunCliOptions& o, const Scenario& sc) {
         spdlog::error("{}", failure);
         return kExitError;
     }
-    if (!o.report.empty()) write_file_atomic(o.report, r.dump(2) + "\n");
+    if (!o.report.empty()) write_file_atomic(o.report, r.dump(2, ' ', false, json::error_handler_t::replace) + "\n");
     if (!o.quiet) print_run_summary(r, sc.name);
     if (r["error"].is_string()) spdlog::error("{}", r["error"].get<std::string>());
     return exit_code(r);
@@ -356,6 +358,9 @@ int run_run(const RunCliOptions& o) {
     if (!o.device.empty()) sc.device = o.device;
     validate_run(sc);  // preflight errors stop here (exit 2); warnings come back in the report
     if (!o.server.empty()) return run_run_remote(o, sc);
+    // The run's row names this process's instance, whose lock we hold until the report is
+    // stored: a service on the same folder sees the run alive, and interrupted once we are gone.
+    InstanceLock instance;
     std::unique_ptr<RunStore> store;
     RunOptions ro;
     ro.run_id = new_run_id();
@@ -366,7 +371,8 @@ int run_run(const RunCliOptions& o) {
     std::signal(SIGTERM, on_interrupt);
     if (!o.no_db) {
         const std::string dir = o.data.empty() ? default_data_dir() : o.data;
-        store = std::make_unique<RunStore>(dir + "/runs.db");
+        instance.acquire_instance(dir, "cli-" + new_instance_id());
+        store = std::make_unique<RunStore>(dir + "/runs.db", instance.id());
         store->begin(ro.run_id, iso_now(), sc.name, sc.dut);
     }
     const bool tty = isatty(STDERR_FILENO) && !o.quiet;
@@ -387,7 +393,7 @@ int run_run(const RunCliOptions& o) {
     }
     if (tty) std::fprintf(stderr, "\r%40s\r", "");
     // The report survives first: files, then the history.
-    if (!o.report.empty()) write_file_atomic(o.report, r.dump(2) + "\n");
+    if (!o.report.empty()) write_file_atomic(o.report, r.dump(2, ' ', false, json::error_handler_t::replace) + "\n");
     if (!o.junit.empty()) write_file_atomic(o.junit, junit_xml(r));
     if (!o.html.empty()) write_file_atomic(o.html, report_html(r));
     std::string store_error;
@@ -599,7 +605,12 @@ int run_devices(const DevicesOptions& o) {
 struct ServeOptions {
     std::string bind = "127.0.0.1:8080", data, token_file, fixtures = FRINGE_SOURCE_DIR "/fixtures", web = FRINGE_SOURCE_DIR "/web";
     unsigned workers = 0, threads = 2;
-    double max_upload_mb = 256;
+    double max_upload_mb = 256, upload_quota_mb = 4096, max_report_mb = 64;
+    double max_samples = 1e9;
+    std::size_t max_estimators = 16, max_limits = 64;
+    unsigned max_connections = 256;
+    int body_timeout_s = 10;
+    double upload_min_kib_s = 64;
     bool allow_external = false;
     std::vector<std::string> allow_device, allow_host;
 };
@@ -619,6 +630,8 @@ int run_serve(const ServeOptions& o) {
     auto formatter = std::make_unique<spdlog::pattern_formatter>();
     formatter->add_flag<EscapedPayload>('*').set_pattern("%^%l%$: %*");
     spdlog::default_logger()->set_formatter(std::move(formatter));
+    // Everything the service creates (run store, uploads, locks) is for its user only, like the token.
+    ::umask(077);
     ServiceConfig cfg;
     cfg.data_dir = o.data.empty() ? default_data_dir() : o.data;
     cfg.fixtures_dir = o.fixtures;
@@ -628,6 +641,11 @@ int run_serve(const ServeOptions& o) {
     cfg.allow_external = o.allow_external;
     cfg.allow_devices = o.allow_device;
     cfg.allow_hosts = o.allow_host;
+    cfg.max_samples = o.max_samples;
+    cfg.max_estimators = o.max_estimators;
+    cfg.max_limits = o.max_limits;
+    cfg.max_report_bytes = static_cast<std::size_t>(o.max_report_mb * 1024 * 1024);
+    cfg.upload_quota_bytes = static_cast<std::uint64_t>(o.upload_quota_mb * 1024 * 1024);
     cfg.token_for_reads = !is_loopback_bind(o.bind);
     const std::string token_file = o.token_file.empty() ? cfg.data_dir + "/token" : o.token_file;
     bool created = false;
@@ -636,6 +654,9 @@ int run_serve(const ServeOptions& o) {
     HttpServerOptions ho;
     ho.bind = o.bind;
     ho.threads = o.threads;
+    ho.max_connections = o.max_connections;
+    ho.body_timeout_s = o.body_timeout_s;
+    ho.upload_min_bytes_per_s = o.upload_min_kib_s * 1024;
     HttpServer server(svc, ho);
     std::printf("fringe %s serving %s (data %s, %u run workers)\n", FRINGE_VERSION, server.url().c_str(), cfg.data_dir.c_str(), cfg.workers);
     if (created)
@@ -750,6 +771,20 @@ int main(int argc, char** argv) {
     sv->add_option("--workers", serve_o.workers, "Runs executed in parallel (default: cores); runs on one board always queue");
     sv->add_option("--threads", serve_o.threads, "HTTP I/O threads")->check(CLI::Range(1, 64))->capture_default_str();
     sv->add_option("--max-upload-mb", serve_o.max_upload_mb, "Largest capture upload, MiB")->check(CLI::PositiveNumber)->capture_default_str();
+    sv->add_option("--upload-quota-mb", serve_o.upload_quota_mb, "All uploaded captures together on disk, MiB (507 quota_exceeded beyond)")
+        ->check(CLI::PositiveNumber)->capture_default_str();
+    sv->add_option("--max-samples", serve_o.max_samples, "Samples per run (duration_s x sample_rate_hz; 413 too_many_samples beyond)")
+        ->check(CLI::PositiveNumber)->capture_default_str();
+    sv->add_option("--max-estimators", serve_o.max_estimators, "Estimators per run (413 too_many_estimators beyond)")->check(CLI::Range(1, 1000))->capture_default_str();
+    sv->add_option("--max-limits", serve_o.max_limits, "Limits per run (413 too_many_limits beyond)")->check(CLI::Range(1, 10000))->capture_default_str();
+    sv->add_option("--max-report-mb", serve_o.max_report_mb, "Largest report stored, MiB (a larger one ends the run as an error)")
+        ->check(CLI::PositiveNumber)->capture_default_str();
+    sv->add_option("--max-connections", serve_o.max_connections, "Connections served at once; more get 503 and are closed")
+        ->check(CLI::Range(1, 100000))->capture_default_str();
+    sv->add_option("--body-timeout", serve_o.body_timeout_s, "Seconds a JSON body may take to arrive; also the grace before the upload rate applies (408 beyond)")
+        ->check(CLI::Range(1, 3600))->capture_default_str();
+    sv->add_option("--upload-min-kibps", serve_o.upload_min_kib_s, "Slowest average upload rate accepted after --body-timeout seconds, KiB/s (408 below)")
+        ->check(CLI::NonNegativeNumber)->capture_default_str();
     sv->add_flag("--allow-external", serve_o.allow_external, "Allow the external estimator (runs a command on this host) in HTTP requests");
     sv->add_option("--allow-device", serve_o.allow_device,
                    "Let clients' scenarios use devices matching this glob (repeatable): modbus+tcp://HOST:PORT, modbus+rtu:/dev/ttyUSB*, usb:1209:*; "

@@ -177,6 +177,16 @@ void RunManager::worker() {
             report["status"] = "interrupted";
             report["error"] = "interrupted: the service shut down during the run";
         }
+        if (max_report_bytes > 0) {
+            const std::size_t bytes = report.dump(-1, ' ', false, json::error_handler_t::replace).size();
+            if (bytes > max_report_bytes) {
+                const auto processed = report["samples"].value("processed", std::uint64_t{0});
+                report = unstarted_report(job->sc, job->snap.id, job->snap.created_at, "error", "ERROR",
+                                          "the report is " + std::to_string(bytes) + " bytes; this service stores at most " +
+                                              std::to_string(max_report_bytes) + " (--max-report-mb)");
+                report["samples"]["processed"] = processed;
+            }
+        }
         try {
             std::lock_guard<std::mutex> sl(store_mu_);
             store_.finish(report);

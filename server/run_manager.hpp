@@ -62,6 +62,9 @@ public:
     void shutdown();
     // Called (from a worker thread) when a run's report has been stored.
     std::function<void(const nlohmann::json& report)> on_finished;
+    // A report larger than this (serialised, bytes; 0: no bound) is not stored: the run ends
+    // as an error whose report says how large it was.
+    std::size_t max_report_bytes = 0;
 
 private:
     struct Job {

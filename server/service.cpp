@@ -336,6 +336,9 @@ std::string load_or_create_token(const std::string& path, bool* created) {
 }
 
 Service::Service(ServiceConfig cfg) : cfg_(std::move(cfg)) {
+    // One service per data folder (throws InstanceLockBusy naming the holder); holding it,
+    // every queued or running row of an instance whose lock is free is over for good.
+    lock_.acquire_service(cfg_.data_dir, new_instance_id());
     fs::create_directories(fs::path(cfg_.data_dir) / "captures");
     // Clients see our folders by short names: every spelling a message may use (as given,
     // absolute, with symlinks resolved).
@@ -354,9 +357,12 @@ Service::Service(ServiceConfig cfg) : cfg_(std::move(cfg)) {
     name_folder(dev::boards_dir(), "boards");
     name_folder(cfg_.web_dir, "web");
     std::stable_sort(public_names_.begin(), public_names_.end(), [](const auto& a, const auto& b) { return a.first.size() > b.first.size(); });
-    store_ = std::make_unique<RunStore>((fs::path(cfg_.data_dir) / "runs.db").string());
-    if (const int n = store_->mark_dead_interrupted(); n > 0) spdlog::warn("{} run(s) of a previous service that stopped without finishing are marked interrupted", n);
+    ::chmod((fs::path(cfg_.data_dir) / "captures").c_str(), 0700);
+    store_ = std::make_unique<RunStore>((fs::path(cfg_.data_dir) / "runs.db").string(), lock_.id());
+    if (const int n = store_->mark_dead_interrupted(); n > 0) spdlog::warn("{} run(s) of a process that stopped without finishing are marked interrupted", n);
+    remove_stale_instance_locks(cfg_.data_dir);
     runs_ = std::make_unique<RunManager>(*store_, store_mu_, cfg_.workers);
+    runs_->max_report_bytes = cfg_.max_report_bytes;
     if (!cfg_.web_dir.empty() && fs::is_directory(cfg_.web_dir)) {
         // The UI is read once: requests look files up by exact name, never build paths.
         for (const auto& e : fs::recursive_directory_iterator(cfg_.web_dir)) {
@@ -422,6 +428,33 @@ bool Service::is_upload(const std::string& method, const std::string& target) co
     return method == "POST" && target.substr(0, target.find('?')) == "/api/v1/captures";
 }
 
+bool Service::is_heavy(const std::string& method, const std::string& target) {
+    const std::string path = target.substr(0, target.find('?'));
+    if (is_upload(method, target)) return true;  // reads the whole capture to check it
+    const auto seg = segments(path);
+    if (seg.size() == 5 && seg[0] == "api" && seg[1] == "v1") {
+        if (seg[2] == "captures" && seg[4] == "evaluate") return method == "POST";
+        // The first read of a report parses and renders it (it can be hundreds of MB); later
+        // reads come from the cache and stay on the I/O thread.
+        if (seg[2] == "runs" && (seg[4] == "report.json" || seg[4] == "report.xml" || seg[4] == "report.html" || seg[4] == "traces")) {
+            if (method != "GET") return false;
+            std::lock_guard<std::mutex> l(cache_mu_);
+            return cache_.count(seg[3]) == 0;
+        }
+    }
+    return false;
+}
+
+std::uint64_t Service::upload_room() const {
+    std::uint64_t used = 0;
+    std::error_code ec;
+    for (const auto& e : fs::directory_iterator(fs::path(cfg_.data_dir) / "captures", ec)) {
+        std::error_code sec;
+        if (e.is_regular_file(sec)) used += e.file_size(sec);
+    }
+    return used >= cfg_.upload_quota_bytes ? 0 : cfg_.upload_quota_bytes - used;
+}
+
 std::string Service::new_upload_path() {
     std::lock_guard<std::mutex> l(upload_mu_);
     return (fs::path(cfg_.data_dir) / "captures" / (".upload-" + std::to_string(getpid()) + "-" + std::to_string(++upload_counter_))).string();
@@ -461,9 +494,16 @@ std::optional<HttpResponse> Service::precheck(const HttpRequest& head, std::uint
             return r;
         }
         if (auto denied = check_token(head, head.method == "POST")) return denied;
-        const std::uint64_t limit = is_upload(head.method, head.target) ? cfg_.max_upload_bytes : cfg_.max_body_bytes;
+        const bool upload = is_upload(head.method, head.target);
+        const std::uint64_t limit = upload ? cfg_.max_upload_bytes : cfg_.max_body_bytes;
         if (has_length && content_length > limit)
             return json_error(413, "body_too_large", "the body is " + std::to_string(content_length) + " bytes; the limit here is " + std::to_string(limit));
+        if (upload && has_length && content_length > 0) {
+            if (const auto room = upload_room(); content_length > room)
+                return json_error(507, "quota_exceeded", "the upload is " + std::to_string(content_length) + " bytes; uploaded captures may take " +
+                                                             std::to_string(cfg_.upload_quota_bytes) + " bytes on disk and " + std::to_string(room) +
+                                                             " are left (--upload-quota-mb)");
+        }
         return std::nullopt;
     } catch (const std::exception& e) {
         return json_error(500, "internal", public_text(e.what()));
@@ -509,9 +549,17 @@ HttpResponse Service::handle_request(const HttpRequest& req) {
         return json_error(400, "estimator_error", public_text(e.what()));
     } catch (const dev::DeviceError& e) {
         return json_error(502, "device_error", public_text(e.what()));
+    } catch (const StoreFull& e) {
+        spdlog::error("{}", log_escape(e.what()));
+        return json_error(507, "storage_full", public_text(std::string("the disk is full: ") + e.what()));
     } catch (const StoreError& e) {
         spdlog::error("{}", log_escape(e.what()));
         return json_error(500, "store_error", public_text(e.what()));
+    } catch (const fs::filesystem_error& e) {
+        spdlog::error("{} {}: {}", log_escape(req.method), log_escape(req.target), log_escape(e.what()));
+        if (e.code() == std::errc::no_space_on_device || e.code() == std::errc::file_too_large)
+            return json_error(507, "storage_full", std::string("the disk is full: ") + e.code().message());
+        return json_error(500, "internal", public_text(e.what()));
     } catch (const std::exception& e) {
         spdlog::error("{} {}: {}", log_escape(req.method), log_escape(req.target), log_escape(e.what()));
         return json_error(500, "internal", public_text(e.what()));
@@ -720,6 +768,14 @@ HttpResponse Service::create_run(const HttpRequest& req) {
             if (e.name == "external" && !cfg_.allow_external)
                 throw ConfigError("fixture", "this fixture uses the external estimator; start the service with --allow-external");
     } else {
+        // Counted before anything is built from them (each estimator is constructed to check it).
+        const json& raw = body["scenario"];
+        if (raw.is_object() && raw.contains("estimators") && raw["estimators"].is_array() && raw["estimators"].size() > cfg_.max_estimators)
+            return json_error(413, "too_many_estimators", "the scenario has " + std::to_string(raw["estimators"].size()) + " estimators; this service runs at most " +
+                                                              std::to_string(cfg_.max_estimators) + " per run (--max-estimators)", "scenario.estimators");
+        if (raw.is_object() && raw.contains("limits") && raw["limits"].is_array() && raw["limits"].size() > cfg_.max_limits)
+            return json_error(413, "too_many_limits", "the scenario has " + std::to_string(raw["limits"].size()) + " limits; this service takes at most " +
+                                                          std::to_string(cfg_.max_limits) + " per run (--max-limits)", "scenario.limits");
         const json safe = sandbox_scenario(body["scenario"]);
         try {
             sc = scenario_from_json(safe, (fs::path(cfg_.fixtures_dir) / "scenarios").string());
@@ -732,6 +788,7 @@ HttpResponse Service::create_run(const HttpRequest& req) {
             throw ConfigError("seed", "expected an integer from 0 to 2^53 (9007199254740992)");
         sc.seed = body["seed"].get<std::uint64_t>();
     }
+    if (auto too_big = check_run_size(sc, body.contains("fixture") ? "fixture" : "scenario")) return *too_big;
     try {
         dev::check_uri(sc.device);
         validate_run(sc);
@@ -742,6 +799,25 @@ HttpResponse Service::create_run(const HttpRequest& req) {
     auto r = json_ok({{"id", id}, {"status", "queued"}, {"links", {{"self", "/api/v1/runs/" + id}, {"events", "/api/v1/runs/" + id + "/events"}}}}, 201);
     r.headers.emplace_back("Location", "/api/v1/runs/" + id);
     return r;
+}
+
+std::optional<HttpResponse> Service::check_run_size(const Scenario& sc, const std::string& field) const {
+    const bool fixture = field == "fixture";
+    // In double: duration_s * sample_rate_hz may not fit an integer at all.
+    const double samples = sc.duration_s * sc.sample_rate_hz;
+    if (!(samples <= cfg_.max_samples)) {
+        char msg[256];
+        std::snprintf(msg, sizeof msg, "duration_s %g s at sample_rate_hz %g Hz is %.4g samples; this service runs at most %.4g per run (--max-samples)",
+                      sc.duration_s, sc.sample_rate_hz, samples, cfg_.max_samples);
+        return json_error(413, "too_many_samples", msg, fixture ? field : field + ".duration_s");
+    }
+    if (sc.estimators.size() > cfg_.max_estimators)
+        return json_error(413, "too_many_estimators", "the scenario has " + std::to_string(sc.estimators.size()) + " estimators; this service runs at most " +
+                                                          std::to_string(cfg_.max_estimators) + " per run (--max-estimators)", fixture ? field : field + ".estimators");
+    if (sc.limits.size() > cfg_.max_limits)
+        return json_error(413, "too_many_limits", "the scenario has " + std::to_string(sc.limits.size()) + " limits; this service takes at most " +
+                                                      std::to_string(cfg_.max_limits) + " per run (--max-limits)", fixture ? field : field + ".limits");
+    return std::nullopt;
 }
 
 HttpResponse Service::list_runs(const std::map<std::string, std::string>& query) {
@@ -794,11 +870,11 @@ std::optional<RunSnapshot> Service::run_state(const std::string& id) {
         return s;
     }
     std::optional<RunRow> row;
-    std::optional<json> rep;
     {
+        // The row's summary columns only: never the report (it can be hundreds of MB).
         std::lock_guard<std::mutex> l(store_mu_);
         row = store_->row(id);
-        if (row) rep = store_->report(id);
+        if (row && row->dead) store_->mark_interrupted(id);  // its process is gone: for good
     }
     if (!row) return std::nullopt;
     RunSnapshot s;
@@ -808,14 +884,10 @@ std::optional<RunSnapshot> Service::run_state(const std::string& id) {
     s.created_at = row->created_at;
     s.status = row->status;
     s.verdict = row->verdict;
-    if (rep) {
-        if ((*rep)["error"].is_string()) s.error = public_text((*rep)["error"].get<std::string>());
-        if ((*rep)["samples"].is_object()) {
-            s.done = (*rep)["samples"].value("processed", std::uint64_t{0});
-            s.total = (*rep)["samples"].value("planned", std::uint64_t{0});
-        }
-        if ((*rep)["device"].is_object()) s.device = public_text((*rep)["device"].value("uri", ""));
-    }
+    s.error = public_text(row->error);
+    s.done = row->done;
+    s.total = row->total;
+    s.device = public_text(row->device);
     s.seq = 1;
     return s;
 }
@@ -840,12 +912,14 @@ std::shared_ptr<const Service::Cached> Service::cached_report(const std::string&
             return it->second.first;
         }
     }
-    std::optional<json> rep;
+    std::optional<std::string> text;
     {
         std::lock_guard<std::mutex> l(store_mu_);
-        rep = store_->report(id);
+        text = store_->report_text(id);
     }
-    if (!rep) return nullptr;
+    if (!text) return nullptr;
+    std::optional<json> rep = json::parse(*text);  // outside the store lock
+    text.reset();
     auto c = std::make_shared<Cached>();
     // The service's folders by short names (capture:ID plays DATA/captures/ID.fcap).
     c->json_full = public_text(dump_safe(*rep));

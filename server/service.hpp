@@ -7,6 +7,7 @@
 // (upload, list, evaluate). Errors are {"error":{"code","message","field"}}.
 #pragma once
 
+#include "instance_lock.hpp"
 #include "run_manager.hpp"
 #include "store.hpp"
 
@@ -41,6 +42,14 @@ struct ServiceConfig {
     // Host header names answered besides loopback names and the bound address (DNS rebinding).
     std::vector<std::string> allow_hosts;
     std::string bind_host;  // the bound address (HttpServer sets it); 0.0.0.0 / :: accept any IP literal
+    // Per-run bounds (413 too_many_samples / too_many_estimators / too_many_limits) and the
+    // largest report stored (a larger one ends the run as an error saying so).
+    double max_samples = 1e9;
+    std::size_t max_estimators = 16;
+    std::size_t max_limits = 64;
+    std::size_t max_report_bytes = 64u << 20;
+    // Uploaded captures on disk, all together (507 quota_exceeded beyond it).
+    std::uint64_t upload_quota_bytes = 4ull << 30;
 };
 
 struct HttpRequest {
@@ -74,6 +83,11 @@ public:
     std::optional<HttpResponse> precheck(const HttpRequest& head, std::uint64_t content_length, bool has_length) const;
     // POST /api/v1/captures streams its body to a file instead of memory.
     bool is_upload(const std::string& method, const std::string& target) const;
+    // Requests that may take long (read a capture or a large report, run an evaluation): the
+    // HTTP front runs them on a worker pool, never on its I/O threads.
+    bool is_heavy(const std::string& method, const std::string& target);
+    // Bytes an upload may still take under upload_quota_bytes (uploaded captures on disk).
+    std::uint64_t upload_room() const;
     std::string new_upload_path();  // in data_dir/captures, removed on failure
 
     // Progress of a run for the events stream; nullopt if the id is unknown.
@@ -84,6 +98,8 @@ public:
     const ServiceConfig& config() const { return cfg_; }
     // The address the server listens on (before it serves): Host headers may name it.
     void set_bound_address(const std::string& host);
+    // This start's instance id (stamped on its runs; instance_lock.hpp).
+    const std::string& instance_id() const { return lock_.id(); }
     // Stops the queue: running runs end "interrupted" with their partial reports stored.
     void shutdown();
 
@@ -97,6 +113,8 @@ private:
     std::string public_text(std::string s) const;
     HttpResponse route(const HttpRequest& req, const std::string& path, const std::map<std::string, std::string>& query);
     HttpResponse create_run(const HttpRequest& req);
+    // The per-run bounds; field names where the client set the value. nullopt if within.
+    std::optional<HttpResponse> check_run_size(const Scenario& sc, const std::string& field) const;
     HttpResponse list_runs(const std::map<std::string, std::string>& query);
     HttpResponse get_run(const std::string& id);
     HttpResponse run_artifact(const std::string& id, const std::string& what, const std::map<std::string, std::string>& query);
@@ -121,6 +139,7 @@ private:
 
     ServiceConfig cfg_;
     std::vector<std::pair<std::string, std::string>> public_names_;  // absolute folder -> name for clients, longest first
+    InstanceLock lock_;  // DATA/lock for the service's lifetime: one service per data folder
     std::mutex store_mu_;
     std::unique_ptr<RunStore> store_;
     std::unique_ptr<RunManager> runs_;

@@ -1,7 +1,12 @@
 #include "store.hpp"
 
-#include <sqlite3.h>
+#include "instance_lock.hpp"
 
+#include <sqlite3.h>
+#include <fcntl.h>
+#include <sys/stat.h>
+
+#include <algorithm>
 #include <cerrno>
 #include <csignal>
 #include <cstdlib>
@@ -9,6 +14,8 @@
 #include <unistd.h>
 
 namespace fringe {
+
+using nlohmann::json;
 
 namespace {
 struct Stmt {
@@ -20,6 +27,7 @@ struct Stmt {
     ~Stmt() { sqlite3_finalize(s); }
     void bind(int i, const std::string& v) { sqlite3_bind_text(s, i, v.c_str(), static_cast<int>(v.size()), SQLITE_TRANSIENT); }
     void bind(int i, long long v) { sqlite3_bind_int64(s, i, v); }
+    void bind_u64(int i, std::uint64_t v) { sqlite3_bind_int64(s, i, static_cast<sqlite3_int64>(v)); }
     std::string text(int i) const {
         const auto* p = sqlite3_column_text(s, i);
         return p ? reinterpret_cast<const char*>(p) : "";
@@ -34,9 +42,18 @@ std::string default_data_dir() {
     return "fringe-data";
 }
 
-RunStore::RunStore(const std::string& path) : path_(path) {
+RunStore::RunStore(const std::string& path, std::string instance) : path_(path), instance_(std::move(instance)) {
     const auto dir = std::filesystem::path(path).parent_path();
+    dir_ = dir.empty() ? "." : dir.string();
     if (!dir.empty()) std::filesystem::create_directories(dir);
+    // Reports and scenarios are private like the token: create the file 0600 before SQLite
+    // does (its -wal and -shm take the database's mode), and tighten an older one.
+    if (const int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0600); fd >= 0) {
+        struct stat st {};
+        if (::fstat(fd, &st) == 0 && (st.st_mode & 077)) ::fchmod(fd, 0600);
+        ::close(fd);
+    }
+    for (const char* suffix : {"-wal", "-shm"}) ::chmod((path + suffix).c_str(), 0600);  // if present
     if (sqlite3_open(path.c_str(), &db_) != SQLITE_OK) {
         const std::string msg = db_ ? sqlite3_errmsg(db_) : "out of memory";
         sqlite3_close(db_);
@@ -49,6 +66,23 @@ RunStore::RunStore(const std::string& path) : path_(path) {
     exec("CREATE TABLE IF NOT EXISTS runs (id TEXT PRIMARY KEY, created_at TEXT NOT NULL, scenario TEXT NOT NULL, "
          "dut TEXT NOT NULL, status TEXT NOT NULL, verdict TEXT, pid INTEGER, report TEXT)");
     exec("CREATE INDEX IF NOT EXISTS runs_created ON runs(created_at)");
+    // Columns added after the first release: the owning instance and the report's summary.
+    std::vector<std::string> have;
+    {
+        Stmt st(db_, "PRAGMA table_info(runs)");
+        while (sqlite3_step(st.s) == SQLITE_ROW) have.push_back(st.text(1));
+    }
+    bool backfill = false;
+    for (const char* col : {"instance TEXT", "error TEXT", "samples_done INTEGER", "samples_total INTEGER", "device TEXT"}) {
+        const std::string name = std::string(col).substr(0, std::string(col).find(' '));
+        if (std::find(have.begin(), have.end(), name) != have.end()) continue;
+        exec(std::string("ALTER TABLE runs ADD COLUMN ") + col);
+        backfill = true;
+    }
+    if (backfill)  // once per database: later reads never parse a report
+        exec("UPDATE runs SET error = json_extract(report, '$.error'), samples_done = json_extract(report, '$.samples.processed'), "
+             "samples_total = json_extract(report, '$.samples.planned'), device = json_extract(report, '$.device.uri') "
+             "WHERE report IS NOT NULL AND json_valid(report)");
 }
 
 RunStore::~RunStore() { sqlite3_close(db_); }
@@ -62,53 +96,101 @@ void RunStore::exec(const std::string& sql) const {
     }
 }
 
+void RunStore::fail() const {
+    const std::string msg = std::string("run store ") + path_ + ": " + sqlite3_errmsg(db_);
+    const int code = sqlite3_errcode(db_);
+    const int sys = sqlite3_system_errno(db_);
+    if (code == SQLITE_FULL || (code == SQLITE_IOERR && (sys == ENOSPC || sys == EFBIG || sys == EDQUOT))) throw StoreFull(msg);
+    throw StoreError(msg);
+}
+
 namespace {
 bool process_gone(long long pid) { return pid > 0 && kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH; }
 }  // namespace
 
+bool RunStore::row_alive(const std::string& instance, long long pid) const {
+    if (instance.empty()) return !process_gone(pid);  // a row of an older fringe: only its PID to go by
+    if (instance == instance_) return true;
+    return instance_alive(dir_, instance);
+}
+
 void RunStore::begin(const std::string& id, const std::string& created_at, const std::string& scenario, const std::string& dut,
                      const std::string& status) {
-    Stmt st(db_, "INSERT INTO runs (id, created_at, scenario, dut, status, pid) VALUES (?, ?, ?, ?, ?, ?)");
+    Stmt st(db_, "INSERT INTO runs (id, created_at, scenario, dut, status, pid, instance) VALUES (?, ?, ?, ?, ?, ?, ?)");
     st.bind(1, id); st.bind(2, created_at); st.bind(3, scenario); st.bind(4, dut); st.bind(5, status);
     st.bind(6, static_cast<long long>(getpid()));
-    if (sqlite3_step(st.s) != SQLITE_DONE) throw StoreError(std::string("run store: ") + sqlite3_errmsg(db_));
+    st.bind(7, instance_);
+    if (sqlite3_step(st.s) != SQLITE_DONE) fail();
 }
 
 void RunStore::set_status(const std::string& id, const std::string& status) {
     Stmt st(db_, "UPDATE runs SET status = ?2 WHERE id = ?1");
     st.bind(1, id); st.bind(2, status);
-    if (sqlite3_step(st.s) != SQLITE_DONE) throw StoreError(std::string("run store: ") + sqlite3_errmsg(db_));
+    if (sqlite3_step(st.s) != SQLITE_DONE) fail();
 }
 
+namespace {
+constexpr const char* kRowColumns = "id, created_at, scenario, dut, status, COALESCE(verdict, ''), COALESCE(pid, 0), COALESCE(instance, ''), "
+                                    "COALESCE(error, ''), COALESCE(samples_done, 0), COALESCE(samples_total, 0), COALESCE(device, '')";
+RunRow read_row(const Stmt& st) {
+    RunRow r;
+    r.id = st.text(0);
+    r.created_at = st.text(1);
+    r.scenario = st.text(2);
+    r.dut = st.text(3);
+    r.status = st.text(4);
+    r.verdict = st.text(5);
+    r.error = st.text(8);
+    r.done = static_cast<std::uint64_t>(sqlite3_column_int64(st.s, 9));
+    r.total = static_cast<std::uint64_t>(sqlite3_column_int64(st.s, 10));
+    r.device = st.text(11);
+    return r;
+}
+const char* kInterruptedError = "interrupted: the process that ran it stopped without finishing (killed, or the machine went down)";
+}  // namespace
+
 std::optional<RunRow> RunStore::row(const std::string& id) const {
-    Stmt st(db_, "SELECT id, created_at, scenario, dut, status, COALESCE(verdict, ''), COALESCE(pid, 0) FROM runs WHERE id = ?1");
+    Stmt st(db_, std::string("SELECT ") + kRowColumns + " FROM runs WHERE id = ?1");
     st.bind(1, id);
     if (sqlite3_step(st.s) != SQLITE_ROW) return std::nullopt;
-    RunRow r{st.text(0), st.text(1), st.text(2), st.text(3), st.text(4), st.text(5)};
-    if ((r.status == "running" || r.status == "queued") && process_gone(sqlite3_column_int64(st.s, 6))) r.status = "interrupted";
+    RunRow r = read_row(st);
+    if ((r.status == "running" || r.status == "queued") && !row_alive(st.text(7), sqlite3_column_int64(st.s, 6))) {
+        r.status = "interrupted";
+        r.verdict = "ABORTED";
+        r.error = kInterruptedError;
+        r.dead = true;
+    }
     return r;
 }
 
 int RunStore::mark_dead_interrupted() {
     std::vector<std::string> dead;
     {
-        Stmt st(db_, "SELECT id, COALESCE(pid, 0) FROM runs WHERE status IN ('queued', 'running')");
-        while (sqlite3_step(st.s) == SQLITE_ROW)
-            if (process_gone(sqlite3_column_int64(st.s, 1))) dead.push_back(st.text(0));
+        Stmt st(db_, "SELECT id, COALESCE(instance, '') FROM runs WHERE status IN ('queued', 'running')");
+        while (sqlite3_step(st.s) == SQLITE_ROW) {
+            const std::string inst = st.text(1);
+            // Rows without an instance come from an older fringe: gone, since we hold the folder.
+            if (inst.empty() || (inst != instance_ && !instance_alive(dir_, inst))) dead.push_back(st.text(0));
+        }
     }
-    for (const auto& id : dead) {
-        Stmt st(db_, "UPDATE runs SET status = 'interrupted', verdict = 'ABORTED', pid = NULL WHERE id = ?1");
-        st.bind(1, id);
-        if (sqlite3_step(st.s) != SQLITE_DONE) throw StoreError(std::string("run store: ") + sqlite3_errmsg(db_));
-    }
+    for (const auto& id : dead) mark_interrupted(id);
     return static_cast<int>(dead.size());
+}
+
+void RunStore::mark_interrupted(const std::string& id) {
+    Stmt st(db_, "UPDATE runs SET status = 'interrupted', verdict = 'ABORTED', pid = NULL, error = ?2 WHERE id = ?1 AND status IN ('queued', 'running')");
+    st.bind(1, id);
+    st.bind(2, std::string(kInterruptedError));
+    if (sqlite3_step(st.s) != SQLITE_DONE) fail();
 }
 
 void RunStore::finish(const nlohmann::json& r) {
     const std::string dut = r["device"].is_object() ? r["device"].value("board_id", std::string()) : std::string();
     const std::string scen_dut = r["scenario"].value("dut", std::string());
-    Stmt st(db_, "INSERT INTO runs (id, created_at, scenario, dut, status, verdict, pid, report) VALUES (?1, ?2, ?3, ?4, ?5, ?6, NULL, ?7) "
-                 "ON CONFLICT(id) DO UPDATE SET status = ?5, verdict = ?6, pid = NULL, report = ?7, dut = ?4");
+    Stmt st(db_, "INSERT INTO runs (id, created_at, scenario, dut, status, verdict, pid, report, error, samples_done, samples_total, device) "
+                 "VALUES (?1, ?2, ?3, ?4, ?5, ?6, NULL, ?7, ?8, ?9, ?10, ?11) "
+                 "ON CONFLICT(id) DO UPDATE SET status = ?5, verdict = ?6, pid = NULL, report = ?7, dut = ?4, error = ?8, "
+                 "samples_done = ?9, samples_total = ?10, device = ?11");
     st.bind(1, r["id"].get<std::string>());
     st.bind(2, r.value("started_at", std::string()));
     st.bind(3, r["scenario"].value("name", std::string()));
@@ -117,11 +199,17 @@ void RunStore::finish(const nlohmann::json& r) {
     st.bind(6, r.value("verdict", std::string()));
     // A device's message may quote bytes that are not UTF-8: stored as U+FFFD, the report is kept.
     st.bind(7, r.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace));
-    if (sqlite3_step(st.s) != SQLITE_DONE) throw StoreError(std::string("run store: ") + sqlite3_errmsg(db_));
+    // The summary a status query shows, so it never parses the report again.
+    st.bind(8, r["error"].is_string() ? r["error"].get<std::string>() : std::string());
+    const json& samples = r.contains("samples") && r["samples"].is_object() ? r["samples"] : json::object();
+    st.bind_u64(9, samples.value("processed", std::uint64_t{0}));
+    st.bind_u64(10, samples.value("planned", std::uint64_t{0}));
+    st.bind(11, r.contains("device") && r["device"].is_object() ? r["device"].value("uri", std::string()) : std::string());
+    if (sqlite3_step(st.s) != SQLITE_DONE) fail();
 }
 
 std::vector<RunRow> RunStore::list(const RunFilter& f) const {
-    std::string sql = "SELECT id, created_at, scenario, dut, status, COALESCE(verdict, ''), COALESCE(pid, 0) FROM runs WHERE 1";
+    std::string sql = std::string("SELECT ") + kRowColumns + " FROM runs WHERE 1";
     if (!f.verdict.empty()) sql += " AND verdict = ?1";
     if (!f.scenario.empty()) sql += " AND scenario = ?2";
     if (!f.since.empty()) sql += " AND created_at >= ?3";
@@ -133,19 +221,28 @@ std::vector<RunRow> RunStore::list(const RunFilter& f) const {
     st.bind(4, static_cast<long long>(f.limit));
     std::vector<RunRow> out;
     while (sqlite3_step(st.s) == SQLITE_ROW) {
-        RunRow r{st.text(0), st.text(1), st.text(2), st.text(3), st.text(4), st.text(5)};
-        // A run whose process is gone never completed: report it as interrupted.
-        if ((r.status == "running" || r.status == "queued") && process_gone(sqlite3_column_int64(st.s, 6))) r.status = "interrupted";
+        RunRow r = read_row(st);
+        // A run whose instance is gone never completed: report it as interrupted.
+        if ((r.status == "running" || r.status == "queued") && !row_alive(st.text(7), sqlite3_column_int64(st.s, 6))) {
+            r.status = "interrupted";
+            r.verdict = "ABORTED";
+        }
         out.push_back(std::move(r));
     }
     return out;
 }
 
-std::optional<nlohmann::json> RunStore::report(const std::string& id) const {
+std::optional<std::string> RunStore::report_text(const std::string& id) const {
     Stmt st(db_, "SELECT report FROM runs WHERE id = ?1");
     st.bind(1, id);
     if (sqlite3_step(st.s) != SQLITE_ROW || sqlite3_column_type(st.s, 0) == SQLITE_NULL) return std::nullopt;
-    return nlohmann::json::parse(st.text(0));
+    return st.text(0);
+}
+
+std::optional<nlohmann::json> RunStore::report(const std::string& id) const {
+    auto t = report_text(id);
+    if (!t) return std::nullopt;
+    return nlohmann::json::parse(*t);
 }
 
 }  // namespace fringe
