@@ -151,7 +151,7 @@ HttpResponse json_error(int status, const std::string& code, const std::string& 
     e["field"] = field.empty() ? json(nullptr) : json(field);
     HttpResponse r;
     r.status = status;
-    r.body = json{{"error", e}}.dump();
+    r.body = json{{"error", e}}.dump(-1, ' ', false, json::error_handler_t::replace);
     return r;
 }
 
