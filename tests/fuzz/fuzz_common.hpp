@@ -12,9 +12,10 @@
 
 namespace fringe::fuzz {
 
-// A private folder under TMPDIR, removed at exit.
+// A private folder under TMPDIR, removed at exit. The name is never freed: the exit handler,
+// registered while it is being initialised, runs after a static string's destructor would.
 inline const std::string& scratch_dir() {
-    static const std::string dir = [] {
+    static const std::string* const dir = new std::string([] {
         std::string tmpl = (std::filesystem::temp_directory_path() / "fringe-fuzz-XXXXXX").string();
         if (!mkdtemp(tmpl.data())) {
             std::perror("mkdtemp");
@@ -25,8 +26,8 @@ inline const std::string& scratch_dir() {
             std::filesystem::remove_all(scratch_dir(), ec);
         });
         return tmpl;
-    }();
-    return dir;
+    }());
+    return *dir;
 }
 
 inline void write_file(const std::string& path, const char* data, std::size_t size) {
