@@ -79,10 +79,20 @@ void check_response(const fringe::HttpRequest& req, const fringe::HttpResponse& 
             !body["error"].contains("message") || !body["error"]["message"].is_string())
             fringe::fuzz::fail(where + "error body is not {\"error\":{\"code\",\"message\"}}: " + res.body);
     }
-    // A run the input managed to create is cancelled at once: runs would pile up on the CPU.
+    // A run the input managed to create is cancelled and waited for: runs would pile up on the
+    // CPU, and one still running at exit would outlive the statics it uses.
     if (res.status == 201 && body.is_object() && body.contains("id") && body["id"].is_string() &&
-        req.target.rfind("/api/v1/runs", 0) == 0)
-        service().runs().cancel(body["id"].get<std::string>());
+        req.target.rfind("/api/v1/runs", 0) == 0) {
+        const std::string id = body["id"].get<std::string>();
+        service().runs().cancel(id);
+        std::uint64_t seq = 0;
+        for (int k = 0; k < 300; ++k) {
+            const auto s = service().runs().wait_change(id, seq, 100);
+            if (!s || s->finished()) return;
+            seq = s->seq;
+        }
+        fringe::fuzz::fail(where + "a cancelled run did not finish within 30 s");
+    }
 }
 }  // namespace
 
