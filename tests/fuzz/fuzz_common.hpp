@@ -1,4 +1,4 @@
-// Shared by the fuzz targets (tests/fuzz/README.md): a scratch folder for inputs that must be
+// Shared by the fuzz targets (README "Fuzzing"): a scratch folder for inputs that must be
 // files, and one way to fail. Each target is built twice: with libFuzzer (FRINGE_FUZZ, clang)
 // and with replay_main.cpp, which runs the kept regression inputs under ctest.
 #pragma once
