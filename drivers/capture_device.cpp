@@ -19,7 +19,8 @@ public:
         i.driver = "capture";
         i.uri = uri_;
         i.description = "replay of " + reader_.path();
-        i.board_id = reader_.meta().value("board_id", std::string("capture"));
+        const auto& m = reader_.meta();  // a capture's metadata is not trusted to have the right types
+        i.board_id = m.contains("board_id") && m["board_id"].is_string() ? m["board_id"].get<std::string>() : "capture";
         i.streaming = true;
         i.needs_output = false;
         i.settings = {{"path", reader_.path()}, {"has_truth", reader_.columns().theta_true}};

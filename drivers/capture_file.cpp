@@ -4,7 +4,10 @@
 #include <charconv>
 #include <cmath>
 #include <cstring>
+#include <cstdio>
 #include <filesystem>
+#include <optional>
+#include <sstream>
 
 namespace fringe {
 
@@ -153,21 +156,147 @@ void CaptureWriter::write_rows(std::size_t n, const double* t, const double* s, 
 
 // ---------------------------------------------------------------- reader
 
+namespace {
+// Length of the valid UTF-8 sequence at p (left bytes available), 0 if it is not one
+// (overlong forms, surrogates and code points above U+10FFFF are invalid, as in RFC 3629).
+std::size_t utf8_sequence(const unsigned char* p, std::size_t left) {
+    const unsigned b = p[0];
+    if (b < 0x80) return 1;
+    std::size_t n;
+    unsigned lo = 0x80, hi = 0xBF;  // range of the second byte
+    if (b >= 0xC2 && b <= 0xDF) n = 2;
+    else if (b == 0xE0) { n = 3; lo = 0xA0; }
+    else if ((b >= 0xE1 && b <= 0xEC) || b == 0xEE || b == 0xEF) n = 3;
+    else if (b == 0xED) { n = 3; hi = 0x9F; }
+    else if (b == 0xF0) { n = 4; lo = 0x90; }
+    else if (b >= 0xF1 && b <= 0xF3) n = 4;
+    else if (b == 0xF4) { n = 4; hi = 0x8F; }
+    else return 0;
+    if (left < n || p[1] < lo || p[1] > hi) return 0;
+    for (std::size_t k = 2; k < n; ++k)
+        if (p[k] < 0x80 || p[k] > 0xBF) return 0;
+    return n;
+}
+
+std::optional<std::size_t> first_invalid_utf8(const std::string& s) {
+    const auto* p = reinterpret_cast<const unsigned char*>(s.data());
+    for (std::size_t i = 0; i < s.size();) {
+        const std::size_t n = utf8_sequence(p + i, s.size() - i);
+        if (n == 0) return i;
+        i += n;
+    }
+    return std::nullopt;
+}
+
+std::string escape_message(const std::string& s) {
+    std::string out;
+    out.reserve(s.size());
+    const auto* p = reinterpret_cast<const unsigned char*>(s.data());
+    for (std::size_t i = 0; i < s.size();) {
+        std::size_t n = utf8_sequence(p + i, s.size() - i);
+        if (n == 0 || (n == 1 && (p[i] < 0x20 || p[i] == 0x7F))) {
+            char hex[5];
+            std::snprintf(hex, sizeof hex, "\\x%02X", p[i]);
+            out += hex;
+            n = 1;
+        } else {
+            out.append(s, i, n);
+        }
+        i += n;
+    }
+    return out;
+}
+
+// File contents quoted in a message: short, and escaped by CaptureError.
+std::string quote(const std::string& s) {
+    constexpr std::size_t kMax = 40;
+    return "'" + (s.size() > kMax ? s.substr(0, kMax) + "..." : s) + "'";
+}
+
+constexpr std::uint32_t kMaxMetaBytes = 64u << 20;
+
+// Metadata (sidecar or .fcap header): UTF-8, a JSON object. `where` names it in messages.
+json parse_meta(const std::string& text, const std::string& where) {
+    if (auto bad = first_invalid_utf8(text))
+        throw CaptureError(where + " is not valid UTF-8 (byte " + std::to_string(*bad) + ")");
+    json j;
+    try {
+        j = json::parse(text);
+    } catch (const json::exception& e) {  // parse_error, and out_of_range for a number like 1e999
+        std::string detail = e.what();
+        if (auto pos = detail.find("] "); detail.rfind("[json.exception", 0) == 0 && pos != std::string::npos) detail.erase(0, pos + 2);
+        throw CaptureError(where + " is not a JSON object (" + detail + ")");
+    }
+    if (!j.is_object()) throw CaptureError(where + " is not a JSON object (got " + j.type_name() + ")");
+    return j;
+}
+
+// The metadata fields the readers use; `where` is "x.json: sidecar" or "x.fcap: header".
+struct MetaFields {
+    double fs_hz = 0, t0_s = 0;
+    std::optional<std::uint64_t> samples;
+};
+
+MetaFields check_meta(const json& m, const std::string& where, bool rate_required) {
+    MetaFields f;
+    auto number = [&](const char* key, double lo, double hi, const char* unit) {
+        const json& v = m[key];
+        if (!v.is_number()) throw CaptureError(where + "." + key + " must be a number, got " + v.type_name());
+        const double x = v.get<double>();
+        if (!std::isfinite(x) || x < lo || x > hi) {
+            std::ostringstream os;
+            os << where << "." << key << " = " << x << " is outside [" << lo << ", " << hi << "] " << unit;
+            throw CaptureError(os.str());
+        }
+        return x;
+    };
+    if (m.contains("sample_rate_hz")) f.fs_hz = number("sample_rate_hz", kCaptureMinRateHz, kCaptureMaxRateHz, "Hz");
+    else if (rate_required) throw CaptureError(where + ".sample_rate_hz is required (a positive number)");
+    if (m.contains("t0_s")) f.t0_s = number("t0_s", -kCaptureMaxAbsT0_s, kCaptureMaxAbsT0_s, "s");
+    if (m.contains("samples")) {
+        const json& v = m["samples"];
+        if (!v.is_number_unsigned() && !(v.is_number_integer() && v.get<std::int64_t>() >= 0))
+            throw CaptureError(where + ".samples must be a non-negative integer, got " + v.dump(-1, ' ', false, json::error_handler_t::replace));
+        f.samples = v.get<std::uint64_t>();
+    }
+    if (m.contains("format") && m["format"] != "fringe-capture")
+        throw CaptureError(where + ".format must be \"fringe-capture\"");
+    if (m.contains("version") && m["version"] != 1)
+        throw CaptureError(where + ".version " + m["version"].dump(-1, ' ', false, json::error_handler_t::replace) + " is not supported (this reader reads version 1)");
+    return f;
+}
+
+std::string read_meta_file(const std::string& path) {
+    std::ifstream in(path, std::ios::binary);
+    if (!in) throw CaptureError(path + ": cannot open: " + std::strerror(errno));
+    std::string text;
+    char buf[65536];
+    while (in.read(buf, sizeof buf) || in.gcount() > 0) {
+        text.append(buf, static_cast<std::size_t>(in.gcount()));
+        if (text.size() > kMaxMetaBytes) throw CaptureError(path + ": sidecar larger than 64 MiB");
+    }
+    return text;
+}
+}  // namespace
+
+CaptureError::CaptureError(const std::string& message) : std::runtime_error(escape_message(message)) {}
+
 CaptureReader::CaptureReader(const std::string& path) : path_(path), fmt_(capture_format_for(path)) {
     in_.open(path, std::ios::binary);
     if (!in_) throw CaptureError(path + ": cannot open: " + std::strerror(errno));
     if (fmt_ == CaptureFormat::Csv) {
         const std::string side = sidecar_path(path);
         if (std::filesystem::exists(side)) {
-            std::ifstream s(side);
-            meta_ = json::parse(s, nullptr, false);
-            if (meta_.is_discarded() || !meta_.is_object())
-                throw CaptureError(side + ": sidecar is not a JSON object");
+            meta_ = parse_meta(read_meta_file(side), side + ": sidecar");
+            const MetaFields f = check_meta(meta_, side + ": sidecar", false);
+            fs_ = f.fs_hz;
+            expected_frames_ = f.samples;
         }
         std::string header;
         if (!std::getline(in_, header)) throw CaptureError(path + ":1: empty file (expected header 't,sin,cos[,theta_true]')");
         line_ = 1;
         if (!header.empty() && header.back() == '\r') header.pop_back();
+        if (header.rfind("\xEF\xBB\xBF", 0) == 0) header.erase(0, 3);  // a UTF-8 byte order mark (spreadsheets)
         std::size_t pos = 0;
         bool seen[kFieldCount] = {};
         while (pos <= header.size()) {
@@ -177,7 +306,7 @@ CaptureReader::CaptureReader(const std::string& path) : path_(path), fmt_(captur
             for (int k = 0; k < kFieldCount; ++k)
                 if (name == kNames[k]) f = k;
             if (f < 0)
-                throw CaptureError(path + ":1: unknown column '" + name + "' (expected t, sin, cos and optionally theta_true, omega_true, index)");
+                throw CaptureError(path + ":1: unknown column " + quote(name) + " (expected t, sin, cos and optionally theta_true, omega_true, index)");
             if (seen[f]) throw CaptureError(path + ":1: duplicate column '" + name + "'");
             seen[f] = true;
             col_map_.push_back(f);
@@ -189,53 +318,65 @@ CaptureReader::CaptureReader(const std::string& path) : path_(path), fmt_(captur
         cols_.theta_true = seen[kTheta];
         cols_.omega_true = seen[kOmega];
         cols_.index = seen[kIndex];
-        if (meta_.contains("sample_rate_hz")) {
-            if (!meta_["sample_rate_hz"].is_number() || !(meta_["sample_rate_hz"].get<double>() > 0))
-                throw CaptureError(sidecar_path(path) + ": sample_rate_hz must be a positive number");
-            fs_ = meta_["sample_rate_hz"].get<double>();
-        }
     } else {
         char magic[8];
         std::uint32_t len = 0;
         if (!in_.read(magic, 8) || std::memcmp(magic, kMagic, 8) != 0)
             throw CaptureError(path + ": not a fringe binary capture (bad magic)");
-        if (!in_.read(reinterpret_cast<char*>(&len), 4) || len > (64u << 20))
-            throw CaptureError(path + ": bad header length");
+        const auto size = std::filesystem::file_size(path);
+        if (!in_.read(reinterpret_cast<char*>(&len), 4))
+            throw CaptureError(path + ": truncated: the file ends inside the header length");
+        if (len > kMaxMetaBytes) throw CaptureError(path + ": bad header length " + std::to_string(len) + " (at most 64 MiB)");
+        if (size < 12 + static_cast<std::uintmax_t>(len))
+            throw CaptureError(path + ": truncated header: length " + std::to_string(len) + " but the file has " + std::to_string(size) + " bytes");
         std::string h(len, '\0');
         if (!in_.read(h.data(), len)) throw CaptureError(path + ": truncated header");
-        meta_ = json::parse(h, nullptr, false);
-        if (meta_.is_discarded() || !meta_.is_object()) throw CaptureError(path + ": header is not a JSON object");
-        if (!meta_.contains("sample_rate_hz") || !meta_["sample_rate_hz"].is_number() || !(meta_["sample_rate_hz"].get<double>() > 0))
-            throw CaptureError(path + ": header.sample_rate_hz must be a positive number");
-        fs_ = meta_["sample_rate_hz"].get<double>();
-        t0_ = meta_.value("t0_s", 0.0);
+        const std::string where = path + ": header";
+        meta_ = parse_meta(h, where);
+        const MetaFields mf = check_meta(meta_, where, true);
+        fs_ = mf.fs_hz;
+        t0_ = mf.t0_s;
         if (!meta_.contains("columns") || !meta_["columns"].is_array())
-            throw CaptureError(path + ": header.columns missing");
+            throw CaptureError(where + ".columns missing (an array of {name, type, unit})");
         bool seen[kFieldCount] = {};
+        std::size_t i = 0;
         for (const auto& c : meta_["columns"]) {
-            std::string name = c.value("name", ""), type = c.value("type", "");
+            const std::string at = where + ".columns[" + std::to_string(i++) + "]";
+            if (!c.is_object()) throw CaptureError(at + " is not an object {name, type, unit}");
+            if (!c.contains("name") || !c["name"].is_string()) throw CaptureError(at + ".name missing (a string)");
+            if (!c.contains("type") || !c["type"].is_string()) throw CaptureError(at + ".type missing (f64 or f32)");
+            const std::string name = c["name"].get<std::string>(), type = c["type"].get<std::string>();
+            if (name == "t") throw CaptureError(at + ": column 't' is not stored in .fcap (frame k is at t0_s + k / sample_rate_hz)");
             int f = -1;
             for (int k = 1; k < kFieldCount; ++k)
                 if (name == kNames[k]) f = k;
-            if (f < 0) throw CaptureError(path + ": header: unknown column '" + name + "'");
-            if (type != "f64" && type != "f32") throw CaptureError(path + ": header: column '" + name + "' has unsupported type '" + type + "' (f32, f64)");
+            if (f < 0) throw CaptureError(at + ": unknown column " + quote(name) + " (sin, cos, theta_true, omega_true, index)");
+            // A repeated column would give that field two values per frame: refused, as in CSV.
+            if (seen[f]) throw CaptureError(at + ": duplicate column '" + name + "'");
+            if (type != "f64" && type != "f32") throw CaptureError(at + ": column '" + name + "' has unsupported type " + quote(type) + " (f32, f64)");
+            if (c.contains("unit") && c["unit"] != kUnits[f])
+                throw CaptureError(at + ": column '" + name + "' has unit " + c["unit"].dump(-1, ' ', false, json::error_handler_t::replace) +
+                                   ", expected '" + kUnits[f] + "'");
             seen[f] = true;
             bin_fields_.push_back(f);
             bin_sizes_.push_back(type == "f64" ? 8 : 4);
             frame_bytes_ += static_cast<std::size_t>(bin_sizes_.back());
         }
-        if (!seen[kSin] || !seen[kCos]) throw CaptureError(path + ": header: columns sin and cos are required");
+        for (int f : {kSin, kCos})
+            if (!seen[f]) throw CaptureError(where + ": missing column '" + std::string(kNames[f]) + "' (sin and cos are required)");
         cols_.theta_true = seen[kTheta];
         cols_.omega_true = seen[kOmega];
         cols_.index = seen[kIndex];
-        const auto data_off = static_cast<std::uintmax_t>(12 + len);
-        const auto size = std::filesystem::file_size(path);
-        const auto data_bytes = size - data_off;
+        const auto data_bytes = size - (12 + static_cast<std::uintmax_t>(len));
         if (data_bytes % frame_bytes_ != 0)
             throw CaptureError(path + ": truncated: " + std::to_string(data_bytes % frame_bytes_) +
                                " stray bytes after frame " + std::to_string(data_bytes / frame_bytes_) +
                                " (a capture cut short; the whole frames before it are intact)");
         total_frames_ = data_bytes / frame_bytes_;
+        if (mf.samples && *mf.samples != total_frames_)
+            throw CaptureError(path + (*mf.samples > total_frames_ ? ": truncated payload" : ": size mismatch") + ": header.samples is " +
+                               std::to_string(*mf.samples) + " but the file holds " + std::to_string(total_frames_) + " frames of " +
+                               std::to_string(frame_bytes_) + " bytes");
     }
 }
 
@@ -248,7 +389,14 @@ bool CaptureReader::read_csv(std::size_t max_frames, CaptureData& out) {
     std::string line;
     std::vector<std::vector<double>*> dst;
     for (int f : col_map_) dst.push_back(&field_vec(out, f));
-    while (out.size() < max_frames && std::getline(in_, line)) {
+    while (out.size() < max_frames) {
+        if (!std::getline(in_, line)) {
+            if (!done_ && expected_frames_ && rows_ != *expected_frames_)
+                throw CaptureError(path_ + (rows_ < *expected_frames_ ? ": truncated payload" : ": size mismatch") + ": the sidecar's samples is " +
+                                   std::to_string(*expected_frames_) + " but the file has " + std::to_string(rows_) + " rows");
+            done_ = true;
+            break;
+        }
         ++line_;
         if (!line.empty() && line.back() == '\r') line.pop_back();
         if (line.empty()) continue;
@@ -266,19 +414,28 @@ bool CaptureReader::read_csv(std::size_t max_frames, CaptureData& out) {
             auto r = std::from_chars(p, cell_end, v);
             const std::string col = kNames[col_map_[c]];
             if (r.ec != std::errc() || r.ptr != cell_end)
-                throw CaptureError(path_ + ":" + std::to_string(line_) + ": column " + col + ": not a number: '" + std::string(p, cell_end) + "'");
+                throw CaptureError(path_ + ":" + std::to_string(line_) + ": column " + col + ": not a number: " + quote(std::string(p, cell_end)));
             if (!std::isfinite(v))
                 throw CaptureError(path_ + ":" + std::to_string(line_) + ": column " + col + ": " + (std::isnan(v) ? "NaN" : "infinite value"));
             if (col_map_[c] == kT) {
                 if (have_last_ && !(v > last_t_))
                     throw CaptureError(path_ + ":" + std::to_string(line_) + ": column t: time does not increase (" + std::string(p, cell_end) + " after previous row)");
-                if (have_last_ && fs_ == 0) fs_ = 1.0 / (v - last_t_);
+                if (have_last_ && fs_ == 0) {
+                    fs_ = 1.0 / (v - last_t_);
+                    if (!(fs_ >= kCaptureMinRateHz && fs_ <= kCaptureMaxRateHz)) {
+                        std::ostringstream os;
+                        os << path_ << ":" << line_ << ": column t: a time step of " << v - last_t_ << " s gives a sample rate outside ["
+                           << kCaptureMinRateHz << ", " << kCaptureMaxRateHz << "] Hz (or give sample_rate_hz in the sidecar)";
+                        throw CaptureError(os.str());
+                    }
+                }
                 last_t_ = v;
                 have_last_ = true;
             }
             dst[c]->push_back(v);
             p = cell_end + 1;
         }
+        ++rows_;
     }
     return out.size() > 0;
 }

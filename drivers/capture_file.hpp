@@ -3,7 +3,9 @@
 //    electrical phase), omega_true (rad/s), index (V); a JSON sidecar <stem>.json beside it.
 //  - Binary .fcap: magic "FRNGCAP1", u32 LE header length, JSON header, then fixed-size
 //    little-endian frames; time is implicit (t0_s + k/sample_rate_hz).
-// Malformed input throws CaptureError naming file and line (or frame).
+// Malformed input throws CaptureError naming file and line (or frame). The readers check
+// the header before reading a sample (docs/capture-format.md "What the readers check"):
+// every present column has exactly one value per frame.
 #pragma once
 
 #include "signal_gen/generator.hpp"
@@ -13,6 +15,7 @@
 #include <cstdint>
 #include <fstream>
 #include <memory>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -21,8 +24,14 @@ namespace fringe {
 
 class CaptureError : public std::runtime_error {
 public:
-    using std::runtime_error::runtime_error;
+    // Messages quote file contents: bytes that are not valid UTF-8, and control characters,
+    // become \xNN, so a message is always valid UTF-8 (JSON error bodies, terminals).
+    explicit CaptureError(const std::string& message);
 };
+
+// Limits shared by both formats (the scenario schema's ranges, docs/schema.md).
+constexpr double kCaptureMinRateHz = 1.0, kCaptureMaxRateHz = 1e10;
+constexpr double kCaptureMaxAbsT0_s = 1e9;
 
 struct CaptureColumns {
     bool theta_true = false;
@@ -87,6 +96,9 @@ private:
     // CSV state
     std::vector<int> col_map_;  // file column -> field id
     std::size_t line_ = 0;
+    std::uint64_t rows_ = 0;
+    bool done_ = false;
+    std::optional<std::uint64_t> expected_frames_;  // the metadata's "samples", when given
     double last_t_ = 0;
     bool have_last_ = false;
     // binary state

@@ -703,6 +703,8 @@ int main(int argc, char** argv) {
     spdlog::set_pattern("%^%l%$: %v");
 
     CLI::App app{"fringe: hardware-in-the-loop test bench for sin/cos encoder interpolation"};
+    // The scenario schema's range (docs/schema.md): seeds are stored as JSON numbers.
+    const CLI::Range kSeedRange(std::int64_t{0}, std::int64_t{1} << 53);
     app.set_version_flag("--version", std::string("fringe ") + FRINGE_VERSION);
     app.require_subcommand(1);
 
@@ -711,7 +713,7 @@ int main(int argc, char** argv) {
     g->add_option("scenario", gen.scenario, "Scenario JSON file")->required()->check(CLI::ExistingFile);
     g->add_option("-o,--output", gen.output, "Capture to write: .csv (with a .json sidecar) or .fcap (binary)")->required();
     g->add_option("--samples", gen.samples, "Override the number of samples (default: duration_s * sample_rate_hz)")->check(CLI::PositiveNumber);
-    g->add_option("--seed", gen.seed, "Override the scenario's seed")->check(CLI::NonNegativeNumber);
+    g->add_option("--seed", gen.seed, "Override the scenario's seed (0 to 2^53)")->check(kSeedRange);
     g->add_option("--block", gen.block, "Samples per block (output does not depend on it)")->check(CLI::Range(1, 1 << 24));
     g->add_flag("-q,--quiet", gen.quiet, "No summary or progress");
 
@@ -735,7 +737,7 @@ int main(int argc, char** argv) {
     rn->add_option("--junit", run_o.junit, "Write JUnit XML here (one testcase per measurement)");
     rn->add_option("--html", run_o.html, "Write a self-contained HTML report here");
     rn->add_option("--data", run_o.data, "Data directory for the run history (default $FRINGE_DATA or ~/.local/share/fringe)");
-    rn->add_option("--seed", run_o.seed, "Override the scenario's seed")->check(CLI::NonNegativeNumber);
+    rn->add_option("--seed", run_o.seed, "Override the scenario's seed (0 to 2^53)")->check(kSeedRange);
     rn->add_flag("--no-db", run_o.no_db, "Do not record the run in the history");
     rn->add_option("--device", run_o.device, "Override the scenario's device URI (e.g. modbus+tcp://127.0.0.1:1502?board=dut-interpolator)");
     rn->add_option("--record", run_o.record, "Record the device input with aligned truth to this capture (.csv or .fcap)");

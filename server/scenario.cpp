@@ -20,7 +20,7 @@ json load_json_file(const std::string& path) {
     if (!in) throw ConfigError("", "cannot open '" + path + "'");
     try {
         return json::parse(in);
-    } catch (const json::parse_error& e) {
+    } catch (const json::exception& e) {
         throw ConfigError("", path + ": malformed JSON: " + e.what());
     }
 }

@@ -825,7 +825,7 @@ HttpResponse Service::list_runs(const std::map<std::string, std::string>& query)
     for (const auto& [k, v] : query) {
         if (k == "outcome" || k == "verdict") {
             static const char* verdicts[] = {"PASS", "MARGINAL", "FAIL", "ERROR", "ABORTED"};
-            if (std::find_if(std::begin(verdicts), std::end(verdicts), [&](const char* x) { return v == x; }) == std::end(verdicts))
+            if (std::find(std::begin(verdicts), std::end(verdicts), v) == std::end(verdicts))  // clang 14: no structured binding in a lambda
                 throw ConfigError(k, "expected PASS, MARGINAL, FAIL, ERROR or ABORTED");
             f.verdict = v;
         } else if (k == "scenario") {

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <sstream>
 
 namespace fringe {
@@ -73,10 +74,24 @@ long long JsonReader::integer(const std::string& key, long long lo, long long hi
     const json& v = raw(key);
     if (!v.is_number_integer() && !(v.is_number_float() && std::floor(v.get<double>()) == v.get<double>()))
         throw ConfigError(path_of(key), "expected an integer, got " + (v.is_number() ? fmt(v.get<double>()) : type_name(v)));
-    double d = v.get<double>();
-    if (d < static_cast<double>(lo) || d > static_cast<double>(hi))
-        throw ConfigError(path_of(key), "value " + fmt(d) + " out of range [" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
-    return v.is_number_integer() ? v.get<long long>() : static_cast<long long>(d);
+    auto out_of_range = [&](const std::string& value) {
+        return ConfigError(path_of(key), "value " + value + " out of range [" + std::to_string(lo) + ", " + std::to_string(hi) + "]");
+    };
+    // Integers are compared as integers: through a double, 2^53 + 1 would round to 2^53 and pass.
+    if (v.is_number_unsigned()) {
+        const auto u = v.get<std::uint64_t>();
+        if (hi < 0 || u > static_cast<std::uint64_t>(hi) || (lo > 0 && u < static_cast<std::uint64_t>(lo))) throw out_of_range(std::to_string(u));
+        return static_cast<long long>(u);
+    }
+    if (v.is_number_integer()) {
+        const auto i = v.get<long long>();
+        if (i < lo || i > hi) throw out_of_range(std::to_string(i));
+        return i;
+    }
+    const double d = v.get<double>();
+    // |d| < 2^63 also keeps the conversion defined when hi is LLONG_MAX (its double is 2^63).
+    if (!(d >= static_cast<double>(lo) && d <= static_cast<double>(hi)) || std::fabs(d) >= 0x1p63) throw out_of_range(fmt(d));
+    return static_cast<long long>(d);
 }
 
 long long JsonReader::integer(const std::string& key, long long def, long long lo, long long hi) {

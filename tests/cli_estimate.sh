@@ -56,5 +56,19 @@ expect_error "params.bandwidth" "$FRINGE" estimate "$dir/cap.csv" --estimator pl
 expect_error "params.kappa" "$FRINGE" estimate "$dir/notruth.csv" --estimator ekf-diffraction -o "$dir/x.csv"
 sed '5s/^\([^,]*\),[^,]*,/\1,nan,/' "$dir/notruth.csv" > "$dir/nan.csv"
 expect_error "nan.csv:5" "$FRINGE" estimate "$dir/nan.csv" --estimator atan2 -o "$dir/x.csv"
+# a .fcap whose header lists sin twice (sin, cos, sin, omega_true: same frame size) once
+# overflowed a buffer in the estimator; now exit 2 naming the column
+"$FRINGE" gen "$SRC/fixtures/scenarios/paper-duty1p6.json" -o "$dir/x.fcap" -q --samples 64
+$PY - "$dir/x.fcap" "$dir/dup.fcap" <<'PY'
+import json, struct, sys
+b = open(sys.argv[1], "rb").read()
+n = struct.unpack("<I", b[8:12])[0]
+h = json.loads(b[12:12 + n])
+assert [c["name"] for c in h["columns"]] == ["sin", "cos", "theta_true", "omega_true"], h["columns"]
+h["columns"][2] = {"name": "sin", "type": "f64", "unit": "V"}
+hb = json.dumps(h).encode()
+open(sys.argv[2], "wb").write(b[:8] + struct.pack("<I", len(hb)) + hb + b[12 + n:])
+PY
+expect_error "dup.fcap: header.columns\[2\]: duplicate column 'sin'" "$FRINGE" estimate "$dir/dup.fcap" --estimator atan2 -o "$dir/x.csv"
 expect_error "no output for" "$FRINGE" estimate "$dir/cap.csv" --estimator external --param "command=sleep 20" --param timeout_s=0.3 -o "$dir/x.csv"
 echo "cli.estimate OK"

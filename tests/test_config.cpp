@@ -7,6 +7,9 @@
 #include <catch2/catch.hpp>
 #include <nlohmann/json.hpp>
 
+#include <cstdint>
+#include <limits>
+
 using namespace fringe;
 using nlohmann::json;
 using Catch::Matchers::WithinAbs;
@@ -103,4 +106,32 @@ TEST_CASE("scenario errors name the key", "[config]") {
     bad["encoder"] = "does-not-exist.json";
     CHECK_THROWS_WITH(scenario_from_json(bad, "/tmp"), Catch::Contains("cannot open"));
     CHECK_THROWS_AS(load_json_file(kSrc + "/README.md"), ConfigError);
+}
+
+TEST_CASE("scenario seed is an integer in [0, 2^53], checked exactly", "[config]") {
+    json j = load_json_file(kSrc + "/fixtures/scenarios/paper-duty1p6.json");
+    j["encoder"] = load_json_file(kSrc + "/fixtures/encoders/ideal.json");
+    auto field = [&](const json& seed) -> std::string {
+        json s = j;
+        s["seed"] = seed;
+        try {
+            scenario_from_json(s, "");
+        } catch (const ConfigError& e) {
+            return e.field();
+        }
+        return "<no error>";
+    };
+    constexpr std::uint64_t k2p53 = 1ULL << 53;
+    CHECK(field(k2p53) == "<no error>");
+    json top = j;
+    top["seed"] = k2p53;
+    CHECK(scenario_from_json(top, "").seed == k2p53);
+    // 2^53 + 1 rounds to 2^53 as a double: the bound is compared as an integer.
+    CHECK(field(k2p53 + 1) == "seed");
+    CHECK(field(std::numeric_limits<std::uint64_t>::max()) == "seed");
+    CHECK(field(std::numeric_limits<std::int64_t>::max()) == "seed");
+    CHECK(field(-1) == "seed");
+    CHECK(field(1.5) == "seed");
+    CHECK(field(9007199254740993.0) == "<no error>");  // a float literal: the double is 2^53 exactly
+    CHECK(field("7") == "seed");
 }
