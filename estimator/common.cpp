@@ -2,6 +2,8 @@
 
 #include "signal_gen/optics.hpp"
 
+#include <algorithm>
+
 namespace fringe::est {
 
 void Calibration::prepare() {
@@ -57,6 +59,66 @@ Calibration nominal_calibration(const std::optional<EncoderProfile>& encoder, co
 ParamInfo acquisition_param() {
     return {"acquisition_samples", "samples", ParamType::Integer, 200, 2, 1e7, {},
             "initialisation: line fit to the unwrapped atan2 over this many samples (output invalid meanwhile)"};
+}
+
+void LockMonitor::reset(const Calibration& told, double threshold_rad) {
+    told_ = told;
+    unwrap_.reset();
+    threshold_ = threshold_rad;
+    ref_ = diff_ = 0.0;
+    events_ = invalid_ = 0;
+    started_ = own_ = false;
+    own_unwrap_.reset();
+    own_start_ = 0;
+}
+
+double LockMonitor::reference(double s, double c) {
+    if (own_) {
+        smin_ = std::min(smin_, s); smax_ = std::max(smax_, s);
+        cmin_ = std::min(cmin_, c); cmax_ = std::max(cmax_, c);
+        ref_ = unwrap_(fast_atan2((s - 0.5 * (smax_ + smin_)) / (0.5 * (smax_ - smin_)),
+                                  (c - 0.5 * (cmax_ + cmin_)) / (0.5 * (cmax_ - cmin_))));
+        return ref_;
+    }
+    double sn, cn;
+    told_.normalise(s, c, sn, cn);
+    ref_ = unwrap_(fast_atan2(sn, cn));
+    if (!started_) {
+        smin_ = smax_ = s;
+        cmin_ = cmax_ = c;
+        started_ = true;
+    }
+    // The own frame counts turns only while it is stable: a min/max that still grows by more
+    // than 2 % of the range (the first cycle) restarts the count.
+    const double grow = 0.02 * std::max(smax_ - smin_, cmax_ - cmin_);
+    const bool moved = s < smin_ - grow || s > smax_ + grow || c < cmin_ - grow || c > cmax_ + grow;
+    smin_ = std::min(smin_, s); smax_ = std::max(smax_, s);
+    cmin_ = std::min(cmin_, c); cmax_ = std::max(cmax_, c);
+    const double as = 0.5 * (smax_ - smin_), ac = 0.5 * (cmax_ - cmin_);
+    if (moved || !(as > 0) || !(ac > 0)) {
+        own_unwrap_.reset();
+        own_start_ = 0;
+        return ref_;
+    }
+    const double own = fast_atan2((s - 0.5 * (smax_ + smin_)) / as, (c - 0.5 * (cmax_ + cmin_)) / ac);
+    if (!own_unwrap_.started()) own_start_ = own;
+    if (std::fabs(own_unwrap_(own) - own_start_) > 2 * kTwoPi) {
+        // two turns in a stable frame: switch, continuing the told frame's turn count
+        own_ = true;
+        unwrap_.set(ref_ + wrap_pi(own - ref_));
+    }
+    return ref_;
+}
+
+nlohmann::json LockMonitor::to_json() const {
+    return {{"events", events_}, {"samples_invalid", invalid_}, {"threshold_rad", threshold_},
+            {"reference", own_ ? "own min/max calibration" : "told calibration"}};
+}
+
+ParamInfo LockMonitor::threshold_param() {
+    return {"lock_threshold_rad", "rad", ParamType::Number, 1.0, 0.05, 3.0, {},
+            "loss of lock: the phase left this band around the unwrapped atan2 of the samples (low-passed over ~8 samples); "
+            "the output is then invalid and the tracker re-acquires from atan2 (state: loss_of_lock)"};
 }
 
 void Acquisition::reset(std::size_t n, double sample_rate_hz, const Calibration& cal) {

@@ -116,4 +116,52 @@ private:
 };
 ParamInfo acquisition_param();
 
+// Loss-of-lock guard (issue 13: nothing diverges silently). An independent reference phase,
+// the unwrapped atan2 of the samples, runs beside a tracker on every sample. A cycle slip or
+// a divergence moves the tracker's phase away from it by up to 2*pi, so it must leave a band
+// of threshold_rad around it: the difference, low-passed over ~8 samples so one noisy sample
+// cannot trip it, is checked every sample. On loss the caller marks the sample invalid,
+// counts it and re-acquires, anchoring the new phase to the reference's turn count
+// (anchor()), so a re-acquired tracker does not carry a slipped cycle either.
+//
+// The reference does not trust what the tracker was told: it starts with the told
+// calibration, and once the signal has gone round twice in the frame of its own per-channel
+// min/max (offset = mid-range, amplitude = half range) it switches to that frame (a wrong
+// profile, e.g. a diffraction model told about an ideal encoder, cannot fool it). The band
+// allows for the reference's own error on distorted signals (~0.2 rad at 10 % duty-cycle
+// error, |o|/A for offsets o).
+class LockMonitor {
+public:
+    void reset(const Calibration& told, double threshold_rad);
+    // Every sample, before check(); returns the unwrapped reference phase (rad).
+    double reference(double s, double c);
+    // A tracker output; false when it left the band (one event per loss, until rearm()).
+    bool check(double theta_rad) {
+        diff_ += (theta_rad - ref_ - diff_) * 0.125;
+        if (!(std::fabs(diff_) <= threshold_)) {
+            ++events_;
+            return false;
+        }
+        return true;
+    }
+    // The reference's turn count given to a re-acquired phase.
+    double anchor(double theta_rad) const { return ref_ + wrap_pi(theta_rad - ref_); }
+    void rearm() { diff_ = 0.0; }
+    void count_invalid() { ++invalid_; }
+    long long events() const { return events_; }
+    long long samples_invalid() const { return invalid_; }
+    nlohmann::json to_json() const;
+    static ParamInfo threshold_param();
+
+private:
+    Calibration told_;
+    Unwrapper unwrap_;
+    double threshold_ = 1.0, ref_ = 0.0, diff_ = 0.0;
+    long long events_ = 0, invalid_ = 0;
+    // own frame: per-channel min/max, and how far the phase has gone round in it
+    double smin_ = 0, smax_ = 0, cmin_ = 0, cmax_ = 0, own_start_ = 0;
+    Unwrapper own_unwrap_;
+    bool started_ = false, own_ = false;
+};
+
 }  // namespace fringe::est

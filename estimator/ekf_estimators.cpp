@@ -56,6 +56,7 @@ std::vector<ParamInfo> ekf_params(const Flavor& f) {
         p.push_back({"q_delta_rad2_per_s", "rad^2/s", ParamType::Number, 1e-6, 0, 10, {}, "random-walk intensity of the quadrature-error state"});
     }
     p.push_back(acquisition_param());
+    p.push_back(LockMonitor::threshold_param());
     p.push_back({"p0_theta_rad", "rad", ParamType::Number, 0.05, 1e-9, 10, {}, "initial phase std"});
     p.push_back({"p0_omega_rad_s", "rad/s", ParamType::Number, kTwoPi * 5, 1e-9, 1e9, {}, "initial rate std"});
     if (f.variant == Variant::ClosedLoop) {
@@ -207,9 +208,13 @@ public:
         r_model_ = 1.0 / model_.mean_information(x0_.data(), channels_);
 
         acq_cal_ = acq_cal;
-        acq_.reset(static_cast<std::size_t>(p.integer("acquisition_samples")), cfg.sample_rate_hz, acq_cal);
+        acq_n_ = static_cast<std::size_t>(p.integer("acquisition_samples"));
+        fs_ = cfg.sample_rate_hz;
+        acq_.reset(acq_n_, fs_, acq_cal);
+        lock_.reset(acq_cal, p.number("lock_threshold_rad"));
         selfcal_sum_ = 0;
         skipped_ = clipped_ = nonfinite_ = 0;
+        reacquiring_ = false;
         n_gain_ = auto_range_ ? 0 : n_max_;
         quiet_ = 0;
         first_max_gain_sample_ = -1;
@@ -221,14 +226,16 @@ public:
         for (std::size_t i = 0; i < n; ++i, ++k_) {
             double z[2] = {in.sin_v[i], in.cos_v[i]};
             const bool finite = std::isfinite(z[0]) && std::isfinite(z[1]);
+            if (finite) lock_.reference(z[0], z[1]);
             if (!acq_.done()) {
                 if (closed_) { z[0] = adc_.apply(z[0]); z[1] = adc_.apply(z[1]); }  // N = 0, DAC at 0
                 if (!finite) { z[0] = z[1] = 0; ++nonfinite_; }
                 const bool done = acq_.add(z[0], z[1]);
                 selfcal_sum_ += z[0] * z[0] + z[1] * z[1];
-                out.theta_rad[i] = acq_.last_atan2_rad();
+                out.theta_rad[i] = lock_.anchor(acq_.last_atan2_rad());
                 out.omega_rad_s[i] = 0;
                 out.valid[i] = 0;
+                if (reacquiring_) lock_.count_invalid();
                 if (done) start();
                 continue;
             }
@@ -265,6 +272,7 @@ public:
             }
             if (!ok) ++skipped_;
             emit(out, i, 1);
+            if (!lock_.check(out.theta_rad[i])) lose_lock(out, i);
         }
     }
 
@@ -272,7 +280,7 @@ public:
     std::optional<TrackingPrior> prior() const override { return TrackingPrior{kin_, fn_}; }
     nlohmann::json state() const override {
         nlohmann::json j{{"states", layout_.n}, {"r_model_rad2", r_model_}, {"skipped_updates", skipped_},
-                         {"nonfinite_samples", nonfinite_}};
+                         {"nonfinite_samples", nonfinite_}, {"loss_of_lock", lock_.to_json()}};
         if (acq_.done()) {
             auto put = [&](const char* key, int idx) { if (idx >= 0) j[key] = filter_.state(idx); };
             put("gain", layout_.gain);
@@ -300,9 +308,23 @@ public:
     }
 
 private:
+    // Loss of lock (LockMonitor): this sample is invalid, and the filter restarts from a
+    // fresh acquisition (its calibration states back at their initial values), anchored to
+    // the reference's turn count: a safe mode instead of a slip.
+    void lose_lock(OutputSpan out, std::size_t i) {
+        out.valid[i] = 0;
+        lock_.count_invalid();
+        acq_.reset(acq_n_, fs_, acq_cal_);
+        selfcal_sum_ = 0;
+        reacquiring_ = true;
+        if (closed_) { n_gain_ = auto_range_ ? 0 : n_max_; quiet_ = 0; }
+    }
+
     void start() {
         auto x = x0_;
-        x[0] = acq_.theta_rad();
+        x[0] = lock_.anchor(acq_.theta_rad());
+        lock_.rearm();
+        reacquiring_ = false;
         x[1] = acq_.omega_rad_s();
         if (f_.selfcal && !amplitude_known_) {
             // Unknown amplitude: the Lissajous radius over the acquisition window.
@@ -368,6 +390,10 @@ private:
     std::array<double, kMaxStates> x0_{}, p0_{};
     Calibration acq_cal_;
     Acquisition acq_;
+    LockMonitor lock_;
+    std::size_t acq_n_ = 200;
+    double fs_ = 1;
+    bool reacquiring_ = false;
     bool amplitude_known_ = true;
     double selfcal_sum_ = 0;
     long long skipped_ = 0, clipped_ = 0, nonfinite_ = 0, first_max_gain_sample_ = -1;

@@ -8,6 +8,7 @@ const std::vector<EstimatorInfo>& registry() {
         register_arctangent(r);
         register_tracking_loop(r);
         register_ekf(r);
+        register_ekf_auto(r);
         register_external(r);
         return r;
     }();

@@ -8,5 +8,6 @@ namespace fringe::est {
 void register_arctangent(std::vector<EstimatorInfo>& r);
 void register_tracking_loop(std::vector<EstimatorInfo>& r);
 void register_ekf(std::vector<EstimatorInfo>& r);
+void register_ekf_auto(std::vector<EstimatorInfo>& r);
 void register_external(std::vector<EstimatorInfo>& r);
 }  // namespace fringe::est

@@ -3,6 +3,10 @@
 //   the signal amplitude, so e = sin(theta - theta-) for a clean signal);
 //   theta+ = theta- + K1*e, omega+ = omega- + K2*e, theta-(k+1) = theta+ + T*omega+,
 //   K1 = 2*zeta*wn*T, K2 = wn^2*T.
+// Lock detector: the in-phase product cos(theta - theta-) = sn*cos(theta-) + cn*sin(theta-)
+// (ratiometric), low-passed over ~8 samples, goes negative before the loop can slip a cycle
+// (the error must pass pi/2). Then the sample is invalid, the event is counted and the loop
+// re-acquires from atan2, its turn count taken nearest the phase it last held, extrapolated.
 #include "common.hpp"
 #include "registry_parts.hpp"
 
@@ -32,8 +36,12 @@ public:
         k2_ = wn * wn * T_;
         cal_ = nominal_calibration(cfg.encoder, p);
         k_ = cal_.coeffs();
-        acq_.reset(static_cast<std::size_t>(p.integer("acquisition_samples")), cfg.sample_rate_hz, cal_);
+        acq_n_ = static_cast<std::size_t>(p.integer("acquisition_samples"));
+        acq_.reset(acq_n_, cfg.sample_rate_hz, cal_);
         frac_ = omega_ = 0;
+        inphase_ = 1.0;
+        reacquiring_ = false;
+        lol_events_ = lol_invalid_ = 0;
         turns_ = 0;
     }
     void process(InputSpan in, OutputSpan out) override {
@@ -45,8 +53,16 @@ public:
                 out.theta_rad[i] = acq_.last_atan2_rad();
                 out.omega_rad_s[i] = 0;
                 out.valid[i] = 0;
+                if (reacquiring_) ++lol_invalid_;
                 if (done) {
-                    const double th = acq_.theta_rad();
+                    double th = acq_.theta_rad();
+                    if (reacquiring_) {
+                        // nearest the last locked phase carried on at the last locked rate
+                        const double guess = lost_theta_ + lost_omega_ * T_ * static_cast<double>(acq_.samples());
+                        th = guess + wrap_pi(th - guess);
+                        reacquiring_ = false;
+                    }
+                    inphase_ = 1.0;
                     omega_ = acq_.omega_rad_s();
                     frac_ = wrap_pi(th);
                     turns_ = std::llround((th - frac_) / kTwoPi);
@@ -63,11 +79,22 @@ public:
             const double inv_mag = m2 > 0 ? 1.0 / std::sqrt(m2) : 0.0;
             // On it: error, loop update, and the phasor rotated by the phase step.
             const double e = std::fma(sn, pc_, -cn * ps_) * inv_mag;
+            inphase_ += (std::fma(sn, ps_, cn * pc_) * inv_mag - inphase_) * 0.125;
             const double post = std::fma(k1_, e, frac_);
             omega_ = std::fma(k2_, e, omega_);
             out.theta_rad[i] = post + kTwoPi * static_cast<double>(turns_);
             out.omega_rad_s[i] = omega_;
             out.valid[i] = 1;
+            if (inphase_ < 0) {  // lost lock: never slip silently
+                out.valid[i] = 0;
+                ++lol_events_;
+                ++lol_invalid_;
+                lost_theta_ = out.theta_rad[i];
+                lost_omega_ = omega_;
+                reacquiring_ = true;
+                acq_.reset(acq_n_, 1.0 / T_, cal_);
+                continue;
+            }
             const double step = std::fma(T_, omega_, k1_ * e);  // theta-(k+1) - theta-(k)
             frac_ += step;
             if (frac_ > kPi) { frac_ -= kTwoPi; ++turns_; }
@@ -92,7 +119,10 @@ public:
         }
     }
     std::optional<TrackingPrior> prior() const override { return TrackingPrior{Kinematics::CV, fn_}; }
-    nlohmann::json state() const override { return {{"calibration", cal_.to_json()}, {"k1", k1_}, {"k2_rad_s", k2_}}; }
+    nlohmann::json state() const override {
+        return {{"calibration", cal_.to_json()}, {"k1", k1_}, {"k2_rad_s", k2_},
+                {"loss_of_lock", {{"events", lol_events_}, {"samples_invalid", lol_invalid_}}}};
+    }
 
 private:
     double T_ = 1, fn_ = 100, k1_ = 0, k2_ = 0;
@@ -103,6 +133,11 @@ private:
     long long turns_ = 0;
     static constexpr int kResync = 256;
     int since_sync_ = 0;
+    // lock detector
+    std::size_t acq_n_ = 200;
+    double inphase_ = 1.0, lost_theta_ = 0, lost_omega_ = 0;
+    bool reacquiring_ = false;
+    long long lol_events_ = 0, lol_invalid_ = 0;
     Calibration::Coeffs k_{0, 0, 1, 1, 0, 1};  // cal_'s constants, read per sample
 };
 

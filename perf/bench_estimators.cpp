@@ -66,5 +66,6 @@ FRINGE_BENCH(ekf_parallel, "ekf-parallel", nlohmann::json::object());
 FRINGE_BENCH(ekf_rectified, "ekf-rectified", nlohmann::json::object());
 FRINGE_BENCH(ekf_selfcal, "ekf-selfcal", nlohmann::json::object());
 FRINGE_BENCH(closed_loop, "closed-loop", nlohmann::json::object());
+FRINGE_BENCH(ekf_auto, "ekf-auto", nlohmann::json::object());
 
 BENCHMARK_MAIN();

@@ -56,7 +56,7 @@ TEST_CASE("Unwrapper is exact over many turns", "[estimator]") {
 
 TEST_CASE("registry lists every required estimator with self-described parameters", "[estimator][registry]") {
     for (const char* name : {"atan2", "atan2-ellipse", "pll2", "ekf-ideal", "ekf-diffraction", "ekf-sin-only",
-                             "ekf-parallel", "ekf-rectified", "closed-loop", "external", "ekf-selfcal"}) {
+                             "ekf-parallel", "ekf-rectified", "closed-loop", "external", "ekf-selfcal", "ekf-auto"}) {
         INFO(name);
         const auto& info = est::find(name);
         CHECK(!info.summary.empty());

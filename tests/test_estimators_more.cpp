@@ -100,7 +100,7 @@ TEST_CASE("output does not depend on the block partition", "[estimator][blocks]"
     const auto enc = paper();
     const Block b = generate(enc, constant_electrical(106.7236, enc.lines_per_rev), kFs, 30000, 4);
     const std::string name = GENERATE(as<std::string>{}, "atan2", "atan2-ellipse", "pll2", "ekf-ideal", "ekf-diffraction",
-                                      "ekf-sin-only", "ekf-parallel", "ekf-rectified", "ekf-selfcal", "closed-loop");
+                                      "ekf-sin-only", "ekf-parallel", "ekf-rectified", "ekf-selfcal", "closed-loop", "ekf-auto");
     INFO(name);
     const json params = name == "atan2-ellipse" ? json{{"mode", "recursive"}} : json::object();
     est::EstimatorConfig cfg;

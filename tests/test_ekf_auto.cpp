@@ -1,0 +1,141 @@
+// ekf-auto (issue 13): told nothing, compared with an EKF that knows the true model (the
+// oracle: the generator's own profile, the same CA kinematics and fn) and with the PCRB of its
+// declared prior. The kinds of signal listed here meet the target (phase-error std within 1.5x
+// of the larger of the two after the settling time, zero slipped samples, several seeds); the
+// kinds that do not yet are listed in docs/estimators.md with their numbers.
+#include "estimator_helpers.hpp"
+#include "signal_kinds.hpp"
+
+#include <catch2/catch.hpp>
+
+using namespace fringe;
+using namespace fringe::test;
+using nlohmann::json;
+
+namespace {
+constexpr double kFs = 100e3;
+constexpr double kSettleS = 0.5;  // acquisition, bootstrap and 16 cycles of shape memory at ~100 Hz electrical
+
+SignalKind kind_named(const std::string& name) {
+    for (auto& k : signal_kinds())
+        if (k.name == name) return k;
+    throw std::runtime_error("no kind " + name);
+}
+}  // namespace
+
+TEST_CASE("ekf-auto is registered, needs no parameters and declares its prior", "[estimator][ekf-auto]") {
+    const auto& info = est::find("ekf-auto");
+    for (const auto& p : info.params) {
+        INFO(p.name);
+        CHECK(!p.default_value.is_null());  // every parameter optional
+        CHECK(!p.description.empty());
+    }
+    est::EstimatorConfig cfg;
+    cfg.sample_rate_hz = kFs;
+    auto e = est::make("ekf-auto", cfg);  // no encoder, no params
+    REQUIRE(e->prior());
+    CHECK(e->prior()->kinematics == est::Kinematics::CA);
+    CHECK(e->prior()->natural_freq_hz == 100.0);
+    cfg.params = {{"max_order", 3}};
+    CHECK_THROWS_WITH(est::make("ekf-auto", cfg), Catch::Contains("params.max_order"));
+}
+
+TEST_CASE("ekf-auto told nothing tracks within 1.5x of the oracle or the PCRB", "[estimator][ekf-auto][accuracy]") {
+    std::vector<SignalKind> kinds = {kind_named("ideal-16bit"), kind_named("ideal-10bit"), kind_named("paper-duty1p6"),
+                                     kind_named("acceleration")};
+    kinds.push_back({"duty10-10bit", diffraction_w(0.5, 10), constant_electrical(106.72358591248666, 1024)});
+    kinds.push_back({"paper-312spc", fixture_encoder("paper-duty1p6"), constant_electrical(kFs / 312, 1024)});
+    for (auto& kind : kinds) {
+        kind.samples = 100000;
+        for (std::uint64_t seed : {3, 4}) {
+            const Block b = generate(kind.encoder, kind.motion, kFs, kind.samples, seed);
+            auto a = run_estimator("ekf-auto", json::object(), std::nullopt, b, kFs, kind.encoder, kSettleS);
+            const bool diff = kind.encoder.model == ModelKind::Diffraction;
+            auto o = run_estimator(diff ? "ekf-diffraction" : "ekf-ideal", {{"kinematics", "ca"}}, kind.encoder, b, kFs, kind.encoder, kSettleS);
+            const double pcrb = a.bounds["pcrb_rad"].get<double>();
+            INFO(kind.name << " seed " << seed << ": ekf-auto std " << a.m.std_rad << ", oracle " << o.m.std_rad << ", PCRB " << pcrb
+                           << " state " << a.e->state().dump());
+            CHECK(a.m.slipped_samples == 0);
+            CHECK(a.m.invalid_after_settle == 0);
+            CHECK(a.m.std_rad < 1.5 * std::max(o.m.std_rad, pcrb));
+            CHECK(a.efficiency() > 0);  // graded against its declared prior
+        }
+    }
+}
+
+TEST_CASE("ekf-auto learns the shape: the paper's 2nd harmonic, with the sin fundamental defining theta", "[estimator][ekf-auto]") {
+    const auto kind = kind_named("paper-duty1p6");
+    const Block b = generate(kind.encoder, kind.motion, kFs, 80000, 5);
+    auto a = run_estimator("ekf-auto", json::object(), std::nullopt, b, kFs, kind.encoder, kSettleS);
+    const json st = a.e->state();
+    INFO(st.dump());
+    CHECK(st["stage"] == "tracking");
+    CHECK(st["order"].get<int>() >= 2);
+    const auto& s = st["shape_sin"]["harmonics"];
+    // MODEL.md 2.2: V_s = B1 sin(theta) - B2 cos(2 theta), B1 = 1.093 V, h2 = 2.52 %
+    CHECK(s[0]["cos_v"].get<double>() == Approx(0.0).margin(1e-12));  // the convention, exactly
+    CHECK(s[0]["sin_v"].get<double>() == Approx(1.093).epsilon(0.01));
+    CHECK(s[1]["cos_v"].get<double>() == Approx(-0.0252 * 1.093).margin(1e-3));
+    CHECK(std::fabs(s[1]["sin_v"].get<double>()) < 1e-3);
+}
+
+TEST_CASE("ekf-auto holds its shape at standstill", "[estimator][ekf-auto]") {
+    // move at ~107 Hz electrical for 0.6 s, stop (deceleration 0.07 s), then stand still
+    auto enc = fixture_encoder("paper-duty1p6");
+    MotionProfile m;
+    m.kind = MotionKind::Trapezoid;
+    m.velocity_rad_s = kTwoPi * 106.72358591248666 / 1024;
+    m.accel_rad_s2 = 10.0;
+    m.cruise_s = 0.6;
+    const Block b = generate(enc, m, kFs, 120000, 6);
+    est::EstimatorConfig cfg;
+    cfg.sample_rate_hz = kFs;
+    auto e = est::make("ekf-auto", cfg);
+    const std::size_t half = 80000;  // at rest from ~0.73 s
+    std::vector<double> th(b.size()), om(b.size());
+    std::vector<std::uint8_t> v(b.size());
+    e->process({std::span(b.sin_v).first(half), std::span(b.cos_v).first(half)},
+               {std::span(th).first(half), std::span(om).first(half), std::span(v).first(half)});
+    const json before = e->state();
+    e->process({std::span(b.sin_v).subspan(half), std::span(b.cos_v).subspan(half)},
+               {std::span(th).subspan(half), std::span(om).subspan(half), std::span(v).subspan(half)});
+    const json after = e->state();
+    INFO(before.dump() << "\n" << after.dump());
+    CHECK(before["order"].get<int>() >= 2);
+    CHECK(after["shape_sin"] == before["shape_sin"]);
+    CHECK(after["shape_cos"] == before["shape_cos"]);
+    CHECK(after["accepted_points"] == before["accepted_points"]);
+    CHECK(after["loss_of_lock"]["events"] == 0);
+    CHECK(v.back() == 1);
+    // as good as the shape learnt in 0.6 s of motion (not yet converged to the bound: ~6e-3 rad)
+    CHECK(std::fabs(th.back() - b.theta_rad.back()) < 0.02);
+}
+
+TEST_CASE("ekf-auto: no cycle slip in 10^7 samples of the paper's signal", "[estimator][ekf-auto][long][.long]") {
+    const auto sc = load_scenario(std::string(FRINGE_SOURCE_DIR) + "/fixtures/scenarios/paper-duty1p6.json");
+    Generator g(sc.encoder, sc.motion, sc.sample_rate_hz, 99);
+    est::EstimatorConfig cfg;
+    cfg.sample_rate_hz = sc.sample_rate_hz;
+    auto e = est::make("ekf-auto", cfg);
+    Scorer s(kSettleS);
+    constexpr std::size_t kBlock = 1 << 20;
+    Block b;
+    std::vector<double> th(kBlock), om(kBlock);
+    std::vector<std::uint8_t> v(kBlock);
+    for (std::uint64_t k = 0; k < 10'000'000;) {
+        const std::size_t n = std::min<std::uint64_t>(kBlock, 10'000'000 - k);
+        b.resize(n, false);
+        th.resize(n); om.resize(n); v.resize(n);
+        g.generate(k, b);
+        e->process({b.sin_v, b.cos_v}, {th, om, v});
+        s.add(n, b.t_s.data(), b.theta_rad.data(), b.omega_rad_s.data(), th.data(), om.data(), v.data());
+        k += n;
+    }
+    const auto m = s.finish();
+    INFO(e->state().dump());
+    CHECK(m.scored > 9'900'000);
+    CHECK(m.slipped_samples == 0);
+    CHECK(m.invalid_after_settle == 0);
+    CHECK(e->state()["loss_of_lock"]["events"] == 0);
+    CHECK(m.std_rad < 4e-5);
+}
