@@ -29,8 +29,9 @@ struct Stmt {
     void bind(int i, long long v) { sqlite3_bind_int64(s, i, v); }
     void bind_u64(int i, std::uint64_t v) { sqlite3_bind_int64(s, i, static_cast<sqlite3_int64>(v)); }
     std::string text(int i) const {
+        // By length, not up to a NUL: a scenario name may hold one (it is escaped where shown).
         const auto* p = sqlite3_column_text(s, i);
-        return p ? reinterpret_cast<const char*>(p) : "";
+        return p ? std::string(reinterpret_cast<const char*>(p), static_cast<std::size_t>(sqlite3_column_bytes(s, i))) : std::string();
     }
 };
 }  // namespace

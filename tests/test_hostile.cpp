@@ -419,6 +419,11 @@ TEST_CASE("hostile: control characters in a scenario name: JUnit stays well-form
     REQUIRE(created.status == 201);
     const std::string id = json::parse(created.body)["id"];
     CHECK(wait_done(s, id) == "done");
+    // the history lists the whole name, not the part before the NUL
+    const auto list = json::parse(s.get("/api/v1/runs").body);
+    bool whole = false;
+    for (const auto& r : list["runs"]) whole |= r["id"] == id && r["scenario"] == sc["name"];
+    CHECK(whole);
     const auto xml = s.get("/api/v1/runs/" + id + "/report.xml");
     REQUIRE(xml.status == 200);
     // XML 1.0 allows no C0 control character but tab, LF and CR, and in attribute values
