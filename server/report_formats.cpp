@@ -89,12 +89,13 @@ std::string junit_xml(const json& r) {
     x << "<testsuites name=\"fringe\">\n";
     x << "  <testsuite name=\"" << xml_escape(name) << "\" tests=\"" << (ms.size() + (run_error ? 1 : 0)) << "\" failures=\"" << failures
       << "\" errors=\"" << (errors + (run_error ? 1 : 0)) << "\" timestamp=\"" << xml_escape(r.value("started_at", std::string())) << "\" time=\""
-      << num(r["wall_s"]) << "\">\n";
+      << num(r.value("wall_s", json())) << "\">\n";
     x << "    <properties>\n";
     x << "      <property name=\"run_id\" value=\"" << xml_escape(r.value("id", std::string())) << "\"/>\n";
     x << "      <property name=\"verdict\" value=\"" << xml_escape(r.value("verdict", std::string())) << "\"/>\n";
-    x << "      <property name=\"seed\" value=\"" << r["seed"].dump() << "\"/>\n";
-    if (r["device"].is_object()) x << "      <property name=\"device\" value=\"" << xml_escape(r["device"].value("uri", std::string())) << "\"/>\n";
+    // A report of any age or shape renders: missing keys are skipped, never looked up.
+    x << "      <property name=\"seed\" value=\"" << r.value("seed", json()).dump() << "\"/>\n";
+    if (r.contains("device") && r["device"].is_object()) x << "      <property name=\"device\" value=\"" << xml_escape(r["device"].value("uri", std::string())) << "\"/>\n";
     // Preflight and convention warnings: what the verdict was reached under.
     for (const auto& w : r.value("warnings", json::array()))
         x << "      <property name=\"warning\" value=\"" << xml_escape(w.value("code", std::string()) + ": " + w.value("message", std::string())) << "\"/>\n";
