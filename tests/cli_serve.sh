@@ -70,8 +70,11 @@ code=$(api -o /dev/null -w '%{http_code}' -X POST -H "Authorization: Bearer wron
 
 # SIGTERM mid-run: the run is stored as interrupted with a partial report; exit 0.
 id=$(api -X POST -H "Authorization: Bearer $(cat "$T")" -d '{"fixture":"perf-1e7"}' "${URL}api/v1/runs" | $PY -c 'import json,sys; print(json.load(sys.stdin)["id"])')
-for _ in $(seq 100); do [ "$(status_of "$id")" = "running " ] && break; sleep 0.05; done
-sleep 0.3
+# wait (bounded: 60 s) until samples have been processed: under ASan on a loaded 2-core CI
+# machine the run's set-up can take longer than any fixed sleep.
+done_of() { api "${URL}api/v1/runs/$1" | $PY -c 'import json,sys; r=json.load(sys.stdin); print((r.get("progress") or {}).get("done", 0))'; }
+for _ in $(seq 600); do [ "$(done_of "$id")" -gt 0 ] && break; sleep 0.1; done
+[ "$(done_of "$id")" -gt 0 ] || fail "perf-1e7 processed nothing in 60 s"
 kill -TERM $pid
 set +e; wait $pid; rc=$?; set -e
 [ $rc -eq 0 ] || fail "serve should exit 0 on SIGTERM, got $rc"
