@@ -24,6 +24,12 @@ void to_json(nlohmann::json& j, const DeviceInfo& d) {
     j = {{"driver", d.driver}, {"uri", d.uri}, {"description", d.description}, {"board_id", d.board_id},
          {"streaming", d.streaming}, {"step_mode", d.step_mode}, {"dut_position", d.dut_position},
          {"latency_samples", d.latency_samples}, {"settings", d.settings}, {"converter", d.converter}};
+    if (d.can_play || d.can_record) {
+        j["can_play"] = d.can_play;
+        j["can_record"] = d.can_record;
+        j["own_clock"] = d.own_clock;
+        j["max_play_samples"] = d.max_play_samples;
+    }
 }
 
 void to_json(nlohmann::json& j, const ConverterInfo& c) {

@@ -83,6 +83,14 @@ struct DeviceInfo {
     int latency_samples = 0;  // known input delay relative to the output, samples
     nlohmann::json settings = nlohmann::json::object();  // resolved settings
     ConverterInfo converter;
+    // Instrument mode (issue 14): a waveform generator plays whole channels from its memory
+    // (play), a digitizer or scope records a block (record). Such devices run on their own
+    // clocks with an unknown delay between output and input: the run engine aligns truth from
+    // the signals (server/align.*) before scoring. can_play: output instrument; can_record:
+    // input instrument; own_clock: output and input are not sample-locked (the engine must
+    // estimate delay, clock ratio, gain and offset).
+    bool can_play = false, can_record = false, own_clock = false;
+    std::size_t max_play_samples = 0;  // generator memory per channel (0: unlimited)
 };
 void to_json(nlohmann::json& j, const DeviceInfo& d);
 void to_json(nlohmann::json& j, const ConverterInfo& c);
@@ -114,6 +122,22 @@ public:
         (void)theta_rad; (void)omega_rad_s;
         return false;
     }
+
+    // Instrument mode (DeviceInfo::can_play / can_record). play: upload both channels (V) at
+    // sample_rate_hz and start the output; cyclic repeats the block until stop_output, else it
+    // plays once. record: acquire up to sin_v.size() input frames at (nominally)
+    // sample_rate_hz, starting no later than the output started, waiting up to timeout_s; the
+    // result's frames/status/message as for read(). Both throw DeviceError when unsupported
+    // or when the instrument reports an error (naming its native error text).
+    virtual void play(std::span<const double> sin_v, std::span<const double> cos_v, double sample_rate_hz, bool cyclic) {
+        (void)sin_v; (void)cos_v; (void)sample_rate_hz; (void)cyclic;
+        throw DeviceError(info().uri, "playing a waveform from memory is not supported by this device");
+    }
+    virtual StreamResult record(std::span<double> sin_v, std::span<double> cos_v, double sample_rate_hz, double timeout_s) {
+        (void)sin_v; (void)cos_v; (void)sample_rate_hz; (void)timeout_s;
+        throw DeviceError(info().uri, "recording a block is not supported by this device");
+    }
+    virtual void stop_output() {}
 
     // Step mode: set a static sin/cos pair, wait settle_s, read back (averaged).
     virtual StepResult step(double sin_v, double cos_v, double settle_s, int average) {
