@@ -1,0 +1,141 @@
+// fringe estimate: run an estimator on a capture and score it against the capture's truth.
+#include "server/cli/commands.hpp"
+#include "estimator/estimator.hpp"
+#include "server/evaluate.hpp"
+#include "server/scenario.hpp"
+
+#include <cstdio>
+#include <stdexcept>
+
+namespace fringe::cli {
+
+namespace {
+
+using nlohmann::json;
+
+struct EstimateOptions {
+    std::string capture, estimator, encoder, output, report;
+    std::vector<std::string> params;
+    double settle_s = 0.1;
+    bool list = false, json_list = false, quiet = false;
+};
+
+void print_estimators(bool as_json) {
+    if (as_json) {
+        std::printf("%s\n", json(est::registry()).dump(2).c_str());
+        return;
+    }
+    for (const auto& e : est::registry()) {
+        std::printf("%s\n  %s\n", e.name.c_str(), e.summary.c_str());
+        for (const auto& p : e.params) {
+            json pj = p;
+            std::string range;
+            if (pj.contains("min") || pj.contains("max"))
+                range = " [" + (pj.contains("min") ? pj["min"].dump() : std::string("-inf")) + ", " +
+                        (pj.contains("max") ? pj["max"].dump() : std::string("inf")) + "]";
+            if (pj.contains("options")) {
+                range = " {";
+                for (const auto& opt : p.options) range += (range.size() > 2 ? "|" : "") + opt;
+                range += "}";
+            }
+            std::printf("    %-22s %-8s %-8s default %-10s%s\n        %s\n", p.name.c_str(), pj["type"].get<std::string>().c_str(),
+                        p.unit.empty() ? "-" : p.unit.c_str(), p.default_value.is_null() ? "derived" : p.default_value.dump().c_str(),
+                        range.c_str(), p.description.c_str());
+        }
+    }
+}
+
+// Harmonic amplitudes with the share of the error power they hold, or why there are none.
+void print_harmonics(const json& m) {
+    const auto& ha = m["harmonic_analysis"];
+    if (m["harmonics"].empty()) {
+        if (ha["note"].is_string()) std::printf("harmonics: not reported: %s\n", ha["note"].get<std::string>().c_str());
+        return;
+    }
+    std::printf("harmonics (rad):");
+    for (const auto& h : m["harmonics"]) std::printf(" %dx %.2e", h["order"].get<int>(), h["amplitude"]["rad"].get<double>());
+    std::printf("\n  1x..%dx hold %.1f %% of the error variance; broadband rest %.3e rad rms\n", static_cast<int>(m["harmonics"].size()),
+                100.0 * ha["power_fraction"].get<double>(), ha["broadband_rms_rad"].get<double>());
+    if (ha["note"].is_string()) std::printf("  (%s)\n", ha["note"].get<std::string>().c_str());
+}
+
+int run_estimate(const EstimateOptions& o) {
+    if (o.list) {
+        print_estimators(o.json_list);
+        return kExitOk;
+    }
+    if (o.capture.empty()) throw ConfigError("capture", "a capture file is required (or --list)");
+    if (o.estimator.empty()) throw ConfigError("estimator", "--estimator NAME is required (see --list)");
+    if (o.output.empty() && o.report.empty()) throw ConfigError("output", "give -o ESTIMATES.csv and/or --report REPORT.json");
+    EvaluateOptions e;
+    e.capture_path = o.capture;
+    e.estimator = o.estimator;
+    e.params = est::parse_param_assignments(est::find(o.estimator).params, o.params);
+    if (!o.encoder.empty()) e.encoder = load_encoder(o.encoder);
+    e.settle_s = o.settle_s;
+    e.estimates_path = o.output;
+    Progress progress("estimate", "samples", o.quiet);
+    if (progress.active()) e.progress = [&](std::uint64_t done) { progress.update(done); };
+    const json r = evaluate_capture(e);
+    progress.clear();
+    if (!o.report.empty()) {
+        std::FILE* f = std::fopen(o.report.c_str(), "w");
+        if (!f) throw std::runtime_error(o.report + ": cannot write report");
+        const std::string text = r.dump(2, ' ', false, json::error_handler_t::replace) + "\n";
+        const bool ok = std::fwrite(text.data(), 1, text.size(), f) == text.size();
+        if (std::fclose(f) != 0 || !ok) throw std::runtime_error(o.report + ": write failed");
+    }
+    if (!o.quiet) {
+        std::printf("%s on %s: %llu samples, %.3g M samples/s\n", o.estimator.c_str(), o.capture.c_str(),
+                    static_cast<unsigned long long>(r["capture"]["samples"].get<std::uint64_t>()),
+                    r["timing"]["estimator_samples_per_s"].get<double>() / 1e6);
+        if (r["metrics"].is_null()) {
+            std::printf("no theta_true in the capture: estimates only\n");
+        } else if (r["metrics"]["scored"].get<std::uint64_t>() == 0) {
+            std::printf("%s\n", r["note"].get<std::string>().c_str());
+        } else {
+            const auto& m = r["metrics"];
+            const auto& ev = m["evidence"];
+            std::printf("error after %.3g s settle (%llu samples, %.1f electrical cycles, valid %.1f %%): rms %.3e rad (%.4f %% of a period), std %.3e, mean %.3e, max|e| %.3e rad, slipped %llu\n",
+                        o.settle_s, static_cast<unsigned long long>(m["scored"].get<std::uint64_t>()), ev["scored_cycles"].get<double>(),
+                        100.0 * ev["valid_fraction"].get<double>(), m["rms"]["rad"].get<double>(),
+                        m["rms"]["percent_period"].get<double>(), m["std"]["rad"].get<double>(), m["mean"]["rad"].get<double>(),
+                        m["max_abs"]["rad"].get<double>(), static_cast<unsigned long long>(m["slipped_samples"].get<std::uint64_t>()));
+            print_harmonics(m);
+            // fringe estimate has no limits; say when a run would not have had enough evidence.
+            if (m["scored"].get<std::uint64_t>() < 1000 || ev["scored_cycles"].get<double>() < 3)
+                std::printf("warning: only %llu scored samples over %.2f electrical cycles: below a run's evidence minimum (1000 samples, 3 cycles); "
+                            "treat these figures as indicative\n",
+                            static_cast<unsigned long long>(m["scored"].get<std::uint64_t>()), ev["scored_cycles"].get<double>());
+            const auto& b = r["bounds"];
+            if (b.is_object() && b.contains("per_sample_crb_rad")) {
+                std::printf("bounds: per-sample CRB %.3e rad", b["per_sample_crb_rad"].get<double>());
+                if (b.contains("pcrb_rad")) std::printf(", PCRB %.3e rad (noise-only %.3e)", b["pcrb_rad"].get<double>(), b["pcrb_noise_only_rad"].get<double>());
+                if (!b["efficiency"].is_null()) std::printf(", efficiency %.3f vs %s", b["efficiency"].get<double>(), b["efficiency_against"].get<std::string>().c_str());
+                std::printf("\n");
+            }
+            for (const auto& d : r["diagnosis"]) std::printf("warning: %s\n", d["message"].get<std::string>().c_str());
+        }
+    }
+    return kExitOk;
+}
+
+}  // namespace
+
+Command add_estimate(CLI::App& app) {
+    auto o = std::make_shared<EstimateOptions>();
+    auto* es = app.add_subcommand("estimate", "Run an estimator on a capture; score it when the capture has theta_true");
+    es->add_option("capture", o->capture, "Capture file (.csv with sidecar, or .fcap)")->check(CLI::ExistingFile);
+    es->add_option("--estimator", o->estimator, "Estimator name (see --list)");
+    es->add_option("--encoder", o->encoder, "Encoder profile JSON the estimator is told (default: the capture's metadata)")->check(CLI::ExistingFile);
+    es->add_option("--param", o->params, "Estimator parameter key=value (repeatable)");
+    es->add_option("-o,--output", o->output, "Estimates CSV to write: t,theta_rad,omega_rad_s,valid");
+    es->add_option("--report", o->report, "Report JSON to write (scores and bounds when the capture has truth)");
+    es->add_option("--settle-s", o->settle_s, "Seconds from the start excluded from scoring")->check(CLI::NonNegativeNumber);
+    es->add_flag("--list", o->list, "List the estimators and their parameters");
+    es->add_flag("--json", o->json_list, "With --list: as JSON");
+    es->add_flag("-q,--quiet", o->quiet, "No summary or progress");
+    return {es, [o] { return run_estimate(*o); }};
+}
+
+}  // namespace fringe::cli

@@ -1,0 +1,141 @@
+// fringe run: one scenario, here or on a fringe serve (--server); exit 0 PASS/MARGINAL, 1 FAIL, 2 ERROR.
+#include "server/cli/commands.hpp"
+#include "signal_gen/config.hpp"
+#include "server/instance_lock.hpp"
+#include "server/remote.hpp"
+#include "server/report_formats.hpp"
+#include "server/run.hpp"
+#include "server/scenario.hpp"
+#include "server/service.hpp"
+#include "server/store.hpp"
+#include "server/text.hpp"
+#include "server/verdict.hpp"
+
+#include <cstdio>
+#include <filesystem>
+#include <spdlog/spdlog.h>
+
+namespace fringe::cli {
+
+namespace {
+
+using nlohmann::json;
+
+struct RunCliOptions {
+    std::string scenario, report, junit, html, data, record, device, server, token_file;
+    std::int64_t seed = -1;
+    bool no_db = false, quiet = false;
+};
+
+// fringe run --server URL: the scenario is read and checked here (file references inlined),
+// run by the service, and its report fetched; same output files, summary and exit code.
+int run_run_remote(const RunCliOptions& o, const Scenario& sc) {
+    if (!o.record.empty()) throw ConfigError("record", "--record needs the device on this host; not with --server");
+    if (!o.data.empty()) throw ConfigError("data", "the service keeps the history; --data does not apply with --server");
+    if (sc.motion.kind == MotionKind::Table)
+        throw ConfigError("motion.file", "a table motion is read from a file on the service's host; with --server, put the table in the service's fixtures and run a scenario there");
+    const ServiceUrl url = parse_service_url(o.server);
+    const std::string token_path = o.token_file.empty() ? default_data_dir() + "/token" : o.token_file;
+    // No default token file: send none, and the service's 401 says what is missing.
+    const std::string token = o.token_file.empty() && !std::filesystem::exists(token_path) ? "" : read_token_file(token_path);
+    ServiceClient client(url, token);
+    RemoteRunOptions ro;
+    ro.junit = o.junit;
+    ro.html = o.html;
+    ro.cancel = &cancel_flag();  // Ctrl-C cancels the run on the service; its report still comes back
+    install_cancel_handlers();
+    Progress progress("run", "samples", o.quiet);
+    if (progress.active()) ro.progress = [&](std::uint64_t done, std::uint64_t total) { progress.update(done, total); };
+    json r;
+    std::string failure;
+    try {
+        r = run_remote(client, json(sc), ro);
+    } catch (const RemoteError& e) {
+        failure = e.what();
+    }
+    progress.clear();
+    if (!failure.empty()) {
+        spdlog::error("{}", failure);
+        return kExitError;
+    }
+    if (!o.report.empty()) write_file_atomic(o.report, r.dump(2, ' ', false, json::error_handler_t::replace) + "\n");
+    if (!o.quiet) print_run_summary(r, sc.name);
+    if (r["error"].is_string()) spdlog::error("{}", r["error"].get<std::string>());
+    return exit_code(r);
+}
+
+int run_run(const RunCliOptions& o) {
+    Scenario sc = load_scenario(o.scenario);
+    if (o.seed >= 0) sc.seed = static_cast<std::uint64_t>(o.seed);
+    if (!o.device.empty()) sc.device = o.device;
+    validate_run(sc);  // preflight errors stop here (exit 2); warnings come back in the report
+    if (!o.server.empty()) return run_run_remote(o, sc);
+    // The run's row names this process's instance, whose lock we hold until the report is
+    // stored: a service on the same folder sees the run alive, and interrupted once we are gone.
+    InstanceLock instance;
+    std::unique_ptr<RunStore> store;
+    RunOptions ro;
+    ro.run_id = new_run_id();
+    ro.record_path = o.record;
+    // Ctrl-C / SIGTERM: finish the block, end the run as ABORTED and keep its report.
+    ro.cancel = &cancel_flag();
+    install_cancel_handlers();
+    if (!o.no_db) {
+        const std::string dir = o.data.empty() ? default_data_dir() : o.data;
+        instance.acquire_instance(dir, "cli-" + new_instance_id());
+        store = std::make_unique<RunStore>(dir + "/runs.db", instance.id());
+        store->begin(ro.run_id, iso_now(), sc.name, sc.dut);
+    }
+    Progress progress("run", "samples", o.quiet);
+    if (progress.active()) ro.progress = [&](std::uint64_t done, std::uint64_t total) { progress.update(done, total); };
+    json r;
+    try {
+        r = execute_run(sc, ro);
+    } catch (const std::exception& e) {  // the history must not keep it "running"
+        r = unstarted_report(sc, ro.run_id, iso_now(), "error", "ERROR", e.what());
+    }
+    progress.clear();
+    // The report survives first: files, then the history.
+    if (!o.report.empty()) write_file_atomic(o.report, r.dump(2, ' ', false, json::error_handler_t::replace) + "\n");
+    if (!o.junit.empty()) write_file_atomic(o.junit, junit_xml(r));
+    if (!o.html.empty()) write_file_atomic(o.html, report_html(r));
+    std::string store_error;
+    if (store) {
+        try {
+            store->finish(r);
+        } catch (const std::exception& e) {
+            store_error = e.what();
+        }
+    }
+    if (!o.quiet) print_run_summary(r, sc.name);
+    if (r["status"] == "error") spdlog::error("{}", r["error"].get<std::string>());
+    if (!store_error.empty()) {
+        // A verdict that is not in the history is not a finished run: say so and fail.
+        spdlog::error("the run's report could not be stored in the history: {}{}", store_error,
+                      o.report.empty() ? "" : " (the report file " + o.report + " was written)");
+        return kExitError;
+    }
+    return exit_code(r);
+}
+
+}  // namespace
+
+Command add_run(CLI::App& app) {
+    auto o = std::make_shared<RunCliOptions>();
+    auto* rn = app.add_subcommand("run", "Run a scenario: generate, play through the device, estimate, score, apply limits; exit 0 PASS/MARGINAL, 1 FAIL, 2 ERROR");
+    rn->add_option("scenario", o->scenario, "Scenario JSON file")->required()->check(CLI::ExistingFile);
+    rn->add_option("--report", o->report, "Write the report JSON here");
+    rn->add_option("--junit", o->junit, "Write JUnit XML here (one testcase per measurement)");
+    rn->add_option("--html", o->html, "Write a self-contained HTML report here");
+    rn->add_option("--data", o->data, "Data directory for the run history (default $FRINGE_DATA or ~/.local/share/fringe)");
+    rn->add_option("--seed", o->seed, "Override the scenario's seed (0 to 2^53)")->check(kSeedRange);
+    rn->add_flag("--no-db", o->no_db, "Do not record the run in the history");
+    rn->add_option("--device", o->device, "Override the scenario's device URI (e.g. modbus+tcp://127.0.0.1:1502?board=dut-interpolator)");
+    rn->add_option("--record", o->record, "Record the device input with aligned truth to this capture (.csv or .fcap)");
+    rn->add_flag("-q,--quiet", o->quiet, "No summary or progress");
+    rn->add_option("--server", o->server, "Run it on a fringe serve at this URL (http://HOST:PORT): the scenario is checked here, run there, its report fetched");
+    rn->add_option("--token-file", o->token_file, "With --server: the service's bearer token file (default $FRINGE_DATA/token or ~/.local/share/fringe/token)");
+    return {rn, [o] { return run_run(*o); }};
+}
+
+}  // namespace fringe::cli

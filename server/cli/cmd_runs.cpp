@@ -1,0 +1,113 @@
+// fringe runs: the run history, filtered, or one run's summary.
+#include "server/cli/commands.hpp"
+#include "signal_gen/config.hpp"
+#include "server/run.hpp"
+#include "server/scenario.hpp"
+#include "server/service.hpp"
+#include "server/store.hpp"
+#include "server/verdict.hpp"
+
+#include <array>
+#include <cstdio>
+#include <ctime>
+
+namespace fringe::cli {
+
+namespace {
+
+using nlohmann::json;
+
+struct RunsOptions {
+    std::string data, verdict, scenario, since, show;
+    int limit = 20;
+    bool as_json = false;
+};
+
+// --since: an ISO date or time (2026-11-21, 2026-11-21T15:00:00Z), "today", "yesterday" or
+// "Nd" (N days ago), as the store's ISO UTC text; anything else is an error, not an empty list.
+std::string parse_since(const std::string& v) {
+    auto day_start = [](std::time_t t) {
+        std::tm tm{};
+        gmtime_r(&t, &tm);
+        char b[32];
+        std::strftime(b, sizeof b, "%Y-%m-%dT00:00:00Z", &tm);
+        return std::string(b);
+    };
+    const std::time_t now = std::time(nullptr);
+    if (v == "today") return day_start(now);
+    if (v == "yesterday") return day_start(now - 86400);
+    if (v.size() >= 2 && v.back() == 'd' && v.find_first_not_of("0123456789") == v.size() - 1)
+        return day_start(now - 86400 * static_cast<std::time_t>(std::stoll(v.substr(0, v.size() - 1))));
+    std::tm tm{};
+    const char* end = strptime(v.c_str(), "%Y-%m-%d", &tm);
+    if (end && *end == 0) return v + "T00:00:00Z";
+    if (end && (*end == 'T' || *end == ' ')) {
+        const char* e2 = strptime(end + 1, "%H:%M", &tm);
+        if (e2 && *e2 == ':') e2 = strptime(e2 + 1, "%S", &tm);
+        if (e2 && (*e2 == 0 || (e2[0] == 'Z' && e2[1] == 0))) {
+            char b[32];
+            std::strftime(b, sizeof b, "%Y-%m-%dT%H:%M:%SZ", &tm);
+            return b;
+        }
+    }
+    throw ConfigError("since", "expected a date or time in UTC (2026-11-21, 2026-11-21T15:00:00Z), today, yesterday or Nd (N days ago); got '" + v + "'");
+}
+
+int run_runs(const RunsOptions& o) {
+    RunStore store((o.data.empty() ? default_data_dir() : o.data) + "/runs.db");
+    if (!o.show.empty()) {
+        auto r = store.report(o.show);
+        if (!r) {
+            if (store.row(o.show)) throw ConfigError("id", "run '" + o.show + "' has no report yet (it is queued or running, or ended without one)");
+            throw ConfigError("id", "no run '" + o.show + "' in this history (fringe runs lists them)");
+        }
+        if (o.as_json) std::printf("%s\n", r->dump(2, ' ', false, json::error_handler_t::replace).c_str());
+        else print_run_summary(*r, (*r)["scenario"].value("name", std::string("run")));
+        return kExitOk;
+    }
+    RunFilter f{o.verdict, o.scenario, o.since, o.limit};
+    if (!o.verdict.empty()) {
+        const auto v = verdict_from(o.verdict);
+        if (!v) throw ConfigError("verdict", "expected PASS, MARGINAL, FAIL, ERROR or ABORTED (any case); got '" + o.verdict + "'");
+        f.verdict = to_string(*v);
+    }
+    if (!o.since.empty()) f.since = parse_since(o.since);
+    const auto rows = store.list(f);
+    if (o.as_json) {
+        json a = json::array();
+        for (const auto& r : rows)
+            a.push_back({{"id", r.id}, {"created_at", r.created_at}, {"scenario", r.scenario}, {"dut", r.dut}, {"status", r.status}, {"verdict", r.verdict}});
+        std::printf("%s\n", a.dump(2, ' ', false, json::error_handler_t::replace).c_str());
+        return kExitOk;
+    }
+    // Columns as wide as their widest cell.
+    std::vector<std::array<std::string, 6>> cells{{"id", "started", "scenario", "dut", "status", "verdict"}};
+    for (const auto& r : rows) cells.push_back({r.id, r.created_at, r.scenario, r.dut, r.status, r.verdict});
+    std::array<std::size_t, 6> w{};
+    for (const auto& c : cells)
+        for (std::size_t k = 0; k < 6; ++k) w[k] = std::max(w[k], c[k].size());
+    for (const auto& c : cells) {
+        std::string line;
+        for (std::size_t k = 0; k < 6; ++k) line += c[k] + (k + 1 < 6 ? std::string(w[k] - c[k].size() + 2, ' ') : "");
+        std::printf("%s\n", line.c_str());
+    }
+    if (rows.empty()) std::fprintf(stderr, "no runs match\n");
+    return kExitOk;
+}
+
+}  // namespace
+
+Command add_runs(CLI::App& app) {
+    auto o = std::make_shared<RunsOptions>();
+    auto* rs = app.add_subcommand("runs", "List the run history (newest first), or print one run's report");
+    rs->add_option("--data", o->data, "Data directory (default $FRINGE_DATA or ~/.local/share/fringe)");
+    rs->add_option("--verdict", o->verdict, "Only runs with this verdict (PASS, MARGINAL, FAIL, ERROR, ABORTED; any case)");
+    rs->add_option("--scenario", o->scenario, "Only runs of this scenario name");
+    rs->add_option("--since", o->since, "Only runs started at or after this UTC date or time (2026-11-21, 2026-11-21T15:00:00Z), today, yesterday or Nd");
+    rs->add_option("--limit", o->limit, "At most this many")->check(CLI::PositiveNumber);
+    rs->add_option("--show", o->show, "Print the summary of this run (its whole report with --json)");
+    rs->add_flag("--json", o->as_json, "As JSON");
+    return {rs, [o] { return run_runs(*o); }};
+}
+
+}  // namespace fringe::cli

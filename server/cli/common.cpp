@@ -1,0 +1,92 @@
+// What the fringe commands share (common.hpp).
+#include "common.hpp"
+
+#include <cmath>
+#include <csignal>
+#include <cstdio>
+#include <unistd.h>
+
+namespace fringe::cli {
+
+using nlohmann::json;
+
+Progress::Progress(std::string label, std::string unit, bool quiet)
+    : label_(std::move(label)), unit_(std::move(unit)), active_(!quiet && isatty(STDERR_FILENO)) {}
+
+void Progress::update(std::uint64_t done, std::uint64_t total) {
+    if (!active_) return;
+    const auto now = std::chrono::steady_clock::now();
+    if (shown_ && now - last_ < std::chrono::milliseconds(250) && done != total) return;
+    last_ = now;
+    shown_ = true;
+    if (total)
+        std::fprintf(stderr, "\r%s: %5.1f %% (%llu / %llu %s)", label_.c_str(), 100.0 * static_cast<double>(done) / static_cast<double>(total),
+                     static_cast<unsigned long long>(done), static_cast<unsigned long long>(total), unit_.c_str());
+    else
+        std::fprintf(stderr, "\r%s: %llu %s", label_.c_str(), static_cast<unsigned long long>(done), unit_.c_str());
+    std::fflush(stderr);
+}
+
+void Progress::clear() {
+    if (!shown_) return;
+    std::fprintf(stderr, "\r%70s\r", "");
+    std::fflush(stderr);
+    shown_ = false;
+}
+
+namespace {
+std::atomic<bool> g_cancel{false};
+extern "C" void on_cancel_signal(int) { g_cancel.store(true); }
+}  // namespace
+
+std::atomic<bool>& cancel_flag() { return g_cancel; }
+
+void install_cancel_handlers() {
+    std::signal(SIGINT, on_cancel_signal);
+    std::signal(SIGTERM, on_cancel_signal);
+}
+
+void print_run_summary(const json& r, const std::string& name) {
+    std::printf("run %s: %s %s (%s)\n", r["id"].get<std::string>().c_str(), name.c_str(), r["verdict"].get<std::string>().c_str(),
+                r["status"].get<std::string>().c_str());
+    if (r["error"].is_string()) std::printf("error: %s\n", r["error"].get<std::string>().c_str());
+    for (const auto& w : r.value("warnings", json::array())) std::printf("warning: %s\n", w.value("message", "").c_str());
+    for (const auto& e : r["estimators"]) {
+        const auto& m = e["metrics"];
+        const auto& ev = m.value("evidence", json::object());
+        if (!m["rms"].is_object()) {
+            std::printf("  %-20s no scored samples (%llu after the settle time, valid %s)\n", e["label"].get<std::string>().c_str(),
+                        static_cast<unsigned long long>(ev.value("samples_after_settle", std::uint64_t{0})),
+                        ev.value("valid_fraction", json()).is_number() ? (std::to_string(100.0 * ev["valid_fraction"].get<double>()).substr(0, 5) + " %").c_str() : "-");
+            continue;
+        }
+        std::printf("  %-20s rms %.3e rad, max|e| %.3e rad, slipped %llu; scored %llu samples, %.1f cycles, valid %.1f %%\n",
+                    e["label"].get<std::string>().c_str(), m["rms"]["rad"].get<double>(), m["max_abs"]["rad"].get<double>(),
+                    static_cast<unsigned long long>(m["slipped_samples"].get<std::uint64_t>()),
+                    static_cast<unsigned long long>(ev.value("scored_samples", std::uint64_t{0})), ev.value("scored_cycles", 0.0),
+                    100.0 * ev.value("valid_fraction", 0.0));
+    }
+    // Counts as integers, everything else to 4 significant digits.
+    auto fmt = [](const json& v) {
+        if (!v.is_number()) return std::string("not measured");
+        const double x = v.get<double>();
+        char b[32];
+        if (x == std::floor(x) && std::fabs(x) < 1e15) std::snprintf(b, sizeof b, "%.0f", x);
+        else std::snprintf(b, sizeof b, "%.4g", x);
+        return std::string(b);
+    };
+    for (const auto& m : r["measurements"]) {
+        std::string lim;
+        const auto& l = m["limit"];
+        if (l.contains("min")) lim += ">= " + fmt(l["min"]);
+        if (l.contains("max")) lim += std::string(lim.empty() ? "" : ", ") + "<= " + fmt(l["max"]);
+        char val[32];
+        std::snprintf(val, sizeof val, "%s", fmt(m["value"]).c_str());
+        const std::string unit = m["value"].is_number() && !m["unit"].get<std::string>().empty() ? " " + m["unit"].get<std::string>() : "";
+        std::printf("  %-8s %s %s = %s%s (limit %s%s)%s\n", m["outcome"].get<std::string>().c_str(), m["estimator"].get<std::string>().c_str(),
+                    m["metric"].get<std::string>().c_str(), val, unit.c_str(), lim.c_str(),
+                    m.value("implicit", false) ? ", evidence" : "", m.contains("reason") ? ("; " + m["reason"].get<std::string>()).c_str() : "");
+    }
+}
+
+}  // namespace fringe::cli

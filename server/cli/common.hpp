@@ -1,0 +1,56 @@
+// What the fringe commands share: exit codes, the progress line, Ctrl-C, the run summary.
+// Each command lives in its own file (cmd_*.cpp) and registers itself with add_* (commands.hpp).
+#pragma once
+
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <string>
+
+namespace fringe::cli {
+
+constexpr int kExitOk = 0;     // success, PASS or MARGINAL
+constexpr int kExitFail = 1;   // a FAIL verdict
+constexpr int kExitError = 2;  // bad input, a device or run error
+
+// The scenario schema's range (docs/schema.md): seeds are stored as JSON numbers.
+inline const CLI::Range kSeedRange(std::int64_t{0}, std::int64_t{1} << 53);
+
+// A command: its CLI11 subcommand and what runs when it was chosen (returns the exit code).
+struct Command {
+    CLI::App* sub = nullptr;
+    std::function<int()> run;
+};
+
+// One progress line on stderr when it is a terminal (and not --quiet): "LABEL: 42.0 % (n / N
+// UNIT)", or "LABEL: n UNIT" without a total; at most four updates a second; the line is cleared
+// by clear() or the destructor, so summaries print on a clean line.
+class Progress {
+public:
+    Progress(std::string label, std::string unit, bool quiet);
+    ~Progress() { clear(); }
+    Progress(const Progress&) = delete;
+    Progress& operator=(const Progress&) = delete;
+    bool active() const { return active_; }
+    void update(std::uint64_t done, std::uint64_t total = 0);
+    void clear();
+
+private:
+    std::string label_, unit_;
+    bool active_ = false, shown_ = false;
+    std::chrono::steady_clock::time_point last_{};
+};
+
+// Ctrl-C and SIGTERM set this flag (install_cancel_handlers); runs end as ABORTED with their report.
+std::atomic<bool>& cancel_flag();
+void install_cancel_handlers();
+
+// The run's verdict, its warnings, each estimator's errors with their evidence, and each
+// measurement with its limit and outcome (fringe run, fringe runs --show).
+void print_run_summary(const nlohmann::json& report, const std::string& name);
+
+}  // namespace fringe::cli
