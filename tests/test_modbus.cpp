@@ -4,6 +4,8 @@
 #include "drivers/board_sim.hpp"
 #include "drivers/device.hpp"
 #include "drivers/modbus_board.hpp"
+#include "server/preflight.hpp"
+#include "server/scenario.hpp"
 #include "signal_gen/config.hpp"
 
 #include <catch2/catch.hpp>
@@ -349,4 +351,21 @@ TEST_CASE("modbus: LabJack T7 profile against board-sim (checks, offset to mid-s
     SECTION("a T4 profile on this board names the product id it found") {
         CHECK_THROWS_WITH(open(sim.uri("board=labjack-t4&settle_s=0")), Catch::Contains("check PRODUCT_ID @60000 reads 7, expected 4"));
     }
+}
+
+TEST_CASE("modbus: the preflight warns when the signal does not fit a unipolar DAC around its zero", "[modbus][preflight]") {
+    const Scenario sc = load_scenario(std::string(FRINGE_SOURCE_DIR) + "/fixtures/scenarios/labjack-t7-step.json");
+    DeviceInfo d;
+    d.driver = "modbus";
+    d.converter.known = true;
+    d.converter.dac_range_v = 2.5;  // the T7 profile: 0..5 V around 2.5 V
+    d.converter.adc_range_v = 7.5;
+    auto dac_clip = [&] {
+        for (const auto& f : preflight_device(sc, d))
+            if (f.code == "clipping" && f.message.find("DAC spans") != std::string::npos) return true;
+        return false;
+    };
+    CHECK_FALSE(dac_clip());        // the paper encoder's ~1.1 V fits
+    d.converter.dac_range_v = 0.5;  // a DAC with +-0.5 V of room does not
+    CHECK(dac_clip());
 }
