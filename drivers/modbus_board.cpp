@@ -154,6 +154,13 @@ BoardProfile board_from_json(const json& j, const std::string& where) {
         read_location(er, w.reg, order, board_fc);
         if (w.reg.table == RegTable::Input) throw ConfigError(er.path_of("table"), "input registers are read-only");
         w.value = er.number("value", -1e300, 1e300);
+        if (w.reg.type != RegType::F32) {  // an integer the type holds exactly, not a rounded or clamped one
+            const double lo = w.reg.type == RegType::S16 ? -32768.0 : w.reg.type == RegType::S32 ? -2147483648.0 : 0.0;
+            const double hi = w.reg.type == RegType::U16 ? 65535.0 : w.reg.type == RegType::S16 ? 32767.0 : w.reg.type == RegType::U32 ? 4294967295.0 : 2147483647.0;
+            if (w.value != std::floor(w.value) || w.value < lo || w.value > hi)
+                throw ConfigError(er.path_of("value"), "must be an integer in " + std::to_string(static_cast<long long>(lo)) + ".." +
+                                                           std::to_string(static_cast<long long>(hi)) + " for its type");
+        }
         w.reg.writable = true;
         b.init.push_back(w);
     });

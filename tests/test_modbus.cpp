@@ -287,6 +287,12 @@ TEST_CASE("modbus: profile format extensions (checks, init, write function, bits
     bad["init"][0].erase("value");
     CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("init[0].value"));
     bad = base;
+    bad["init"][0]["type"] = "u16";
+    bad["init"][0]["value"] = 70000;  // would clamp to 65535
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("init[0].value: must be an integer in 0..65535"));
+    bad["init"][0]["value"] = 8.5;
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("init[0].value"));
+    bad = base;
     bad["init"][0]["table"] = "input";
     CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("init[0].table"));
     bad = base;
