@@ -72,7 +72,7 @@ for md in docs:
 
 # 3. Users cannot read MODEL.md: the docs (other than model.md's map of source comments) and
 # the strings the code shows (estimator summaries, parameter help) must not cite it.
-for md in docs[1:]:
+for md in docs:  # README included
     if os.path.basename(md) == "model.md":
         continue
     for i, line in enumerate(open(md, encoding="utf-8"), 1):
