@@ -7,13 +7,19 @@
 #include "server/limits.hpp"
 #include "server/run.hpp"
 #include "server/scenario.hpp"
+#include "server/service.hpp"
 #include "signal_gen/config.hpp"
 #include "signal_gen/fastmath.hpp"
 
 #include <catch2/catch.hpp>
 
+#include <chrono>
 #include <cmath>
+#include <filesystem>
 #include <functional>
+#include <random>
+#include <thread>
+#include <unistd.h>
 
 using namespace fringe;
 using nlohmann::json;
@@ -377,4 +383,69 @@ TEST_CASE("scenario: device as output and input instruments, errors name the fie
     s2.limits = {{"atan2", "clock_offset_ppm", 1.0, std::nullopt, 0.0}};
     CHECK_THROWS_WITH(validate_run(s2), Catch::Contains("limits[0].estimator") && Catch::Contains("once for the run"));
     CHECK(find_metric("alignment_delay_s")->run_level);
+}
+
+TEST_CASE("service: the --allow-device policy holds for output and input instruments alike", "[align][service]") {
+    const auto dir = std::filesystem::temp_directory_path() / ("fringe-align-" + std::to_string(getpid()) + "-" + std::to_string(std::random_device{}()));
+    std::filesystem::create_directories(dir);
+    {
+        ServiceConfig c;
+        c.data_dir = dir.string();
+        c.fixtures_dir = FRINGE_SOURCE_DIR "/fixtures";
+        c.web_dir = FRINGE_SOURCE_DIR "/web";
+        c.token = "0123456789abcdef0123456789abcdef";
+        c.allow_devices = {"modbus+tcp://127.0.0.1:*"};
+        Service s(c);
+        auto post = [&](const json& sc) {
+            HttpRequest r;
+            r.method = "POST";
+            r.target = "/api/v1/runs";
+            r.body = json{{"scenario", sc}}.dump();
+            r.headers["authorization"] = "Bearer " + c.token;
+            return s.handle(r);
+        };
+        json sc = load_json_file(fixture("loopback-two-clocks.json"));
+        sc["duration_s"] = 0.1;
+        sc["settle_s"] = 0.01;
+        sc["limits"] = json::array();
+        const std::string own = sc["device"]["output"];
+        for (const char* side : {"output", "input"}) {
+            json bad = sc;
+            bad["device"][side] = "modbus+tcp://10.0.0.9:502?board=generic-aio";
+            const auto r = post(bad);
+            CHECK(r.status == 403);
+            const json e = json::parse(r.body)["error"];
+            CHECK(e["code"] == "device_not_allowed");
+            CHECK(e["field"] == std::string("scenario.device.") + side);
+            bad["device"][side] = "loopback:?adc_bitz=3";
+            const auto r2 = post(bad);
+            CHECK(r2.status == 400);
+            CHECK(json::parse(r2.body)["error"]["field"] == std::string("scenario.device.") + side + ".adc_bitz");
+        }
+        // An allowed board as the input passes the policy (the run then finds it is no digitizer).
+        json ok = sc;
+        ok["device"]["input"] = "modbus+tcp://127.0.0.1:1?board=generic-aio";
+        CHECK(post(ok).status == 201);
+        // The fixture's instruments run and are aligned.
+        const auto r = post(sc);
+        REQUIRE(r.status == 201);
+        const std::string id = json::parse(r.body)["id"];
+        std::uint64_t seq = 0;
+        for (int i = 0; i < 600; ++i) {
+            const auto snap = s.runs().wait_change(id, seq, 200);
+            REQUIRE(snap);
+            if (snap->finished()) break;
+            seq = snap->seq;
+        }
+        CHECK(s.runs().snapshot(id)->device == own);  // one instrument: its URI
+        HttpRequest g;
+        g.method = "GET";
+        g.target = "/api/v1/runs/" + id + "/report.json";
+        const json rep = json::parse(s.handle(g).body);
+        CHECK(rep["status"] == "done");
+        CHECK(rep["alignment"]["ok"] == true);
+        CHECK(rep["alignment"]["delay_s"].get<double>() == Approx(3.21e-4).margin(1e-8));
+        s.shutdown();
+    }
+    std::filesystem::remove_all(dir);
 }
