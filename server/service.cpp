@@ -669,11 +669,15 @@ json Service::sandbox_scenario(json j) const {
                 throw ConfigError(f + ".name", "the external estimator runs a command on this host; start the service with --allow-external to permit it");
         }
     if (j.contains("device") && j["device"].is_string()) j["device"] = sandbox_device(j["device"].get<std::string>());
+    // Output and input instruments: each on its own is held to the same policy.
+    if (j.contains("device") && j["device"].is_object())
+        for (const char* k : {"output", "input", "dut"})
+            if (j["device"].contains(k) && j["device"][k].is_string())
+                j["device"][k] = sandbox_device(j["device"][k].get<std::string>(), std::string("scenario.device.") + k);
     return j;
 }
 
-std::string Service::sandbox_device(const std::string& uri) const {
-    const std::string field = "scenario.device";
+std::string Service::sandbox_device(const std::string& uri, const std::string& field) const {
     const auto q = uri.find('?');
     const std::string query = q == std::string::npos ? "" : uri.substr(q);
     if (uri.rfind("capture:", 0) == 0) {
@@ -686,7 +690,8 @@ std::string Service::sandbox_device(const std::string& uri) const {
     try {
         parts = dev::check_uri(uri);
     } catch (const ConfigError& e) {
-        throw e.prefixed("scenario");
+        const std::string f = e.field();  // "device" or "device.<setting>": under this URI's field
+        throw ConfigError(f.rfind("device", 0) == 0 ? field + f.substr(6) : field, e.message());
     }
     if (parts.scheme == "loopback") return uri;
     // A board profile is a file: over HTTP only the configured profiles, by name.
@@ -790,7 +795,7 @@ HttpResponse Service::create_run(const HttpRequest& req) {
     }
     if (auto too_big = check_run_size(sc, body.contains("fixture") ? "fixture" : "scenario")) return *too_big;
     try {
-        dev::check_uri(sc.device);
+        check_device_uris(sc);
         validate_run(sc);
     } catch (const ConfigError& e) {
         throw e.prefixed("scenario");
@@ -1001,7 +1006,7 @@ HttpResponse Service::fixtures() {
         try {
             const Scenario sc = load_scenario(p.string());
             f["description"] = sc.description;
-            f["device"] = sc.device;
+            f["device"] = json(sc)["device"];
             f["duration_s"] = sc.duration_s;
             f["sample_rate_hz"] = sc.sample_rate_hz;
             f["samples"] = sc.samples();
@@ -1048,7 +1053,14 @@ HttpResponse Service::devices() {
                         {"available", true}});
     std::map<std::string, bool> busy;
     for (const auto& s : runs_->live())
-        if (s.status == "running" && !device_key(s.device).empty()) busy[device_key(s.device)] = true;
+        if (s.status == "running") {
+            // A run's device label is one URI or "OUTPUT -> INPUT".
+            for (std::size_t a = 0, b; a <= s.device.size(); a = b + 4) {
+                b = s.device.find(" -> ", a);
+                if (b == std::string::npos) b = s.device.size();
+                if (const std::string k = device_key(s.device.substr(a, b - a)); !k.empty()) busy[k] = true;
+            }
+        }
     for (auto& d : list) d["busy"] = busy.count(device_key(d["uri"].get<std::string>())) > 0;
     // Configured board profiles: the URI to use once the board's address is known.
     json boards = json::array();

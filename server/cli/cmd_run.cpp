@@ -67,7 +67,10 @@ int run_run_remote(const RunCliOptions& o, const Scenario& sc) {
 int run_run(const RunCliOptions& o) {
     Scenario sc = load_scenario(o.scenario);
     if (o.seed >= 0) sc.seed = static_cast<std::uint64_t>(o.seed);
-    if (!o.device.empty()) sc.device = o.device;
+    if (!o.device.empty()) {
+        sc.device = o.device;
+        sc.instruments.reset();
+    }
     validate_run(sc);  // preflight errors stop here (exit 2); warnings come back in the report
     if (!o.server.empty()) return run_run_remote(o, sc);
     // The run's row names this process's instance, whose lock we hold until the report is
