@@ -144,6 +144,11 @@ std::string trim(std::string_view s) {
     while (!s.empty() && std::isspace(static_cast<unsigned char>(s.back()))) s.remove_suffix(1);
     return std::string(s);
 }
+// Leading whitespace only: a block's last data bytes may look like whitespace.
+std::string ltrim(std::string_view s) {
+    while (!s.empty() && std::isspace(static_cast<unsigned char>(s.front()))) s.remove_prefix(1);
+    return std::string(s);
+}
 std::vector<std::string> split_commas(std::string_view s) {
     std::vector<std::string> v;
     std::size_t pos = 0;
@@ -383,10 +388,10 @@ private:
     // Splits complete messages off c.in (a newline outside blocks ends one) and answers them.
     bool serve(Client& c) {
         for (;;) {
-            std::vector<std::size_t> semis;
+            std::vector<std::size_t> semis, block_ends;
             std::size_t end = 0;
             std::string bad;
-            const int st = scan(c.in, end, semis, bad);
+            const int st = scan(c.in, end, semis, block_ends, bad);
             if (st == 0) {
                 if (c.in.size() > kMaxMessage) return false;
                 return true;
@@ -402,7 +407,9 @@ private:
             semis.push_back(msg.size());
             std::string reply;
             for (std::size_t s : semis) {
-                const std::string unit = trim(std::string_view(msg).substr(from, s - from));
+                const bool binary_tail = std::find(block_ends.begin(), block_ends.end(), s) != block_ends.end();
+                const std::string_view raw = std::string_view(msg).substr(from, s - from);
+                const std::string unit = binary_tail ? ltrim(raw) : trim(raw);
                 from = s + 1;
                 if (unit.empty()) continue;
                 ++count_;
@@ -430,7 +437,7 @@ private:
         }
     }
     // 1: a message ends at `end` (';' positions in semis); 0: need more; -1: a bad block header.
-    static int scan(const std::string& b, std::size_t& end, std::vector<std::size_t>& semis, std::string& bad) {
+    static int scan(const std::string& b, std::size_t& end, std::vector<std::size_t>& semis, std::vector<std::size_t>& block_ends, std::string& bad) {
         bool quote = false;
         std::size_t i = 0;
         while (i < b.size()) {
@@ -459,6 +466,7 @@ private:
                 }
                 if (b.size() < i + h.header_bytes + h.data_bytes) return 0;
                 i += h.header_bytes + h.data_bytes;
+                block_ends.push_back(i);
                 continue;
             }
             if (ch == ',' && b.compare(i + 1 > 8 ? i - 8 : 0, 9, "WAVEDATA,") == 0 && i >= 8) {
@@ -469,6 +477,7 @@ private:
                 if (len > kMaxMessage) return -1;
                 if (b.size() < i + 1 + len) return 0;
                 i += 1 + len;
+                block_ends.push_back(i);
                 continue;
             }
             ++i;
@@ -572,7 +581,7 @@ private:
     }
     static std::string block_arg(const std::string& a) {
         try {
-            return scpi::decode_block(trim(a), kMaxMessage);
+            return scpi::decode_block(ltrim(a), kMaxMessage);
         } catch (const std::exception&) {
             err(-160, "Block data error");
         }
@@ -639,7 +648,7 @@ private:
             const auto comma = a.find(',');
             if (comma == std::string::npos) err(-109, "Missing parameter");
             const std::string name = upper(trim(a.substr(0, comma)));
-            const std::string rest = trim(a.substr(comma + 1));
+            const std::string rest = ltrim(a.substr(comma + 1));
             std::vector<double> v;
             if (dac) {
                 v = codes_to_norm(block_arg(rest), 2, gen_.little_endian, true, 32767);
