@@ -8,6 +8,7 @@ void register_loopback(std::vector<DriverInfo>& r);
 void register_capture(std::vector<DriverInfo>& r);
 void register_modbus(std::vector<DriverInfo>& r);
 void register_usb(std::vector<DriverInfo>& r);
+void register_scpi(std::vector<DriverInfo>& r);
 
 const char* to_string(StreamStatus s) {
     switch (s) {
@@ -49,6 +50,7 @@ const std::vector<DriverInfo>& drivers() {
         register_capture(r);
         register_modbus(r);
         register_usb(r);
+        register_scpi(r);
         return r;
     }();
     return all;

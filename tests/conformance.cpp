@@ -8,8 +8,14 @@
 
 #include <catch2/catch.hpp>
 
+#include "drivers/instrument_sim.hpp"
+
+#include <chrono>
 #include <cmath>
+#include <csignal>
 #include <cstdlib>
+#include <sstream>
+#include <thread>
 #include <memory>
 #include <string>
 #include <vector>
@@ -41,7 +47,7 @@ TEST_CASE("conformance: the device describes itself", "[conformance]") {
     CHECK_FALSE(i.driver.empty());
     CHECK(i.uri == uri());
     CHECK_FALSE(i.board_id.empty());
-    CHECK((i.streaming || i.step_mode));
+    CHECK((i.streaming || i.step_mode || i.can_play || i.can_record));
     CHECK(i.latency_samples >= 0);
     bool listed = false;
     for (const auto& drv : drivers()) listed |= uri().rfind(drv.scheme + ":", 0) == 0 && !drv.summary.empty();
@@ -56,6 +62,9 @@ TEST_CASE("conformance: what the device cannot do fails loudly", "[conformance]"
     auto d = open(uri());
     const auto i = d->info();
     if (!i.step_mode) CHECK_THROWS_AS(d->step(0.1, 0.2, 0.0, 1), DeviceError);
+    std::vector<double> a(64, 0.1), b(64, 0.2);
+    if (!i.can_play) CHECK_THROWS_AS(d->play(a, b, 1000.0, true), DeviceError);
+    if (!i.can_record) CHECK_THROWS_AS(d->record(a, b, 1000.0, 0.1), DeviceError);
     if (!i.streaming) {
         std::vector<double> s(8, 0.1), c(8, 0.2);
         CHECK(d->write(s, c).status == StreamStatus::Error);
@@ -125,4 +134,152 @@ TEST_CASE("conformance: a known signal goes through", "[conformance]") {
         }
         CHECK(emax < 1e-3);
     }
+}
+
+// ---- Instruments (scpi-* backends: a generator and a digitizer of fringe instrument-sim) ----
+namespace {
+std::string env(const char* k) {
+    const char* v = std::getenv(k);
+    return v ? v : "";
+}
+struct Pair {
+    std::unique_ptr<Device> gen, dig_owned;
+    Device* dig = nullptr;
+};
+Pair open_pair(const std::string& gen_uri, const std::string& dig_uri) {
+    Pair p;
+    p.gen = open(gen_uri);
+    if (dig_uri.empty() || dig_uri == gen_uri) {
+        p.dig = p.gen.get();
+    } else {
+        p.dig_owned = open(dig_uri);
+        p.dig = p.dig_owned.get();
+    }
+    return p;
+}
+// 10 cycles of 125 samples at 125 kS/s (a Red Pitaya rate: 125 MHz / 1000).
+constexpr double kFs = 125000.0;
+void test_signal(std::vector<double>& s, std::vector<double>& c) {
+    s.resize(1250);
+    c.resize(1250);
+    for (std::size_t k = 0; k < s.size(); ++k) {
+        s[k] = 0.8 * std::sin(2 * kPi * static_cast<double>(k) / 125.0);
+        c[k] = 0.8 * std::cos(2 * kPi * static_cast<double>(k) / 125.0) + 0.05;
+    }
+}
+}  // namespace
+
+TEST_CASE("conformance: an instrument pair delivers the played signal delayed and warped by the link", "[conformance]") {
+    auto probe = open(uri());
+    if (!probe->info().can_play) {
+        SUCCEED("not a generator");
+        return;
+    }
+    probe.reset();
+    // The link instrument-sim was started with: delay_s clock_ppm gain offset_v.
+    std::istringstream link(env("FRINGE_TEST_LINK"));
+    double delay_s = 0, ppm = 0, gain = 1, offset_v = 0;
+    link >> delay_s >> ppm >> gain >> offset_v;
+    REQUIRE(link);
+    auto p = open_pair(uri(), env("FRINGE_TEST_RECORD_URI"));
+    const auto gi = p.gen->info(), di = p.dig->info();
+    CHECK(gi.can_play);
+    CHECK(gi.own_clock);
+    CHECK(gi.max_play_samples > 0);
+    REQUIRE(di.can_record);
+    const std::size_t P = static_cast<std::size_t>(di.settings.at("pretrigger_samples").get<long long>());
+    std::vector<double> s, c;
+    test_signal(s, c);
+    p.gen->play(s, c, kFs, true);
+    const std::size_t M = 4000;
+    std::vector<double> rs(M), rc(M);
+    const auto r = p.dig->record(rs, rc, kFs, 10.0);
+    p.gen->stop_output();
+    INFO(r.message);
+    REQUIRE(r.status == StreamStatus::Ok);
+    REQUIRE(r.frames == M);
+    // Sample m lies (m - P)/fs after the generator's start (its sync triggers the digitizer);
+    // it shows what the generator played delay_s before, on a clock ppm fast.
+    double emax = 0;
+    for (std::size_t m = 0; m < M; ++m) {
+        const double u = ((static_cast<double>(m) - static_cast<double>(P)) / kFs - delay_s) * (1 + ppm * 1e-6) * kFs;
+        const double es = gain * sim_interpolate(s, true, u) + offset_v, ec = gain * sim_interpolate(c, true, u) + offset_v;
+        emax = std::max({emax, std::fabs(rs[m] - es), std::fabs(rc[m] - ec)});
+    }
+    CHECK(emax < 1e-3);  // converter quantisation only (16/14-bit DAC and ADC)
+    // Before the output starts the input is idle (the link's offset only).
+    CHECK(std::fabs(rs[P / 2] - offset_v) < 1e-3);
+}
+
+TEST_CASE("conformance: an instrument's own error (error queue) is named in the DeviceError", "[conformance]") {
+    auto probe = open(uri());
+    if (!probe->info().can_play) {
+        SUCCEED("not a generator");
+        return;
+    }
+    probe.reset();
+    // The driver believes in more memory than the instrument has: the instrument refuses the
+    // upload, and its SYST:ERR? text reaches the message.
+    auto g = open(with_setting(uri(), "memory_samples=100000"));
+    std::vector<double> s(20000, 0.1), c(20000, -0.1);
+    s[1] = 0.2;
+    c[1] = -0.2;
+    try {
+        g->play(s, c, kFs, true);
+        FAIL("an upload beyond the instrument's memory was accepted");
+    } catch (const DeviceError& e) {
+        INFO(e.what());
+        CHECK_THAT(e.what(), Catch::Contains("instrument error after"));
+        CHECK_THAT(e.what(), Catch::Contains(",\""));  // the native `-225,"Out of memory..."` entry
+        CHECK(std::string(e.what()).find("-22") != std::string::npos);
+    }
+    // The error queue was drained: the next command works.
+    std::vector<double> s2, c2;
+    test_signal(s2, c2);
+    CHECK_NOTHROW(g->play(s2, c2, kFs, true));
+    g->stop_output();
+}
+
+TEST_CASE("conformance: a silent instrument is a timeout naming the command", "[conformance]") {
+    const std::string silent = env("FRINGE_TEST_SILENT_URI");
+    if (silent.empty()) {
+        SUCCEED("no silent instrument for this backend");
+        return;
+    }
+    auto g = open(with_setting(silent, "timeout_s=0.3"));  // it answers the opening commands, then falls silent
+    std::vector<double> s, c;
+    test_signal(s, c);
+    const auto t0 = std::chrono::steady_clock::now();
+    try {
+        g->play(s, c, kFs, true);
+        FAIL("play on a silent instrument returned");
+    } catch (const DeviceError& e) {
+        INFO(e.what());
+        CHECK_THAT(e.what(), Catch::Contains("timeout"));
+        CHECK_THAT(e.what(), Catch::Contains("'"));  // the command it waited for, quoted
+    }
+    CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(5));
+}
+
+TEST_CASE("conformance: an instrument gone mid-run is a clear error", "[conformance]") {
+    const std::string gone = env("FRINGE_TEST_GONE_URI");
+    if (gone.empty()) {
+        SUCCEED("no instrument to kill for this backend");
+        return;
+    }
+    auto g = open(with_setting(gone, "timeout_s=2"));
+    std::vector<double> s, c;
+    test_signal(s, c);
+    g->play(s, c, kFs, true);
+    REQUIRE(::kill(static_cast<pid_t>(std::stol(env("FRINGE_TEST_GONE_PID"))), SIGKILL) == 0);
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
+    const auto t0 = std::chrono::steady_clock::now();
+    try {
+        g->play(s, c, kFs, true);
+        FAIL("play on a killed instrument returned");
+    } catch (const DeviceError& e) {
+        INFO(e.what());
+        CHECK_THAT(e.what(), Catch::Contains("connection"));
+    }
+    CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(5));
 }

@@ -13,5 +13,6 @@ Command add_sweep(CLI::App& app);
 Command add_serve(CLI::App& app);
 Command add_board_sim(CLI::App& app);
 Command add_devices(CLI::App& app);
+Command add_instrument_sim(CLI::App& app);
 
 }  // namespace fringe::cli
