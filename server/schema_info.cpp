@@ -59,8 +59,8 @@ json scenario_schema() {
         num("lissajous.offset_cos_v", "V", 0.0, -100.0, 100.0, "offset of the cos channel"),
         num("lissajous.quadrature_error_rad", "rad", 0.0, -1.5, 1.5, "quadrature error: cos channel at theta + delta"),
         integer("adc.bits", "bit", 0, 0, 32, "the encoder's own converter (0: none; the device digitises)"),
-        num("adc.min_v", "V", -1.25, -1e6, 1e6, "the encoder converter's lower rail"),
-        num("adc.max_v", "V", 1.25, -1e6, 1e6, "the encoder converter's upper rail"),
+        num("adc.min_v", "V", -1.25, -1e3, 1e3, "the encoder converter's lower rail"),
+        num("adc.max_v", "V", 1.25, -1e3, 1e3, "the encoder converter's upper rail"),
     };
     const double v_max = kMaxV;
     auto velocity = [&](json def, const char* what) { return num("velocity_rad_s", "rad/s", std::move(def), -v_max, v_max, what); };
