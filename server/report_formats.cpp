@@ -511,7 +511,7 @@ std::string report_html(const json& r) {
     const std::string name = r["scenario"].value("name", std::string("run"));
     const std::string verdict = r.value("verdict", std::string("ERROR"));
     h << "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><meta name=\"viewport\" content=\"width=device-width, initial-scale=1\"><title>fringe report " << xml_escape(name) << " "
-      << xml_escape(verdict) << "</title>\n<style>body{font-family:sans-serif;margin:1.5em;max-width:1400px;overflow-wrap:anywhere}"
+      << xml_escape(verdict) << "</title>\n<style>body{font-family:sans-serif;margin:1.5em;max-width:1400px;overflow-wrap:break-word}"
       << "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:3px 8px;text-align:left}"
       << ".PASS{background:#c8f0c8}.MARGINAL{background:#f8e8a0}.FAIL{background:#f4b4b4}.ERROR,.ABORTED{background:#f4b4b4}"
       << ".plots svg{margin:6px;border:1px solid #eee;max-width:calc(100% - 14px);height:auto}"
