@@ -107,7 +107,18 @@ export async function newRun(view, cleanup) {
   };
   const speedFactor = (u) => (u === 'rpm' ? RAD_S_PER_RPM : u === 'hz_el' ? (2 * Math.PI) / linesNow() : 1);  // rad/s per unit
   const speedLabel = { rpm: 'rpm', rad_s: 'rad/s', hz_el: 'Hz, electrical' };
+  let keptMotion = null;  // a fixture's motion of a kind the editor does not describe (a table file): sent as it is
   const fillMotion = (m) => {
+    for (const o of kindSel.querySelectorAll('option.kept')) o.remove();
+    keptMotion = null;
+    if (m && m.kind && !kinds.some((k) => k.kind === m.kind)) {
+      keptMotion = structuredClone(m);
+      kindSel.append(h('option', { value: m.kind, class: 'kept' }, `${m.kind}: as in the fixture`));
+      kindSel.value = m.kind;
+      speedUnit.replaceChildren();
+      motionGrid.replaceChildren(h('p', { class: 'muted' }, `This fixture's ${m.kind} motion is kept as it is.`));
+      return;
+    }
     const kind = kinds.find((k) => k.kind === (m && m.kind)) || kinds[0];
     kindSel.value = kind.kind;
     const units = kind.kind === 'constant' ? ['rpm', 'rad_s', 'hz_el'] : ['rpm', 'rad_s'];
@@ -139,6 +150,7 @@ export async function newRun(view, cleanup) {
     fillMotion(readMotion());
   });
   function readMotion() {
+    if (keptMotion && kindSel.value === keptMotion.kind) return structuredClone(keptMotion);
     const m = { kind: kindSel.value };
     for (const el of motionGrid.querySelectorAll('[data-param]')) {
       const v = readInput(el);
@@ -391,7 +403,7 @@ export async function newRun(view, cleanup) {
   const runPreflight = async () => {
     const sc = build();
     const key = JSON.stringify(sc);
-    if (checked && checked.key === key) return checked;
+    if (checked && checked.key === key && !checked.error) return checked;  // an error is asked again (the token may be fixed since)
     try {
       const r = await api.post('preflight', { scenario: sc });
       clearMarks();
