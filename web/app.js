@@ -147,7 +147,7 @@ function estimatorsTable(r) {
       'PCRB', 'efficiency', 'lock time'].map((c) => h('th', {}, c)))),
     h('tbody', {}, (r.estimators || []).map((e) => {
       const m = e.metrics || {}, b = e.bounds || {}, ev = m.evidence || {};
-      const eff = b.efficiency == null ? h('span', { class: 'muted', title: b.why_no_efficiency || 'no declared model for a bound' }, 'n/a') : sig(b.efficiency);
+      const eff = b.efficiency == null ? h('span', { class: 'muted', title: b.efficiency_against ? `graded against: ${b.efficiency_against}` : 'no bound to grade against' }, 'n/a') : sig(b.efficiency);
       return h('tr', {}, h('td', {}, e.label), h('td', { class: 'num' }, withUnit(m.rms && m.rms.rad, 'rad')), h('td', { class: 'num' }, withUnit(m.max_abs && m.max_abs.rad, 'rad')),
         h('td', { class: 'num' }, withUnit(m.mean && m.mean.rad, 'rad')), h('td', { class: 'num' }, fmt(m.slipped_samples)),
         h('td', { class: 'num' }, fmt(ev.scored_samples)), h('td', { class: 'num' }, fmt(ev.scored_cycles)),
