@@ -282,7 +282,7 @@ export function errorVsTime(parent, t, labels, title = 'Error vs time', id = 'pl
   return div;
 }
 
-// Harmonics 1x..6x of the error per electrical cycle (MODEL.md 7), grouped per estimator:
+// Harmonics 1x..6x of the error per electrical cycle (docs/model.md, "Harmonics of the error"), grouped per estimator:
 // each estimator's bar sits at its own x offset within the harmonic's slot. Log scale by
 // default (harmonics span decades); linear on request.
 export function harmonicBars(parent, estimators) {
