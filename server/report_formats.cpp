@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -168,10 +169,13 @@ struct Axis {
         std::vector<double> t;
         if (log) {
             const int step = std::max(1, static_cast<int>(std::ceil((std::log10(hi) - std::log10(lo)) / 6)));
-            for (int e = static_cast<int>(std::floor(std::log10(lo))); e <= static_cast<int>(std::ceil(std::log10(hi))); e += step) {
-                const double v = std::pow(10.0, e);
-                if (v >= lo * 0.999 && v <= hi * 1.001) t.push_back(v);
-            }
+            // Few decades: 2x and 5x between them too, so the axis is labelled inside, not only at its ends.
+            const bool fill = std::log10(hi) - std::log10(lo) < 2.5;
+            for (int e = static_cast<int>(std::floor(std::log10(lo))); e <= static_cast<int>(std::ceil(std::log10(hi))); e += step)
+                for (double m : fill ? std::vector<double>{1, 2, 5} : std::vector<double>{1}) {
+                    const double v = m * std::pow(10.0, e);
+                    if (v >= lo * 0.999 && v <= hi * 1.001) t.push_back(v);
+                }
             return t;
         }
         const double raw = (hi - lo) / 5, mag = std::pow(10, std::floor(std::log10(raw)));
@@ -181,11 +185,28 @@ struct Axis {
     }
 };
 
+// A tick label a person reads at a glance: 0.25, 120, 1.5e-5 (not 1.5e-05), 3e+06 as 3e6.
 std::string fmt_num(double v) {
-    std::ostringstream os;
-    os.precision(3);
-    os << v;
-    return os.str();
+    if (v == 0) return "0";
+    char b[32];
+    const double a = std::fabs(v);
+    if (a < 1e7 && v == std::floor(v)) {  // counts and round ticks in full: 90000 samples, not 9e+04
+        std::snprintf(b, sizeof b, "%.0f", v);
+        return b;
+    }
+    if (a >= 1e-2 && a < 1e5) {
+        std::snprintf(b, sizeof b, "%.3g", v);
+        return b;
+    }
+    std::snprintf(b, sizeof b, "%.2e", v);  // d.dde[+-]XX: drop the mantissa's trailing zeros and the exponent's padding
+    const char* e = std::strchr(b, 'e');
+    const char* end = e;
+    while (end > b && end[-1] == '0') --end;
+    if (end > b && end[-1] == '.') --end;
+    const bool neg = e[1] == '-';
+    const char* x = e + 2;
+    while (x[0] == '0' && x[1] != '\0') ++x;
+    return std::string(b, static_cast<std::size_t>(end - b)) + (neg ? "e-" : "e") + x;
 }
 
 class SvgPlot {
@@ -260,15 +281,16 @@ public:
           << " " << H << "\">";
         o << "<text x=\"" << W / 2 << "\" y=\"14\" text-anchor=\"middle\" font-weight=\"bold\">" << xml_escape(title_) << "</text>";
         o << "<rect x=\"" << L << "\" y=\"" << T << "\" width=\"" << W - L - R << "\" height=\"" << H - T - B << "\" fill=\"none\" stroke=\"#999\"/>";
+        // Gridlines across the plot at every tick, both axes, and a label at each tick.
         for (double t : x_.ticks()) {
             const double px = L + x_.frac(t) * (W - L - R);
-            o << "<line x1=\"" << px << "\" x2=\"" << px << "\" y1=\"" << H - B << "\" y2=\"" << H - B + 4 << "\" stroke=\"#999\"/>";
-            o << "<text x=\"" << px << "\" y=\"" << H - B + 14 << "\" text-anchor=\"middle\" font-size=\"10\">" << fmt_num(t) << "</text>";
+            o << "<line class=\"grid\" x1=\"" << px << "\" x2=\"" << px << "\" y1=\"" << T << "\" y2=\"" << H - B + 4 << "\" stroke=\"#e4e4e4\"/>";
+            o << "<text class=\"xtick\" x=\"" << px << "\" y=\"" << H - B + 15 << "\" text-anchor=\"middle\" font-size=\"11\">" << fmt_num(t) << "</text>";
         }
         for (double t : y_.ticks()) {
             const double py = H - B - y_.frac(t) * (H - T - B);
-            o << "<line x1=\"" << L - 4 << "\" x2=\"" << W - R << "\" y1=\"" << py << "\" y2=\"" << py << "\" stroke=\"#eee\"/>";
-            o << "<text x=\"" << L - 6 << "\" y=\"" << py + 3 << "\" text-anchor=\"end\" font-size=\"10\">" << fmt_num(t) << "</text>";
+            o << "<line class=\"grid\" x1=\"" << L - 4 << "\" x2=\"" << W - R << "\" y1=\"" << py << "\" y2=\"" << py << "\" stroke=\"#e4e4e4\"/>";
+            o << "<text class=\"ytick\" x=\"" << L - 6 << "\" y=\"" << py + 4 << "\" text-anchor=\"end\" font-size=\"11\">" << fmt_num(t) << "</text>";
         }
         o << "<text class=\"xlabel\" x=\"" << (L + W - R) / 2 << "\" y=\"" << H - 6 << "\" text-anchor=\"middle\">" << xml_escape(x_.label) << "</text>";
         o << "<text class=\"ylabel\" x=\"12\" y=\"" << (T + H - B) / 2 << "\" transform=\"rotate(-90 12 " << (T + H - B) / 2
@@ -431,34 +453,46 @@ std::string envelope_plots(const json& tr, const json& estimators) {
     return out;
 }
 std::string svg_bars(const json& estimators) {
-    const double W = 640, H = 300, L = 70, B = 40, T = 28;
+    const double W = 640, H = 300, L = 70, R = 12, B = 40, T = 28;
     double vmax = 0;
     for (const auto& e : estimators)
         for (const auto& h : e["metrics"]["harmonics"]) vmax = std::max(vmax, h["amplitude"]["rad"].get<double>());
     if (vmax <= 0) vmax = 1;
+    Axis y{"amplitude (rad)"};
+    y.lo = 0;
+    y.hi = vmax * 1.05;
     std::ostringstream s;
     s.precision(4);
-    s << "<svg class=\"plot\" xmlns=\"http://www.w3.org/2000/svg\" width=\"" << W << "\" height=\"" << H << "\">";
+    s << "<svg id=\"plot-harmonics\" class=\"plot\" xmlns=\"http://www.w3.org/2000/svg\" width=\"" << W << "\" height=\"" << H << "\" viewBox=\"0 0 " << W << " " << H
+      << "\">";
     s << "<text x=\"" << W / 2 << "\" y=\"16\" text-anchor=\"middle\" font-weight=\"bold\">Error harmonics (amplitude, rad)</text>";
     const std::size_t ne = std::max<std::size_t>(estimators.size(), 1);
     int orders = 6;  // every fitted order (16 by default), at least 1x..6x
     for (const auto& e : estimators)
         for (const auto& h : e["metrics"]["harmonics"]) orders = std::max(orders, h["order"].get<int>());
-    const double group = (W - L - 10) / static_cast<double>(orders), bw = group * 0.8 / static_cast<double>(ne);
-    s << "<text x=\"12\" y=\"" << T + 10 << "\" font-size=\"10\">" << vmax << "</text>";
+    const double group = (W - L - R) / static_cast<double>(orders), bw = group * 0.8 / static_cast<double>(ne);
+    auto Y = [&](double v) { return H - B - y.frac(v) * (H - T - B); };
+    s << "<rect x=\"" << L << "\" y=\"" << T << "\" width=\"" << W - L - R << "\" height=\"" << H - T - B << "\" fill=\"none\" stroke=\"#999\"/>";
+    for (double t : y.ticks()) {
+        s << "<line class=\"grid\" x1=\"" << L - 4 << "\" x2=\"" << W - R << "\" y1=\"" << Y(t) << "\" y2=\"" << Y(t) << "\" stroke=\"#e4e4e4\"/>";
+        s << "<text class=\"ytick\" x=\"" << L - 6 << "\" y=\"" << Y(t) + 4 << "\" text-anchor=\"end\" font-size=\"11\">" << fmt_num(t) << "</text>";
+    }
     s << "<text x=\"" << (L + W) / 2 << "\" y=\"" << H - 6 << "\" text-anchor=\"middle\">harmonic order (x electrical frequency)</text>";
     s << "<text x=\"12\" y=\"" << (T + H - B) / 2 << "\" transform=\"rotate(-90 12 " << (T + H - B) / 2 << ")\" text-anchor=\"middle\">amplitude (rad)</text>";
-    for (int k = 1; k <= orders; ++k)
-        s << "<text x=\"" << L + group * (k - 0.5) << "\" y=\"" << H - B + 14 << "\" text-anchor=\"middle\" font-size=\"" << (orders > 8 ? 10 : 14) << "\">" << k << "x</text>";
+    for (int k = 1; k <= orders; ++k) {
+        const double px = L + group * (k - 0.5);
+        s << "<line class=\"grid\" x1=\"" << L + group * k << "\" x2=\"" << L + group * k << "\" y1=\"" << T << "\" y2=\"" << H - B << "\" stroke=\"#f0f0f0\"/>";
+        s << "<text class=\"xtick\" x=\"" << px << "\" y=\"" << H - B + 15 << "\" text-anchor=\"middle\" font-size=\"11\">" << k << "x</text>";
+    }
     std::size_t ei = 0;
     for (const auto& e : estimators) {
         const char* col = kColours[ei % 6];
         for (const auto& h : e["metrics"]["harmonics"]) {
             const int k = h["order"].get<int>();
             const double v = h["amplitude"]["rad"].get<double>();
-            const double hh = v / vmax * (H - T - B);
-            s << "<rect x=\"" << L + group * (k - 1) + group * 0.1 + bw * static_cast<double>(ei) << "\" y=\"" << H - B - hh << "\" width=\"" << bw
-              << "\" height=\"" << hh << "\" fill=\"" << col << "\"><title>" << xml_escape(e["label"].get<std::string>()) << " " << k << "x: " << v
+            const double hh = H - B - Y(v);
+            s << "<rect x=\"" << L + group * (k - 1) + group * 0.1 + bw * static_cast<double>(ei) << "\" y=\"" << Y(v) << "\" width=\"" << bw
+              << "\" height=\"" << hh << "\" fill=\"" << col << "\"><title>" << xml_escape(e["label"].get<std::string>()) << " " << k << "x: " << fmt_num(v)
               << " rad</title></rect>";
         }
         s << "<text x=\"" << L + 8 << "\" y=\"" << T + 14 + 14 * ei << "\" fill=\"" << col << "\" font-size=\"11\">" << xml_escape(e["label"].get<std::string>()) << "</text>";
@@ -472,13 +506,17 @@ std::string svg_bars(const json& estimators) {
 
 std::string report_html(const json& r) {
     std::ostringstream h;
+    // Values for people: 3 significant digits (the JSON and JUnit keep every digit).
+    auto num = [](const json& v) { return v.is_number() ? fmt_num(v.get<double>()) : std::string(); };
     const std::string name = r["scenario"].value("name", std::string("run"));
     const std::string verdict = r.value("verdict", std::string("ERROR"));
-    h << "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>fringe report " << xml_escape(name) << " "
-      << xml_escape(verdict) << "</title>\n<style>body{font-family:sans-serif;margin:1.5em;max-width:1400px}"
+    h << "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><meta name=\"viewport\" content=\"width=device-width, initial-scale=1\"><title>fringe report " << xml_escape(name) << " "
+      << xml_escape(verdict) << "</title>\n<style>body{font-family:sans-serif;margin:1.5em;max-width:1400px;overflow-wrap:break-word}"
       << "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:3px 8px;text-align:left}"
       << ".PASS{background:#c8f0c8}.MARGINAL{background:#f8e8a0}.FAIL{background:#f4b4b4}.ERROR,.ABORTED{background:#f4b4b4}"
-      << ".plots svg{margin:6px;border:1px solid #eee}</style></head><body>\n";
+      << ".plots svg{margin:6px;border:1px solid #eee;max-width:calc(100% - 14px);height:auto}"
+      // The page fits its window: wide tables scroll inside themselves, long lines wrap.
+      << ".table-wrap{max-width:100%;overflow-x:auto}pre{white-space:pre-wrap;overflow-wrap:anywhere}</style></head><body>\n";
     h << "<h1>" << xml_escape(name) << " <span id=\"verdict\" class=\"" << xml_escape(verdict) << "\">" << xml_escape(verdict) << "</span></h1>\n";
     h << "<p>Run <code>" << xml_escape(r.value("id", std::string())) << "</code>, started " << xml_escape(r.value("started_at", std::string()))
       << ", seed " << r["seed"].dump() << ", device <code>" << xml_escape(r["device"].is_object() ? r["device"].value("uri", std::string()) : "")
@@ -491,18 +529,22 @@ std::string report_html(const json& r) {
             h << "<li><code>" << xml_escape(w.value("code", std::string())) << "</code> " << xml_escape(w.value("message", std::string())) << "</li>\n";
         h << "</ul>\n";
     }
-    h << "<h2>Measurements</h2><table id=\"measurements\"><tr><th>estimator</th><th>metric</th><th>value</th><th>unit</th><th>limit</th><th>outcome</th></tr>\n";
+    h << "<h2>Measurements</h2><div class=\"table-wrap\"><table id=\"measurements\"><tr><th>estimator</th><th>metric</th><th>value</th><th>unit</th><th>limit</th><th>outcome</th></tr>\n";
     for (const auto& m : r["measurements"]) {
         std::string lim;
         if (m["limit"].contains("min")) lim += "&ge; " + num(m["limit"]["min"]) + " ";
         if (m["limit"].contains("max")) lim += "&le; " + num(m["limit"]["max"]);
+        if (!lim.empty() && !m["unit"].get<std::string>().empty()) {
+            lim += ' ';
+            lim += xml_escape(m["unit"].get<std::string>());
+        }
         h << "<tr><td>" << xml_escape(m["estimator"].get<std::string>()) << "</td><td>" << xml_escape(m["metric"].get<std::string>()) << "</td><td>"
           << (m["value"].is_number() ? num(m["value"]) : std::string("not measured")) << "</td><td>" << xml_escape(m["unit"].get<std::string>()) << "</td><td>" << lim
           << (m.value("implicit", false) ? " (evidence)" : "") << "</td><td class=\""
           << xml_escape(m["outcome"].get<std::string>()) << "\">" << xml_escape(m["outcome"].get<std::string>())
           << (m.contains("reason") ? ": " + xml_escape(m["reason"].get<std::string>()) : std::string()) << "</td></tr>\n";
     }
-    h << "</table>\n<h2>Estimators</h2><table><tr><th>estimator</th><th>rms (rad)</th><th>max |e| (rad)</th><th>rms (% period)</th><th>rms (arcsec mech)</th>"
+    h << "</table></div>\n<h2>Estimators</h2><div class=\"table-wrap\"><table id=\"estimators\"><tr><th>estimator</th><th>rms (rad)</th><th>max |e| (rad)</th><th>rms (% period)</th><th>rms (arcsec mech)</th>"
       << "<th>slipped</th><th>scored samples</th><th>scored cycles</th><th>valid</th><th>per-sample CRB (rad)</th><th>PCRB (rad)</th><th>efficiency</th></tr>\n";
     for (const auto& e : r["estimators"]) {
         const auto& m = e["metrics"];
@@ -515,7 +557,7 @@ std::string report_html(const json& r) {
           << "</td><td>" << (ev.value("valid_fraction", json()).is_number() ? num(100.0 * ev["valid_fraction"].get<double>()) + " %" : std::string())
           << "</td><td>" << bget("per_sample_crb_rad") << "</td><td>" << bget("pcrb_rad") << "</td><td>" << bget("efficiency") << "</td></tr>\n";
     }
-    h << "</table>\n<h2>Plots</h2><div class=\"plots\">\n";
+    h << "</table></div>\n<h2>Plots</h2><div class=\"plots\">\n";
     const json& tr = r.contains("traces") && r["traces"].is_object() ? r["traces"] : json::object();
     const bool envelope = tr.value("kind", std::string()) == "envelope";
     if (envelope ? tr["t_s"].empty() : (!tr.contains("t_s") || tr["t_s"].empty())) {

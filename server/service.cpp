@@ -11,8 +11,10 @@
 #include "estimator/estimator.hpp"
 #include "evaluate.hpp"
 #include "report_formats.hpp"
+#include "preflight.hpp"
 #include "run.hpp"
 #include "scenario.hpp"
+#include "schema_info.hpp"
 #include "signal_gen/config.hpp"
 #include "text.hpp"
 
@@ -253,6 +255,8 @@ HttpResponse Service::route(const HttpRequest& req, const std::string& path, con
         if (top == "drivers") return get ? json_ok({{"drivers", dev::drivers()}}) : wrong_method("GET");
         if (top == "devices") return get ? devices() : wrong_method("GET");
         if (top == "fixtures") return get ? fixtures() : wrong_method("GET");
+        if (top == "schema") return get ? json_ok(scenario_schema()) : wrong_method("GET");
+        if (top == "preflight") return post ? preflight_run(req) : wrong_method("POST");
         if (top == "runs") return get ? list_runs(query) : post ? create_run(req) : wrong_method("GET, POST");
         if (top == "captures") return get ? json_ok({{"captures", captures()}}) : post ? upload_capture(req, query) : wrong_method("GET, POST");
     }
@@ -301,12 +305,10 @@ HttpResponse Service::route(const HttpRequest& req, const std::string& path, con
 // ---- runs ----------------------------------------------------------------------------
 
 
-HttpResponse Service::create_run(const HttpRequest& req) {
-    const json body = parse_body(req.body);
+std::optional<HttpResponse> Service::run_scenario(const json& body, Scenario& sc) const {
     only_keys(body, {"fixture", "scenario", "seed"}, "");
     if (body.contains("fixture") == body.contains("scenario"))
         throw ConfigError("", "give exactly one of \"fixture\" (a name from GET /api/v1/fixtures) or \"scenario\" (an object)");
-    Scenario sc;
     if (body.contains("fixture")) {
         if (!body["fixture"].is_string()) throw ConfigError("fixture", "expected a string");
         const std::string name = body["fixture"].get<std::string>();
@@ -341,7 +343,12 @@ HttpResponse Service::create_run(const HttpRequest& req) {
             throw ConfigError("seed", "expected an integer from 0 to 2^53 (9007199254740992)");
         sc.seed = body["seed"].get<std::uint64_t>();
     }
-    if (auto too_big = check_run_size(sc, body.contains("fixture") ? "fixture" : "scenario")) return *too_big;
+    return check_run_size(sc, body.contains("fixture") ? "fixture" : "scenario");
+}
+
+HttpResponse Service::create_run(const HttpRequest& req) {
+    Scenario sc;
+    if (auto refused = run_scenario(parse_body(req.body), sc)) return *refused;
     try {
         check_device_uris(sc);
         validate_run(sc);
@@ -352,6 +359,25 @@ HttpResponse Service::create_run(const HttpRequest& req) {
     auto r = json_ok({{"id", id}, {"status", "queued"}, {"links", {{"self", "/api/v1/runs/" + id}, {"events", "/api/v1/runs/" + id + "/events"}}}}, 201);
     r.headers.emplace_back("Location", "/api/v1/runs/" + id);
     return r;
+}
+
+HttpResponse Service::preflight_run(const HttpRequest& req) const {
+    Scenario sc;
+    if (auto refused = run_scenario(parse_body(req.body), sc)) return *refused;
+    std::vector<Finding> warnings;
+    try {
+        dev::check_uri(sc.device);
+        warnings = validate_run(sc);
+    } catch (const ConfigError& e) {
+        throw e.prefixed("scenario");
+    }
+    json w = json::array();
+    for (auto f : warnings) {
+        f.field = "scenario." + f.field;  // the same path a POST runs error names
+        w.push_back(f);
+    }
+    const double spc = min_samples_per_cycle(sc);
+    return json_ok({{"ok", true}, {"warnings", w}, {"samples", sc.samples()}, {"samples_per_cycle", std::isfinite(spc) ? json(spc) : json(nullptr)}});
 }
 
 std::optional<HttpResponse> Service::check_run_size(const Scenario& sc, const std::string& field) const {

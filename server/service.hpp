@@ -113,6 +113,11 @@ private:
     std::string public_text(std::string s) const;
     HttpResponse route(const HttpRequest& req, const std::string& path, const std::map<std::string, std::string>& query);
     HttpResponse create_run(const HttpRequest& req);
+    // The scenario a POST runs (or preflight) body describes, sandboxed and checked as a run
+    // is; a refusal that is not a ConfigError comes back as the response to send.
+    std::optional<HttpResponse> run_scenario(const nlohmann::json& body, Scenario& sc) const;
+    // POST preflight: the checks and warnings of POST runs, without starting anything.
+    HttpResponse preflight_run(const HttpRequest& req) const;
     // The per-run bounds; field names where the client set the value. nullopt if within.
     std::optional<HttpResponse> check_run_size(const Scenario& sc, const std::string& field) const;
     HttpResponse list_runs(const std::map<std::string, std::string>& query);

@@ -5,7 +5,10 @@
 #include "helpers.hpp"
 #include "server/http_server.hpp"
 #include "server/remote.hpp"
+#include "server/scenario.hpp"
+#include "server/schema_info.hpp"
 #include "server/service.hpp"
+#include "signal_gen/config.hpp"
 
 #include <catch2/catch.hpp>
 #include <nlohmann/json.hpp>
@@ -119,6 +122,117 @@ TEST_CASE("service: catalogue endpoints answer JSON", "[service]") {
     auto idx = s.handle(req("GET", "/", "", false));
     CHECK(idx.status == 200);
     CHECK(idx.content_type.find("text/html") == 0);
+}
+
+// GET schema is what the browser's scenario editor is built from: every described range must
+// be the one the scenario's readers enforce (a value at the bound is not refused for it, one
+// beyond is refused naming that key), and every described choice must be accepted.
+TEST_CASE("service: GET schema describes the scenario keys as the readers read them", "[service][schema]") {
+    TempDir d;
+    Service s(config(d));
+    const auto r = s.handle(req("GET", "/api/v1/schema", "", false));
+    REQUIRE(r.status == 200);
+    const json schema = body_of(r);
+    CHECK(schema == scenario_schema());
+    const std::string base_dir = FRINGE_SOURCE_DIR "/fixtures/scenarios";
+    const json base = {{"encoder", {{"model", "ideal"}}}, {"motion", {{"kind", "constant"}, {"velocity_rad_s", 1.0}}}, {"duration_s", 0.5}};
+    // The field a reader refuses sc for as out of range (or not an option), "" if it does not
+    // (other refusals, e.g. max_v not above min_v, are about two keys together).
+    auto refused = [&](const json& sc) -> std::string {
+        try {
+            scenario_from_json(sc, base_dir);
+            return "";
+        } catch (const ConfigError& e) {
+            const bool range = e.message().find("out of range") != std::string::npos || e.message().find("is not one of") != std::string::npos;
+            return range ? e.field() : "";
+        }
+    };
+    auto check_param = [&](const json& p, const std::function<json(const json&)>& with, const std::string& field) {
+        INFO(field);
+        if (p["type"] == "choice") {
+            for (const auto& o : p["options"]) CHECK(refused(with(o)) != field);
+            CHECK(refused(with("no-such-option")) == field);
+            return;
+        }
+        const bool integer = p["type"] == "integer";
+        if (p.contains("min")) {
+            const double lo = p["min"].get<double>();
+            CHECK(refused(with(integer ? json(static_cast<long long>(lo)) : json(lo))) != field);
+            CHECK(refused(with(integer ? json(static_cast<long long>(lo) - 1) : json(lo - std::max(1e-9, std::fabs(lo) * 0.01)))) == field);
+        }
+        if (p.contains("max")) {
+            const double hi = p["max"].get<double>();
+            CHECK(refused(with(integer ? json(static_cast<long long>(hi)) : json(hi))) != field);
+            CHECK(refused(with(integer ? json(static_cast<long long>(hi) + 1) : json(hi + std::max(1e-9, std::fabs(hi) * 0.01)))) == field);
+        }
+    };
+    auto dotted = [](json j, const std::string& path, const json& v) {
+        json* at = &j;
+        std::size_t from = 0;
+        for (auto dot = path.find('.'); dot != std::string::npos; from = dot + 1, dot = path.find('.', from)) at = &(*at)[path.substr(from, dot - from)];
+        (*at)[path.substr(from)] = v;
+        return j;
+    };
+    REQUIRE(schema["scenario"].size() >= 4);
+    for (const auto& p : schema["scenario"]) {
+        const std::string k = p["name"];
+        check_param(p, [&](const json& v) { json j = base; j[k] = v; return j; }, k);
+    }
+    REQUIRE(schema["encoder"].size() >= 10);
+    for (const auto& p : schema["encoder"]) {
+        const std::string k = p["name"];
+        check_param(p, [&](const json& v) { json j = base; j["encoder"] = dotted(j["encoder"], k, v); return j; }, "encoder." + k);
+    }
+    REQUIRE(schema["motion"].size() >= 4);
+    for (const auto& kind : schema["motion"]) {
+        json m{{"kind", kind["kind"]}};
+        for (const auto& p : kind["params"])
+            if (p["default"].is_null() && p["name"] != "electrical_freq_hz") m[p["name"].get<std::string>()] = 1.0;
+        auto with_motion = [&](const json& mm) { json j = base; j["motion"] = mm; return j; };
+        CHECK(refused(with_motion(m)) == "");
+        for (const auto& p : kind["params"]) {
+            const std::string k = p["name"];
+            check_param(p, [&](const json& v) {
+                json mm = m;
+                if (k == "electrical_freq_hz") mm.erase("velocity_rad_s");  // one or the other
+                mm[k] = v;
+                return with_motion(mm);
+            }, "motion." + k);
+        }
+    }
+    bool rms = false;
+    for (const auto& m : schema["metrics"]) rms |= m["name"] == "rms_rad" && m["unit"] == "rad";
+    CHECK(rms);
+}
+
+TEST_CASE("service: POST preflight checks a scenario and gives its warnings without starting a run", "[service][preflight]") {
+    TempDir d;
+    Service s(config(d));
+    // 2048 lines at 1500 rpm is 51.2 kHz electrical: 3.9 samples per cycle at 200 kHz.
+    json sc = {{"name", "my-board"}, {"encoder", {{"model", "ideal"}, {"lines_per_rev", 2048}}},
+               {"motion", {{"kind", "constant"}, {"velocity_rad_s", 1500 * 2 * M_PI / 60}}}, {"sample_rate_hz", 200000}, {"duration_s", 0.2},
+               {"device", "loopback:?adc_bits=12"}, {"estimators", {{{"name", "atan2"}}}},
+               {"limits", {{{"estimator", "atan2"}, {"metric", "rms_rad"}, {"max", 1e-3}}}}};
+    const auto ok = s.handle(req("POST", "/api/v1/preflight", json{{"scenario", sc}}.dump()));
+    REQUIRE(ok.status == 200);
+    const json b = body_of(ok);
+    CHECK(b["samples"] == 40000);
+    CHECK(b["samples_per_cycle"].get<double>() == Approx(200000.0 / (2048 * 25)).epsilon(1e-3));
+    REQUIRE(b["warnings"].size() == 1);
+    CHECK(b["warnings"][0]["code"] == "few_samples_per_cycle");
+    CHECK(b["warnings"][0]["field"] == "scenario.sample_rate_hz");  // the path a POST runs error names
+    CHECK(body_of(s.handle(req("GET", "/api/v1/runs", "", false)))["runs"].empty());  // nothing started
+    // Errors are the ones POST runs gives, naming the field.
+    sc["motion"]["velocity_rad_s"] = 15000 * 2 * M_PI / 60;
+    const auto under = s.handle(req("POST", "/api/v1/preflight", json{{"scenario", sc}}.dump()));
+    CHECK(under.status == 400);
+    CHECK(body_of(under)["error"]["field"] == "scenario.sample_rate_hz");
+    sc["encoder"]["lines_per_rev"] = 0;
+    CHECK(body_of(s.handle(req("POST", "/api/v1/preflight", json{{"scenario", sc}}.dump())))["error"]["field"] == "scenario.encoder.lines_per_rev");
+    CHECK(s.handle(req("POST", "/api/v1/preflight", json{{"fixture", "fig10c-loopback"}}.dump())).status == 200);
+    // Like every POST: the token.
+    CHECK(s.handle(req("POST", "/api/v1/preflight", json{{"fixture", "fig10c-loopback"}}.dump(), false)).status == 401);
+    CHECK(s.handle(req("GET", "/api/v1/preflight", "", false)).status == 405);
 }
 
 TEST_CASE("service: errors are JSON with the right status", "[service]") {

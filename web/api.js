@@ -29,8 +29,21 @@ async function call(method, path, body) {
 export const get = (path) => call('GET', path);
 export const post = (path, body) => call('POST', path, body);
 
-// Live progress of a run (server-sent events). onEvent(snapshot, isEnd); returns a closer.
-export function follow(id, onEvent) {
+// A file as the raw request body (POST captures): streamed by the browser, not JSON.
+export async function upload(path, file) {
+  const headers = {};
+  if (token()) headers.Authorization = `Bearer ${token()}`;
+  const res = await fetch(`/api/v1/${path}`, { method: 'POST', headers, body: file });
+  const text = await res.text();
+  let data = null;
+  try { data = text ? JSON.parse(text) : null; } catch { data = null; }
+  if (!res.ok) throw new ApiError(res.status, data);
+  return data;
+}
+
+// Live progress of a run (server-sent events). onEvent(snapshot, isEnd); onError() when the
+// stream cannot be opened or is lost (EventSource retries by itself); returns a closer.
+export function follow(id, onEvent, onError) {
   const es = new EventSource(`/api/v1/runs/${encodeURIComponent(id)}/events`);
   const handle = (isEnd) => (ev) => {
     onEvent(JSON.parse(ev.data), isEnd);
@@ -38,5 +51,6 @@ export function follow(id, onEvent) {
   };
   es.addEventListener('progress', handle(false));
   es.addEventListener('end', handle(true));
+  if (onError) es.addEventListener('error', () => onError(es.readyState));
   return () => es.close();
 }

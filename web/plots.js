@@ -4,6 +4,7 @@
 // comes from the report (the scorer's full-rate Welch estimate), never from the traces.
 // Each plot's container records what it drew in `div.fringe` (data coordinates), for the tests.
 import uPlot from './vendor/uPlot.esm.js';
+import { sig } from './format.js';
 
 const COLORS = ['#0969da', '#cf222e', '#1a7f37', '#9a6700', '#8250df', '#bc4c00', '#57606a'];
 export const color = (i) => COLORS[i % COLORS.length];
@@ -28,11 +29,68 @@ function note(div, text) {
   return p;
 }
 
-function width(parent) { return Math.max(480, Math.min(620, (parent.clientWidth || 1100) / 2 - 40)); }
+// Two plots a row on a wide screen, one on a narrow one (a phone: the plot fits the screen).
+function width(parent) {
+  const w = parent.clientWidth || 1100;
+  return Math.round(Math.max(260, Math.min(620, w >= 1150 ? w / 2 - 40 : w - 24)));
+}
+
+// A checkbox in the plot's tool row that redraws it.
+function toggle(div, text, checked, onchange, cls) {
+  let tools = div.querySelector('.plot-tools');
+  if (!tools) {
+    tools = document.createElement('div');
+    tools.className = 'plot-tools';
+    div.querySelector('h3').after(tools);
+  }
+  const box = document.createElement('input');
+  box.type = 'checkbox';
+  box.checked = checked;
+  box.className = cls;
+  box.addEventListener('change', () => onchange(box.checked));
+  const label = document.createElement('label');
+  label.append(box, ` ${text}`);
+  tools.append(label);
+  return box;
+}
+
+// Legend values: the hovered value with 3 significant digits and its unit; with nothing
+// hovered, what the series amounts to (its peak, lowest or typical value), never "--".
+function stat(arr, how) {
+  let n = 0, acc = how === 'max' || how === 'absmax' ? -Infinity : how === 'min' ? Infinity : 0;
+  for (const v of arr || []) {
+    if (v == null || !Number.isFinite(v)) continue;
+    n++;
+    if (how === 'max') acc = Math.max(acc, v);
+    else if (how === 'absmax') acc = Math.max(acc, Math.abs(v));
+    else if (how === 'min') acc = Math.min(acc, v);
+    else acc += v * v;
+  }
+  if (!n) return null;
+  return how === 'rms' ? Math.sqrt(acc / n) : acc;
+}
+const WORD = { max: 'highest', min: 'lowest', absmax: 'peak', rms: 'rms' };
+function legendValue(unit, arr, how) {
+  const summary = how ? stat(arr, how) : null;
+  const u = unit ? ` ${unit}` : '';
+  const idle = summary == null ? '' : `${WORD[how]} ${sig(summary)}${u}`;
+  return (self, v, si, di) => (di == null ? idle : v == null ? '' : `${sig(v)}${u}`);
+}
+const xValue = (unit, lo, hi) => (self, v, si, di) => (di == null ? `${sig(lo)} … ${sig(hi)} ${unit}` : v == null ? '' : `${sig(v)} ${unit}`);
+const firstLast = (a) => {
+  const f = (a || []).filter((v) => v != null);
+  return [f.length ? f[0] : 0, f.length ? f[f.length - 1] : 0];
+};
+const absMax = (lo, hi) => lo.map((v, i) => {
+  const a = v == null ? null : Math.abs(v), b = hi[i] == null ? null : Math.abs(hi[i]);
+  const m = a == null ? b : b == null ? a : Math.max(a, b);
+  return m > 0 ? m : null;  // log axis: a zero has no place
+});
+const logTicks = (u, vals) => vals.map((v) => (v == null ? '' : sig(v, 2)));
 
 const expTicks = (u, vals) => vals.map((v) => (v == null ? '' : v.toExponential(0)));
-// Error axes span 1e-6..1e-1 rad: exponents below 1e-3, else three significant digits.
-const errTicks = (u, vals) => vals.map((v) => (v == null ? '' : v !== 0 && Math.abs(v) < 1e-3 ? v.toExponential(1) : String(+v.toPrecision(3))));
+// Error axes span 1e-6..1e-1 rad: exponents below 1e-2, else three significant digits.
+const errTicks = (u, vals) => vals.map((v) => (v == null ? '' : sig(v)));
 function range(arrays, pad = 0.05) {
   let lo = Infinity, hi = -Infinity;
   for (const a of arrays) for (const v of a || []) if (v != null && Number.isFinite(v)) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
@@ -89,7 +147,7 @@ export function lissajous(parent, t) {
   const a = Math.max(...range([pts.cos_v, cyc.cos_v, pts.sin_v, cyc.sin_v], 0.05).map(Math.abs));
   const w = width(parent);
   const record = { segments: [] };
-  div.fringe = { kind: 'lissajous', envelope: env, record, points: pts.cos_v.length, cycle: cyc.cos_v.length };
+  div.fringe = { kind: 'lissajous', envelope: env, record, points: pts.cos_v.length, cycle: cyc.cos_v.length, axes: ['cos (V)', 'sin (V)'] };
   // The folded cycle first, the samples over it (their spread around the mean stays visible).
   const series = [{}];
   const data = [null];
@@ -112,75 +170,126 @@ export function lissajous(parent, t) {
 
 // Error against the true electrical angle: mean per angle bin (line) and min..max (band), at the
 // full rate; x in electrical radians [0, 2 pi). Old reports: the stride samples as points.
+// Log option: |error| (the larger of |min| and |max| per bin, and |mean|) on a log axis, where
+// small errors beside large ones stay visible.
 export function errorVsAngle(parent, t, labels) {
   const div = box(parent, 'Error vs electrical angle', 'plot-by-angle');
-  div.fringe = { kind: 'by_angle' };
-  const axes = [{ label: 'electrical angle (rad)' }, { label: 'error (rad)', size: 70, values: errTicks }];
-  if (!isEnvelope(t)) {
-    const th = (t.theta_true_wrapped_rad || []).map((v) => (v == null ? null : ((v % (2 * Math.PI)) + 2 * Math.PI) % (2 * Math.PI)));
-    const idx = th.map((_, i) => i).filter((i) => th[i] != null).sort((a, b) => th[a] - th[b]);
-    const data = [idx.map((i) => th[i]), ...labels.map((l) => idx.map((i) => t.error_rad[l][i]))];
-    new uPlot({
-      width: width(parent), height: 300, scales: { x: { time: false } }, axes,
-      series: [{ label: 'angle (rad)' }, ...labels.map((l, i) => ({ label: l, stroke: color(i), paths: noPath, points: { show: true, size: 3, fill: color(i) } }))],
-    }, data, div);
-    return div;
-  }
-  const ba = t.by_angle;
-  const data = [ba.theta_rad];
-  const series = [{ label: 'angle (rad)' }];
-  const bands = [];
-  labels.forEach((l, i) => {
-    const f = ba.error_rad[l];
-    if (!f) return;
-    const base = series.length;
-    data.push(f.max, f.min, f.mean);
-    series.push({ label: `${l} max`, stroke: color(i) + '66', width: 1 }, { label: `${l} min`, stroke: color(i) + '66', width: 1 },
-      { label: `${l} mean`, stroke: color(i), width: 1.5 });
-    bands.push({ series: [base, base + 1], fill: color(i) + '22' });
-  });
-  new uPlot({ width: width(parent), height: 300, scales: { x: { time: false, auto: false, range: [0, 2 * Math.PI] } }, axes, series, bands }, data, div);
+  div.fringe = { kind: 'by_angle', log: false, axes: ['electrical angle (rad)', 'error (rad)'] };
+  const holder = document.createElement('div');
+  div.append(holder);
+  let u = null;
+  const draw = (log) => {
+    if (u) u.destroy();
+    div.fringe.log = log;
+    div.fringe.axes = ['electrical angle (rad)', log ? '|error| (rad), log' : 'error (rad)'];
+    const axes = [{ label: div.fringe.axes[0], values: errTicks }, { label: div.fringe.axes[1], size: 70, values: log ? logTicks : errTicks }];
+    const yscale = log ? { distr: 3 } : {};
+    if (!isEnvelope(t)) {
+      const th = (t.theta_true_wrapped_rad || []).map((v) => (v == null ? null : ((v % (2 * Math.PI)) + 2 * Math.PI) % (2 * Math.PI)));
+      const idx = th.map((_, i) => i).filter((i) => th[i] != null).sort((a, b) => th[a] - th[b]);
+      const ys = labels.map((l) => idx.map((i) => t.error_rad[l][i])).map((y) => (log ? y.map((v) => (v ? Math.abs(v) : null)) : y));
+      const xs = idx.map((i) => th[i]);
+      u = new uPlot({
+        width: width(parent), height: 300, scales: { x: { time: false }, y: yscale }, axes,
+        series: [{ label: 'angle', value: xValue('rad', 0, 2 * Math.PI) },
+          ...labels.map((l, i) => ({ label: l, stroke: color(i), paths: noPath, points: { show: true, size: 3, fill: color(i) }, value: legendValue('rad', ys[i], 'absmax') }))],
+      }, [xs, ...ys], holder);
+    } else {
+      const ba = t.by_angle;
+      const data = [ba.theta_rad];
+      const series = [{ label: 'angle', value: xValue('rad', 0, 2 * Math.PI) }];
+      const bands = [];
+      labels.forEach((l, i) => {
+        const f = ba.error_rad[l];
+        if (!f) return;
+        const base = series.length;
+        if (log) {
+          const peak = absMax(f.min, f.max), mean = f.mean.map((v) => (v ? Math.abs(v) : null));
+          data.push(peak, mean);
+          series.push({ label: `${l} max |e|`, stroke: color(i) + '99', width: 1, value: legendValue('rad', peak, 'max') },
+            { label: `${l} |mean|`, stroke: color(i), width: 1.5, value: legendValue('rad', mean, 'max') });
+          return;
+        }
+        data.push(f.max, f.min, f.mean);
+        series.push({ label: `${l} max`, stroke: color(i) + '66', width: 1, value: legendValue('rad', f.max, 'max') },
+          { label: `${l} min`, stroke: color(i) + '66', width: 1, value: legendValue('rad', f.min, 'min') },
+          { label: `${l} mean`, stroke: color(i), width: 1.5, value: legendValue('rad', f.mean, 'rms') });
+        bands.push({ series: [base, base + 1], fill: color(i) + '22' });
+      });
+      u = new uPlot({ width: width(parent), height: 300, scales: { x: { time: false, auto: false, range: [0, 2 * Math.PI] }, y: yscale }, axes, series, bands }, data, holder);
+    }
+    div.fringe.u = u;
+  };
+  toggle(div, 'log |error|', false, draw, 'log-toggle');
+  draw(false);
   return div;
 }
 
 // Error against time: for envelope traces the min..max of every bucket at the full rate (a band
 // per estimator: a fast error fills its band instead of beating). Old reports: points only.
+// Log option: the larger of |min| and |max| per bucket on a log axis.
 export function errorVsTime(parent, t, labels, title = 'Error vs time', id = 'plot-time') {
   const div = box(parent, title, id);
-  const axes = [{ label: 'time (s)' }, { label: 'error (rad)', size: 70, values: errTicks }];
-  div.fringe = { kind: 'time', envelope: isEnvelope(t) };
+  div.fringe = { kind: 'time', envelope: isEnvelope(t), log: false, axes: ['time (s)', 'error (rad)'] };
+  const holder = document.createElement('div');
+  div.append(holder);
   // The x range uPlot settles on (after its deferred first layout): each plot's own time base.
   const hooks = { setScale: [(uu, key) => {
     if (key !== 'x') return;
     div.fringe.xmin = uu.scales.x.min; div.fringe.xmax = uu.scales.x.max;
     div.dataset.xmin = uu.scales.x.min; div.dataset.xmax = uu.scales.x.max;
   }] };
-  if (!isEnvelope(t)) {
-    new uPlot({
-      width: width(parent), height: 300, scales: { x: { time: false } }, axes, hooks,
-      series: [{ label: 'time (s)' }, ...labels.map((l, i) => ({ label: l, stroke: color(i), paths: noPath, points: { show: true, size: 3, fill: color(i) } }))],
-    }, [t.t_s, ...labels.map((l) => t.error_rad[l])], div);
-  } else {
-    const data = [t.t_s];
-    const series = [{ label: 'time (s)' }];
-    const bands = [];
-    labels.forEach((l, i) => {
-      const e = t.error_rad[l];
-      if (!e) return;
-      const base = series.length;
-      data.push(e.max, e.min);
-      series.push({ label: `${l} max`, stroke: color(i), width: 1 }, { label: `${l} min`, stroke: color(i), width: 1 });
-      bands.push({ series: [base, base + 1], fill: color(i) + '55' });
-    });
-    new uPlot({ width: width(parent), height: 300, scales: { x: { time: false } }, axes, series, bands, hooks }, data, div);
-  }
+  const [t0, t1] = firstLast(t.t_s);
+  let u = null;
+  const draw = (log) => {
+    if (u) u.destroy();
+    div.fringe.log = log;
+    div.fringe.axes = ['time (s)', log ? '|error| (rad), log' : 'error (rad)'];
+    const axes = [{ label: div.fringe.axes[0], values: errTicks }, { label: div.fringe.axes[1], size: 70, values: log ? logTicks : errTicks }];
+    const yscale = log ? { distr: 3 } : {};
+    const xs = { label: 'time', value: xValue('s', t0, t1) };
+    if (!isEnvelope(t)) {
+      const ys = labels.map((l) => (log ? t.error_rad[l].map((v) => (v ? Math.abs(v) : null)) : t.error_rad[l]));
+      u = new uPlot({
+        width: width(parent), height: 300, scales: { x: { time: false }, y: yscale }, axes, hooks,
+        series: [xs, ...labels.map((l, i) => ({ label: l, stroke: color(i), paths: noPath, points: { show: true, size: 3, fill: color(i) }, value: legendValue('rad', ys[i], 'absmax') }))],
+      }, [t.t_s, ...ys], holder);
+    } else {
+      const data = [t.t_s];
+      const series = [xs];
+      const bands = [];
+      labels.forEach((l, i) => {
+        const e = t.error_rad[l];
+        if (!e) return;
+        const base = series.length;
+        if (log) {
+          const peak = absMax(e.min, e.max);
+          data.push(peak);
+          series.push({ label: `${l} max |e|`, stroke: color(i), width: 1, value: legendValue('rad', peak, 'max') });
+          return;
+        }
+        data.push(e.max, e.min);
+        series.push({ label: `${l} max`, stroke: color(i), width: 1, value: legendValue('rad', e.max, 'max') },
+          { label: `${l} min`, stroke: color(i), width: 1, value: legendValue('rad', e.min, 'min') });
+        bands.push({ series: [base, base + 1], fill: color(i) + '55' });
+      });
+      u = new uPlot({ width: width(parent), height: 300, scales: { x: { time: false }, y: yscale }, axes, series, bands, hooks }, data, holder);
+    }
+    div.fringe.u = u;
+  };
+  toggle(div, 'log |error|', false, draw, 'log-toggle');
+  draw(false);
   return div;
 }
 
-// Harmonics 1x..6x of the error per electrical cycle (MODEL.md 7), grouped per estimator:
-// each estimator's bar sits at its own x offset within the harmonic's slot.
+// Harmonics 1x..6x of the error per electrical cycle (docs/model.md, "Harmonics of the error"), grouped per estimator:
+// each estimator's bar sits at its own x offset within the harmonic's slot. Log scale by
+// default (harmonics span decades); linear on request.
 export function harmonicBars(parent, estimators) {
   const div = box(parent, 'Error harmonics per electrical cycle', 'plot-harmonics');
+  div.fringe = { kind: 'harmonics', log: true, axes: ['harmonic order (× electrical frequency)', 'amplitude (rad)'] };
+  const holder = document.createElement('div');
+  div.append(holder);
   // every fitted order (16 by default), at least 1x..6x
   let n = 6;
   for (const e of estimators) for (const v of e.harmonics || []) if (v && v.order > n) n = v.order;
@@ -188,26 +297,39 @@ export function harmonicBars(parent, estimators) {
   const slot = 0.8 / k;
   const x = [];
   for (let hh = 1; hh <= n; hh++) for (let i = 0; i < k; i++) x.push(hh - 0.4 + (i + 0.5) * slot);
-  const bars = uPlot.paths.bars({ size: [0.9, 80], align: 0 });
-  const data = [x];
-  const series = [{ label: 'harmonic' }];
-  estimators.forEach((e, i) => {
+  const ys = estimators.map((e, i) => {
     const y = x.map(() => null);
     for (let hh = 1; hh <= n; hh++) {
       const v = (e.harmonics || [])[hh - 1];
       const amp = v == null ? null : typeof v === 'number' ? v : (v.amplitude && v.amplitude.rad);
       y[(hh - 1) * k + i] = amp > 0 ? amp : null;
     }
-    data.push(y);
-    series.push({ label: e.label, stroke: color(i), fill: color(i) + 'cc', paths: bars, points: { show: false } });
+    return y;
   });
-  new uPlot({
-    width: width(parent), height: 300,
-    scales: { x: { time: false, auto: false, range: [0.5, n + 0.5] }, y: { distr: 3 } },
-    axes: [{ label: 'harmonic order (x electrical frequency)', incrs: [1], values: (u, v) => v.map((t) => (Number.isInteger(t) ? `${t}x` : '')) },
-      { label: 'amplitude (rad)', size: 70, values: expTicks }],
-    series,
-  }, data, div);
+  let u = null;
+  const draw = (log) => {
+    if (u) u.destroy();
+    div.fringe.log = log;
+    const bars = uPlot.paths.bars({ size: [0.9, 80], align: 0 });
+    const series = [{ label: 'order', value: (self, v, si, di) => (di == null ? `1x … ${n}x` : v == null ? '' : `${Math.round(v)}x`) }];
+    estimators.forEach((e, i) => {
+      // Idle legend: the largest harmonic and its order.
+      let best = 0, at = 0;
+      ys[i].forEach((v, j) => { if (v > best) { best = v; at = Math.floor(j / k) + 1; } });
+      series.push({ label: e.label, stroke: color(i), fill: color(i) + 'cc', paths: bars, points: { show: false },
+        value: (self, v, si, di) => (di == null ? (best ? `largest ${sig(best)} rad at ${at}x` : 'none') : v == null ? '' : `${sig(v)} rad`) });
+    });
+    u = new uPlot({
+      width: width(parent), height: 300,
+      scales: { x: { time: false, auto: false, range: [0.5, n + 0.5] }, y: log ? { distr: 3 } : { range: (self, lo, hi) => [0, hi * 1.05 || 1] } },
+      axes: [{ label: div.fringe.axes[0], incrs: [1], values: (uu, v) => v.map((t) => (Number.isInteger(t) ? `${t}x` : '')) },
+        { label: div.fringe.axes[1], size: 70, values: log ? expTicks : errTicks }],
+      series,
+    }, [x, ...ys], holder);
+    div.fringe.u = u;
+  };
+  toggle(div, 'log scale', true, draw, 'log-toggle');
+  draw(true);
   return div;
 }
 
@@ -257,7 +379,7 @@ export function errorSpectrum(parent, estimators) {
     u = new uPlot({
       mode: 2, width: width(parent), height: 300,
       scales: { x: { time: false, distr: 3, auto: false, range: [lo, hi] }, y: { distr: 3, auto: false, range: [floor, ymax * 2 || 1] } },
-      axes: [{ label: byOrder ? 'order (x electrical frequency)' : 'frequency (Hz)', values: (uu, v) => v.map((t) => (t == null ? '' : +t.toPrecision(3))) },
+      axes: [{ label: byOrder ? 'order (× electrical frequency)' : 'frequency (Hz)', values: (uu, v) => v.map((t) => (t == null ? '' : sig(t))) },
         { label: 'amplitude (rad)', size: 70, values: expTicks }],
       legend: { show: false },
       series,
@@ -286,6 +408,7 @@ export function errorSpectrum(parent, estimators) {
       },
     }, data, holder);
     div.fringe.axis = sel.value;
+    div.fringe.axes = [byOrder ? 'order (× electrical frequency)' : 'frequency (Hz)', 'amplitude (rad)'];
   };
   sel.addEventListener('change', draw);
   draw();

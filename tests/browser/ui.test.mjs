@@ -1,7 +1,10 @@
 // Browser test: Debian's chromium (headless) driven by playwright-core against a real
 // `fringe serve` on 127.0.0.1. Starts a run from the New-run form, watches live progress,
 // reads the report, proves each plot drew (canvas pixels), downloads JUnit, compares two
-// runs. Screenshots go to $ARTIFACTS (default build/test-artifacts/browser).
+// runs; builds a user's own scenario in the editor (encoder, speed in rpm, ADC, limit),
+// runs it and reads the verdict; field errors at their field; capture upload; pages at
+// phone width; the token link in an open tab; an unknown run. Screenshots go to $ARTIFACTS
+// (default build/test-artifacts/browser).
 // usage: node tests/browser/ui.test.mjs FRINGE_BINARY
 import { spawn } from 'node:child_process';
 import { mkdtempSync, mkdirSync, readFileSync, rmSync } from 'node:fs';
@@ -84,6 +87,21 @@ async function lissajousStrokes(page) {
   });
 }
 
+// Start from the form. Preflight warnings are shown before a run starts: a scenario with
+// warnings starts on the second click ("Start anyway"). Returns the warning codes shown.
+async function startFromForm(page) {
+  await page.click('#start');
+  const first = await Promise.race([
+    page.waitForURL(/#\/run\//).then(() => 'started', () => 'none'),
+    page.waitForFunction(() => (document.querySelector('#start') || {}).textContent === 'Start anyway').then(() => 'warned', () => 'none'),
+  ]);
+  if (first !== 'warned') return [];
+  const codes = await page.$$eval('#preflight li[data-code]', (l) => l.map((x) => x.dataset.code));
+  await page.click('#start');
+  await page.waitForURL(/#\/run\//);
+  return codes;
+}
+
 async function runFromForm(page, url, seed, duration = 0.5) {
   await page.goto(`${url}#/new`);
   await page.waitForSelector('#fixture option[value="fig10c-loopback"]', { state: 'attached' });
@@ -92,13 +110,24 @@ async function runFromForm(page, url, seed, duration = 0.5) {
   await page.fill('input[name="seed"]', String(seed));
   await page.fill('input[name="duration_s"]', String(duration));
   const t0 = Date.now();
-  await page.click('#start');
-  await page.waitForURL(/#\/run\//);
+  const warned = await startFromForm(page);
   await page.waitForSelector('#run-state[data-status]');
   await page.waitForSelector('.banner', { timeout: 60000 });
   const id = decodeURIComponent(page.url().split('#/run/')[1]);
-  return { id, ms: Date.now() - t0 };
+  return { id, ms: Date.now() - t0, warned };
 }
+
+// A capture file as a bench would write it: t,sin,cos,theta_true at 100 kHz.
+function captureCsv(samples, fElecHz) {
+  const rows = ['t,sin,cos,theta_true'];
+  for (let i = 0; i < samples; i++) {
+    const th = 2 * Math.PI * fElecHz * i / 1e5;
+    rows.push(`${i / 1e5},${0.8 * Math.sin(th)},${0.8 * Math.cos(th)},${th}`);
+  }
+  return rows.join('\n') + '\n';
+}
+
+const noHScroll = (page) => page.evaluate(() => document.scrollingElement.scrollWidth);
 
 try {
   const url = await startServer();
@@ -111,27 +140,33 @@ try {
   const context = await browser.newContext({ acceptDownloads: true, viewport: { width: 1300, height: 1000 } });
   await context.addInitScript(instrumentCanvas);
   const page = await context.newPage();
-  const consoleErrors = [];
+  const consoleErrors = [], pageErrors = [];
   page.on('console', (m) => { if (m.type() === 'error') consoleErrors.push(m.text()); });
-  page.on('pageerror', (e) => consoleErrors.push(e.message));
+  page.on('pageerror', (e) => { consoleErrors.push(e.message); pageErrors.push(e.message); });
 
-  // Without the token the API refuses to start a run, and the page says why.
+  // Without the token the page asks for it in words before anything is sent.
   await page.goto(`${url}#/new`);
   await page.waitForSelector('#fixture option[value="fig10c-loopback"]', { state: 'attached' });
   await page.waitForFunction(() => document.querySelector('input[name="seed"]').value !== '');
+  // Only the ticked estimators show their parameters (.params{display:grid} hid nothing before).
+  const shown = await page.$$eval('#estimators-box .estimator', (ds) => ds.map((d) => [d.querySelector('[data-estimator]').checked, d.querySelector('.params').offsetHeight > 0]));
+  check(shown.length >= 5 && shown.every(([ticked, visible]) => ticked === visible),
+    `only the ticked estimators show their parameters (${shown.filter((x) => x[0]).length} ticked of ${shown.length})`);
   await page.click('#start');
-  const refusal = await page.waitForSelector('.error[role=alert]');
-  check((await refusal.textContent()).includes('Authorization'), 'starting a run without the token is refused (401) and the page says so');
-  consoleErrors.length = 0;  // the 401 above is logged by the browser on purpose
+  const ask = await (await page.waitForSelector('#need-token')).textContent();
+  check(/token box/.test(ask) && !/Authorization|Bearer/.test(ask), `Start without a token asks for it in words ("${ask.slice(0, 60)}…")`);
 
-  await page.fill('#token', token);
-  await page.click('#token-form button');
-  check((await page.textContent('#token-state')) === 'set', 'token saved in the page');
+  // The printed link (URL#token=...) works in a tab where the app is already open.
+  await page.goto(`${url}#token=${token}`);
+  await page.waitForFunction(() => document.querySelector('#token-state').dataset.set === '1');
+  check(await page.evaluate((t) => localStorage.getItem('fringe.token') === t && !location.hash.includes(t), token),
+    'the #token= link sets the token in an open tab and leaves the address bar');
 
   // 1 s at 100 kHz, 106.7 Hz electrical: a stride of 50 samples is 1/19 of a cycle, which a
   // polyline through stride samples turned into a star.
   const a = await runFromForm(page, url, 3, 1.0);
   check(/^\d{8}T\d{6}Z-[0-9a-f]{8}$/.test(a.id), `run ${a.id} created from the form and finished in ${a.ms} ms`);
+  check(a.warned.includes('model_mismatch'), `preflight warnings shown before Start (${a.warned.join(', ')})`);
   const verdict = await page.getAttribute('.banner', 'data-verdict');
   check(verdict === 'PASS', `report verdict ${verdict}`);
   check(await page.$$eval('#measurements tbody tr', (r) => r.length) >= 3, 'measurements table lists limits and outcomes');
@@ -171,6 +206,61 @@ try {
   check(sOrd.ink > 0.01 && (await page.$eval('#plot-spectrum', (d) => d.fringe.axis)) === 'order', 'spectrum x axis switches to orders of the electrical frequency');
   check(await page.$eval('#plot-time', (d) => d.fringe.envelope), 'error vs time draws the full-rate envelope');
 
+  // Legends show values before any hover (not "--"), and the hover readout has 3 significant
+  // digits and the unit: a 1e-5 rad error does not read 0.
+  const idle = await page.$$eval('#plot-time .u-legend .u-value', (v) => v.map((x) => x.textContent));
+  check(idle.length >= 3 && idle.every((t) => t && t !== '--'), `legends show values before a hover (${idle.slice(0, 3).join(' | ')})`);
+  const over = await (await page.$('#plot-time .u-over')).boundingBox();
+  await page.hover('#plot-time .u-over', { position: { x: over.width * 0.6, y: over.height / 2 } });
+  await page.waitForFunction(() => document.querySelector('#plot-time').fringe.u.legend.idx != null);
+  const hover = await page.$eval('#plot-time', (d) => {
+    const u = d.fringe.u, i = u.legend.idx;
+    const texts = [...d.querySelectorAll('.u-legend .u-value')].map((x) => x.textContent);
+    return texts.slice(1).map((t, k) => ({ t, v: u.data[k + 1][i] }));
+  });
+  const readable = hover.filter((x) => x.v != null).every((x) => {
+    const shownV = parseFloat(x.t);
+    return / rad$/.test(x.t) && Math.abs(shownV - x.v) <= 0.006 * Math.abs(x.v);
+  });
+  const small = hover.filter((x) => x.v != null && Math.abs(x.v) < 1e-3).length;
+  check(readable && small >= 1, `hover values carry 3 significant digits and the unit (${hover.slice(0, 4).map((x) => x.t).join(' | ')}; ${small} below 1e-3 rad)`);
+  await page.mouse.move(0, 0);
+  // Log scale for the error plots and the harmonics.
+  await page.click('#plot-time .log-toggle');
+  const logT = await page.$eval('#plot-time', (d) => ({ log: d.fringe.log, distr: d.fringe.u.scales.y.distr, axis: d.fringe.axes[1] }));
+  check(logT.log && logT.distr === 3 && /\|error\| \(rad\)/.test(logT.axis), `error vs time switches to a log |error| axis (${logT.axis})`);
+  await page.click('#plot-by-angle .log-toggle');
+  check(await page.$eval('#plot-by-angle', (d) => d.fringe.log && d.fringe.u.scales.y.distr === 3), 'error vs angle switches to a log axis');
+  check(await page.$eval('#plot-harmonics', (d) => d.fringe.log && d.fringe.u.scales.y.distr === 3), 'harmonics start on a log axis');
+  await page.click('#plot-harmonics .log-toggle');
+  check(await page.$eval('#plot-harmonics', (d) => !d.fringe.log && d.fringe.u.scales.y.distr === 1), 'harmonics switch to a linear axis');
+  const inkNow = await inkedCanvases(page);
+  check(inkNow.length >= 5 && inkNow.every((f) => f > 0.003), 'the redrawn plots drew');
+  const axes = await page.$$eval('#plots .plot', (ds) => ds.map((d) => (d.fringe && d.fringe.axes) || []));
+  check(axes.length >= 5 && axes.every((a) => a.length === 2 && a.every((l) => /\((rad|V|s|Hz)\)|\(× electrical frequency\)/.test(l))),
+    `every plot axis names its unit (${axes.map((a) => a.join(' / ')).join('; ')})`);
+
+  // Readable values: 3 significant digits with the unit, the limit and the outcome beside each.
+  const rmsRow = await page.$$eval('#measurements tbody tr', (rows) => rows.map((r) => [...r.querySelectorAll('td')].map((td) => td.textContent))
+    .find((c) => c[0] === 'ekf-diffraction' && c[1] === 'rms_rad'));
+  check(rmsRow && /^\d\.\d\de-\d rad$/.test(rmsRow[2]) && rmsRow[3].startsWith('≤ 4.00e-5 rad') && rmsRow[4].startsWith('PASS'),
+    `a measurement reads "${rmsRow && rmsRow.join(' | ')}"`);
+
+  // The offline HTML report fits a 1280 px window, with gridlines and tick labels on its axes.
+  const html = await context.newPage();
+  await html.setViewportSize({ width: 1280, height: 900 });
+  await html.goto(`${url}api/v1/runs/${a.id}/report.html`);
+  const htmlWidth = await noHScroll(html);
+  check(htmlWidth <= 1280, `the offline HTML report fits 1280 px (${htmlWidth} px wide)`);
+  const svgAxes = await html.$$eval('svg.plot', (ss) => ss.map((sv) => ({
+    id: sv.id, x: sv.querySelectorAll('.xtick').length, y: sv.querySelectorAll('.ytick').length, grid: sv.querySelectorAll('.grid').length,
+    labels: [...sv.querySelectorAll('.xtick, .ytick')].map((t) => t.textContent),
+  })));
+  check(svgAxes.length >= 5 && svgAxes.every((p) => p.x >= 3 && p.y >= 3 && p.grid >= 6 && p.labels.every((l) => !/e[+-]0\d/.test(l))),
+    `offline SVG axes have gridlines and readable tick labels (${svgAxes.map((p) => `${p.id}: ${p.x}x${p.y}`).join(', ')})`);
+  await html.screenshot({ path: join(artifacts, 'report-html.png'), fullPage: true });
+  await html.close();
+
   const [dl] = await Promise.all([page.waitForEvent('download'), page.click('#dl-junit')]);
   const junitPath = join(artifacts, 'report.xml');
   await dl.saveAs(junitPath);
@@ -201,6 +291,120 @@ try {
   check(xa.length >= 1 && xa.length === xb.length && xa.every((x) => Math.abs(x.xmax - 1.0) < 0.02) && xb.every((x) => Math.abs(x.xmax - 0.6) < 0.02),
     `compare draws each run on its own time axis (A to ${xa.map((x) => x.xmax.toFixed(3))} s, B to ${xb.map((x) => x.xmax.toFixed(3))} s)`);
   await page.screenshot({ path: join(artifacts, 'compare.png'), fullPage: true });
+
+  // The user's own board, built in the editor: 2048 lines at 1500 rpm, a 12-bit ADC at 200 kHz,
+  // PASS if the rms error is below 1e-3 rad.
+  await page.goto(`${url}#/new`);
+  await page.waitForSelector('#fixture option[value="fig10c-loopback"]', { state: 'attached' });
+  await page.waitForFunction(() => document.querySelector('input[name="seed"]').value !== '');
+  await page.fill('#sc-name', 'my-board');
+  await page.selectOption('#encoder-source', '');
+  await page.selectOption('select[name="encoder.model"]', 'ideal');
+  await page.fill('input[name="encoder.lines_per_rev"]', '2048');
+  await page.selectOption('#motion-kind', 'constant');
+  await page.selectOption('#speed-unit', 'rpm');
+  await page.fill('input[name="motion.velocity"]', '1500');
+  await page.fill('input[name="sample_rate_hz"]', '200000');
+  await page.fill('input[name="duration_s"]', '0.3');
+  await page.selectOption('#driver', 'loopback');
+  await page.fill('input[name="device.adc_bits"]', '12');
+  await page.check('[data-estimator="atan2"]');
+  await page.uncheck('[data-estimator="ekf-ideal"]');
+  await page.uncheck('[data-estimator="ekf-diffraction"]');
+  while (await page.$('#limits tr.limit')) await page.click('#limits tr.limit .l-del');
+  await page.click('#add-limit');
+  await page.selectOption('#limits tr.limit .l-est', 'atan2');
+  await page.selectOption('#limits tr.limit .l-metric', 'rms_rad');
+  await page.fill('#limits tr.limit .l-max', '1e-3');
+  // A value the API refuses is shown at its field, and the run does not start.
+  await page.fill('input[name="encoder.lines_per_rev"]', '0');
+  await page.click('#check');
+  const fieldErr = await page.waitForSelector('label:has(input[name="encoder.lines_per_rev"]) .field-error');
+  check((await fieldErr.textContent()).includes('out of range') && await page.$eval('input[name="encoder.lines_per_rev"]', (i) => i.getAttribute('aria-invalid') === 'true'),
+    `the API's error is shown at its field (encoder.lines_per_rev: "${await fieldErr.textContent()}")`);
+  await page.fill('input[name="device.adc_bits"]', '99');
+  await page.fill('input[name="encoder.lines_per_rev"]', '2048');
+  await page.click('#check');
+  const devErr = await page.waitForSelector('label:has(input[name="device.adc_bits"]) .field-error');
+  check((await devErr.textContent()).includes('out of range'), `a device setting's error is shown at that setting ("${await devErr.textContent()}")`);
+  await page.fill('input[name="device.adc_bits"]', '12');
+  // 2048 lines at 1500 rpm is 51.2 kHz electrical: 3.9 samples per cycle at 200 kHz. The
+  // preflight says so, at the sample-rate field, before Start.
+  await page.click('#check');
+  await page.waitForSelector('#preflight li[data-code="few_samples_per_cycle"]');
+  check(await page.$('label:has(input[name="sample_rate_hz"]) .field-warning') !== null, 'the preflight warning is shown at the sample-rate field');
+  check(await page.$('.field-error') === null, 'no field error left after the fixes');
+  const [saveDl] = await Promise.all([page.waitForEvent('download'), page.click('#save')]);
+  const saved = JSON.parse(readFileSync(await saveDl.path(), 'utf8'));
+  check(saveDl.suggestedFilename() === 'my-board.json' && saved.encoder.lines_per_rev === 2048 && saved.encoder.model === 'ideal'
+    && Math.abs(saved.motion.velocity_rad_s - 1500 * 2 * Math.PI / 60) < 1e-9 && saved.sample_rate_hz === 200000 && /adc_bits=12/.test(saved.device)
+    && saved.estimators.length === 1 && saved.limits.length === 1 && saved.limits[0].max === 1e-3 && saved.limits[0].metric === 'rms_rad',
+  `the scenario saves as ${saveDl.suggestedFilename()} (${JSON.stringify(saved.motion)}, ${saved.device})`);
+  const own = await startFromForm(page);
+  check(own.includes('few_samples_per_cycle'), `the user's run started after its warnings were shown (${own.join(', ')})`);
+  await page.waitForSelector('.banner', { timeout: 60000 });
+  const ownId = decodeURIComponent(page.url().split('#/run/')[1]);
+  const ownVerdict = await page.getAttribute('.banner', 'data-verdict');
+  const ownRow = await page.$$eval('#measurements tbody tr', (rows) => rows.map((r) => [...r.querySelectorAll('td')].map((td) => td.textContent))
+    .find((c) => c[0] === 'atan2' && c[1] === 'rms_rad'));
+  const ownRep = await (await fetch(`${url}api/v1/runs/${ownId}/report.json`)).json();
+  const rms = ownRep.measurements.find((m) => m.estimator === 'atan2' && m.metric === 'rms_rad');
+  check(ownVerdict === 'PASS' && ownRow && ownRow[3] === '≤ 1.00e-3 rad' && ownRow[4].startsWith('PASS') && rms.value > 0 && rms.value < 1e-3
+    && ownRep.scenario.encoder.lines_per_rev === 2048 && ownRep.scenario.sample_rate_hz === 200000 && /adc_bits=12/.test(ownRep.device.uri),
+  `my board (2048 lines, 1500 rpm, 12-bit ADC at 200 kHz) runs from the browser: ${ownVerdict}, rms ${ownRow && ownRow[2]} against ${ownRow && ownRow[3]}`);
+  await page.screenshot({ path: join(artifacts, 'own-scenario.png'), fullPage: true });
+
+  // Capture upload: by the file picker, then by drag and drop; the scenario takes its rate.
+  await page.goto(`${url}#/new`);
+  await page.waitForFunction(() => document.querySelector('input[name="seed"]') && document.querySelector('input[name="seed"]').value !== '');
+  await page.selectOption('#driver', 'capture');
+  await page.waitForSelector('#capture-drop', { state: 'visible' });
+  await page.setInputFiles('#capture-file', { name: 'bench.csv', mimeType: 'text/csv', buffer: Buffer.from(captureCsv(20000, 500)) });
+  await page.waitForFunction(() => document.querySelector('#upload-state').dataset.id);
+  const up1 = await page.evaluate(() => ({ id: document.querySelector('#upload-state').dataset.id, path: document.querySelector('#device-path').value,
+    rate: Number(document.querySelector('input[name="sample_rate_hz"]').value), dur: Number(document.querySelector('input[name="duration_s"]').value) }));
+  check(up1.id && up1.path === up1.id && Math.abs(up1.rate - 1e5) < 1e-3 && Math.abs(up1.dur - 0.2) < 1e-6,
+    `a capture chosen with the file picker is uploaded and used (capture:${up1.id}, ${up1.rate} Hz, ${up1.dur} s)`);
+  await page.evaluate((text) => {
+    const dt = new DataTransfer();
+    dt.items.add(new File([text], 'dropped.csv', { type: 'text/csv' }));
+    document.querySelector('#capture-drop').dispatchEvent(new DragEvent('drop', { dataTransfer: dt, bubbles: true, cancelable: true }));
+  }, captureCsv(30000, 700));
+  await page.waitForFunction((first) => { const s = document.querySelector('#upload-state'); return s.dataset.id && s.dataset.id !== first; }, up1.id);
+  const up2 = await page.evaluate(() => ({ id: document.querySelector('#upload-state').dataset.id, path: document.querySelector('#device-path').value }));
+  check(up2.path === up2.id, `a dropped capture is uploaded and used (capture:${up2.id})`);
+  await page.click('#check');
+  await page.waitForSelector('#preflight p');
+  check(await page.$('.field-error') === null, 'the service accepts the uploaded capture as the device (preflight passes)');
+
+  // Phone width: run list, report and compare fit 390 px without horizontal page scrolling.
+  const phone = await browser.newContext({ viewport: { width: 390, height: 844 }, deviceScaleFactor: 1 });
+  const ph = await phone.newPage();
+  ph.on('pageerror', (e) => pageErrors.push(e.message));
+  const widths = {};
+  await ph.goto(`${url}#/runs`);
+  await ph.waitForSelector(`tr[data-id="${a.id}"]`);
+  widths.runs = await noHScroll(ph);
+  await ph.screenshot({ path: join(artifacts, 'phone-runs.png'), fullPage: true });
+  await ph.goto(`${url}#/run/${a.id}`);
+  await ph.waitForFunction(() => document.querySelectorAll('#plots canvas').length >= 5);
+  widths.report = await noHScroll(ph);
+  await ph.screenshot({ path: join(artifacts, 'phone-report.png'), fullPage: true });
+  await ph.goto(`${url}#/compare/${a.id}/${b.id}`);
+  await ph.waitForFunction(() => document.querySelectorAll('#compare-plots canvas').length >= 2);
+  widths.compare = await noHScroll(ph);
+  await ph.screenshot({ path: join(artifacts, 'phone-compare.png'), fullPage: true });
+  await ph.goto(`${url}#/new`);
+  await ph.waitForSelector('#limits tr.limit');
+  widths.new = await noHScroll(ph);
+  check(Object.values(widths).every((w) => w <= 390), `pages fit 390 px (${Object.entries(widths).map(([k, w]) => `${k} ${w}`).join(', ')})`);
+  await phone.close();
+
+  // An unknown run says so (it said "connecting…" forever).
+  await page.goto(`${url}#/run/20990101T000000Z-00000000`);
+  const missing = await page.waitForSelector('#run-missing', { timeout: 10000 });
+  check((await missing.textContent()).includes('not found'), `an unknown run says "${(await missing.textContent()).slice(0, 40)}…"`);
+  consoleErrors.length = 0;  // the 400s and 404 above are logged by the browser on purpose
 
   // Live progress: a longer run shows progress before it ends.
   const longRun = await (await fetch(`${url}api/v1/runs`, {
@@ -260,7 +464,7 @@ try {
   await page.screenshot({ path: join(artifacts, 'old-report.png'), fullPage: true });
   await page.unroute(`**/api/v1/runs/${a.id}/traces`);
 
-  check(consoleErrors.length === 0, `no console errors (${consoleErrors.join(' | ')})`);
+  check(consoleErrors.length === 0 && pageErrors.length === 0, `no console errors (${[...consoleErrors, ...pageErrors].join(' | ')})`);
   cleanup(0);
 } catch (e) {
   console.error(`FAIL: ${e.stack || e}`);
