@@ -366,7 +366,7 @@ HttpResponse Service::preflight_run(const HttpRequest& req) const {
     if (auto refused = run_scenario(parse_body(req.body), sc)) return *refused;
     std::vector<Finding> warnings;
     try {
-        dev::check_uri(sc.device);
+        check_device_uris(sc);
         warnings = validate_run(sc);
     } catch (const ConfigError& e) {
         throw e.prefixed("scenario");
