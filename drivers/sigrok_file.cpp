@@ -168,7 +168,9 @@ SigrokSession::SigrokSession(const std::string& path, const std::map<std::string
     : impl_(std::make_unique<Impl>()) {
     Impl& m = *impl_;
     m.path = path;
-    for (const auto& [col, ch] : channel_for) {
+    for (const auto& kv : channel_for) {  // (not a structured binding: clang 14 cannot capture one)
+        const std::string& col = kv.first;
+        const std::string& ch = kv.second;
         const bool known = sigrok_logic_column(col) || std::find_if(std::begin(kAnalogColumns), std::end(kAnalogColumns),
                                                                     [&](const char* c) { return col == c; }) != std::end(kAnalogColumns);
         if (!known) throw CaptureError(path + ": channel map: unknown column " + quote(col) + " (sin, cos, theta_true, omega_true, index, a, b, z)");
