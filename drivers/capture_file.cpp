@@ -1,5 +1,7 @@
 #include "capture_file.hpp"
 
+#include "sigrok_file.hpp"
+
 #include <bit>
 #include <charconv>
 #include <cmath>
@@ -15,9 +17,10 @@ using nlohmann::json;
 
 namespace {
 constexpr char kMagic[8] = {'F', 'R', 'N', 'G', 'C', 'A', 'P', '1'};
-enum Field { kT = 0, kSin, kCos, kTheta, kOmega, kIndex, kFieldCount };
-const char* const kNames[kFieldCount] = {"t", "sin", "cos", "theta_true", "omega_true", "index"};
-const char* const kUnits[kFieldCount] = {"s", "V", "V", "rad", "rad/s", "V"};
+enum Field { kT = 0, kSin, kCos, kTheta, kOmega, kIndex, kA, kB, kZ, kFieldCount };
+const char* const kNames[kFieldCount] = {"t", "sin", "cos", "theta_true", "omega_true", "index", "a", "b", "z"};
+const char* const kUnits[kFieldCount] = {"s", "V", "V", "rad", "rad/s", "V", "logic", "logic", "logic"};
+bool digital(int f) { return f == kA || f == kB || f == kZ; }
 
 std::vector<double>& field_vec(CaptureData& d, int f) {
     switch (f) {
@@ -26,6 +29,9 @@ std::vector<double>& field_vec(CaptureData& d, int f) {
     case kCos: return d.cos_v;
     case kTheta: return d.theta_true_rad;
     case kOmega: return d.omega_true_rad_s;
+    case kA: return d.a;
+    case kB: return d.b;
+    case kZ: return d.z;
     default: return d.index_v;
     }
 }
@@ -40,14 +46,15 @@ void append_number(std::string& s, double v) {
 }  // namespace
 
 void CaptureData::clear() {
-    for (auto* v : {&t_s, &sin_v, &cos_v, &theta_true_rad, &omega_true_rad_s, &index_v}) v->clear();
+    for (auto* v : {&t_s, &sin_v, &cos_v, &theta_true_rad, &omega_true_rad_s, &index_v, &a, &b, &z}) v->clear();
 }
 
 CaptureFormat capture_format_for(const std::string& path) {
     auto ext = std::filesystem::path(path).extension().string();
     if (ext == ".csv") return CaptureFormat::Csv;
     if (ext == ".fcap") return CaptureFormat::Binary;
-    throw CaptureError(path + ": unknown capture format '" + ext + "' (use .csv or .fcap)");
+    if (ext == ".sr") return CaptureFormat::Sigrok;
+    throw CaptureError(path + ": unknown capture format '" + ext + "' (use .csv, .fcap or .sr)");
 }
 
 std::string sidecar_path(const std::string& csv_path) {
@@ -58,6 +65,8 @@ std::string sidecar_path(const std::string& csv_path) {
 
 CaptureWriter::CaptureWriter(const std::string& path, CaptureColumns cols, json meta)
     : path_(path), fmt_(capture_format_for(path)), cols_(cols) {
+    if (fmt_ == CaptureFormat::Sigrok) throw CaptureError(path + ": fringe reads sigrok session files but does not write them (use .csv or .fcap)");
+    if (cols_.a || cols_.b || cols_.z) throw CaptureError(path + ": the capture writer does not write digital columns (a, b, z)");
     if (meta.is_null()) meta = json::object();
     fs_ = meta.value("sample_rate_hz", 0.0);
     t0_ = meta.value("t0_s", 0.0);
@@ -281,7 +290,74 @@ std::string read_meta_file(const std::string& path) {
 
 CaptureError::CaptureError(const std::string& message) : std::runtime_error(escape_message(message)) {}
 
-CaptureReader::CaptureReader(const std::string& path) : path_(path), fmt_(capture_format_for(path)) {
+std::optional<std::size_t> first_invalid_utf8_at(const std::string& s) { return first_invalid_utf8(s); }
+
+std::map<std::string, std::string> parse_channel_map(const std::string& text) {
+    std::map<std::string, std::string> m;
+    std::size_t pos = 0;
+    while (pos < text.size()) {
+        auto comma = text.find(',', pos);
+        if (comma == std::string::npos) comma = text.size();
+        const std::string item = text.substr(pos, comma - pos);
+        pos = comma + 1;
+        if (item.empty()) continue;
+        const auto eq = item.find('=');
+        if (eq == std::string::npos || eq == 0 || eq + 1 == item.size())
+            throw CaptureError("channel map: expected column=channel, got " + quote(item));
+        const std::string col = item.substr(0, eq);
+        bool known = false;
+        for (int f = kSin; f < kFieldCount; ++f) known |= col == kNames[f];
+        if (!known) throw CaptureError("channel map: unknown column " + quote(col) + " (sin, cos, theta_true, omega_true, index, a, b, z)");
+        if (!m.emplace(col, item.substr(eq + 1)).second) throw CaptureError("channel map: column '" + col + "' given twice");
+    }
+    return m;
+}
+
+CaptureReader::~CaptureReader() = default;
+
+CaptureReader::CaptureReader(const std::string& path, const CaptureOptions& options) : path_(path), fmt_(capture_format_for(path)) {
+    if (!options.channels.empty() && fmt_ != CaptureFormat::Sigrok)
+        throw CaptureError(path + ": a channel map applies to sigrok session files (.sr) only; CSV and .fcap columns are named by fringe");
+    if (fmt_ == CaptureFormat::Sigrok) {
+        sr_ = std::make_unique<SigrokSession>(path, options.channels);
+        for (int f : {kSin, kCos})
+            if (!sr_->has(kNames[f])) {
+                std::string known;
+                for (const auto& c : sr_->channel_list()) known += (known.empty() ? "" : ", ") + c;
+                throw CaptureError(path + ": no channel for column '" + kNames[f] + "' (channels: " + (known.empty() ? "none" : known) +
+                                   "); name the channels sin and cos, or map them: sin=CH1,cos=CH2");
+            }
+        cols_.theta_true = sr_->has("theta_true");
+        cols_.omega_true = sr_->has("omega_true");
+        cols_.index = sr_->has("index");
+        cols_.a = sr_->has("a");
+        cols_.b = sr_->has("b");
+        cols_.z = sr_->has("z");
+        fs_ = sr_->sample_rate_hz();
+        total_frames_ = sr_->frames();
+        if (total_frames_ == 0) throw CaptureError(path + ": no samples");
+        meta_["sigrok"] = {{"channels", sr_->channel_list()}, {"samplerate_hz", fs_}};
+        // fringe's own metadata (encoder, t0_s) can sit beside it in a sidecar, as for CSV.
+        const std::string side = sidecar_path(path);
+        if (std::filesystem::exists(side)) {
+            json m = parse_meta(read_meta_file(side), side + ": sidecar");
+            const MetaFields f = check_meta(m, side + ": sidecar", false);
+            if (f.fs_hz > 0 && std::fabs(f.fs_hz - fs_) > 1e-9 * fs_) {
+                std::ostringstream os;
+                os << side << ": sidecar.sample_rate_hz " << f.fs_hz << " disagrees with the session's samplerate " << fs_ << " Hz";
+                throw CaptureError(os.str());
+            }
+            if (f.samples && *f.samples != total_frames_)
+                throw CaptureError(path + (*f.samples > total_frames_ ? ": truncated payload" : ": size mismatch") + ": the sidecar's samples is " +
+                                   std::to_string(*f.samples) + " but the session holds " + std::to_string(total_frames_));
+            t0_ = f.t0_s;
+            m["sigrok"] = meta_["sigrok"];
+            meta_ = std::move(m);
+        }
+        if ((cols_.a != cols_.b) || (cols_.z && !cols_.a))
+            throw CaptureError(path + ": digital columns: a and b come together (z is optional with them)");
+        return;
+    }
     in_.open(path, std::ios::binary);
     if (!in_) throw CaptureError(path + ": cannot open: " + std::strerror(errno));
     if (fmt_ == CaptureFormat::Csv) {
@@ -306,7 +382,7 @@ CaptureReader::CaptureReader(const std::string& path) : path_(path), fmt_(captur
             for (int k = 0; k < kFieldCount; ++k)
                 if (name == kNames[k]) f = k;
             if (f < 0)
-                throw CaptureError(path + ":1: unknown column " + quote(name) + " (expected t, sin, cos and optionally theta_true, omega_true, index)");
+                throw CaptureError(path + ":1: unknown column " + quote(name) + " (expected t, sin, cos and optionally theta_true, omega_true, index, a, b, z)");
             if (seen[f]) throw CaptureError(path + ":1: duplicate column '" + name + "'");
             seen[f] = true;
             col_map_.push_back(f);
@@ -318,6 +394,11 @@ CaptureReader::CaptureReader(const std::string& path) : path_(path), fmt_(captur
         cols_.theta_true = seen[kTheta];
         cols_.omega_true = seen[kOmega];
         cols_.index = seen[kIndex];
+        cols_.a = seen[kA];
+        cols_.b = seen[kB];
+        cols_.z = seen[kZ];
+        if ((cols_.a != cols_.b) || (cols_.z && !cols_.a))
+            throw CaptureError(path + ":1: digital columns: a and b come together (z is optional with them)");
     } else {
         char magic[8];
         std::uint32_t len = 0;
@@ -350,16 +431,17 @@ CaptureReader::CaptureReader(const std::string& path) : path_(path), fmt_(captur
             int f = -1;
             for (int k = 1; k < kFieldCount; ++k)
                 if (name == kNames[k]) f = k;
-            if (f < 0) throw CaptureError(at + ": unknown column " + quote(name) + " (sin, cos, theta_true, omega_true, index)");
+            if (f < 0) throw CaptureError(at + ": unknown column " + quote(name) + " (sin, cos, theta_true, omega_true, index, a, b, z)");
             // A repeated column would give that field two values per frame: refused, as in CSV.
             if (seen[f]) throw CaptureError(at + ": duplicate column '" + name + "'");
-            if (type != "f64" && type != "f32") throw CaptureError(at + ": column '" + name + "' has unsupported type " + quote(type) + " (f32, f64)");
+            if (type != "f64" && type != "f32" && !(digital(f) && type == "u8"))
+                throw CaptureError(at + ": column '" + name + "' has unsupported type " + quote(type) + (digital(f) ? " (u8, f32, f64)" : " (f32, f64)"));
             if (c.contains("unit") && c["unit"] != kUnits[f])
                 throw CaptureError(at + ": column '" + name + "' has unit " + c["unit"].dump(-1, ' ', false, json::error_handler_t::replace) +
                                    ", expected '" + kUnits[f] + "'");
             seen[f] = true;
             bin_fields_.push_back(f);
-            bin_sizes_.push_back(type == "f64" ? 8 : 4);
+            bin_sizes_.push_back(type == "f64" ? 8 : type == "f32" ? 4 : 1);
             frame_bytes_ += static_cast<std::size_t>(bin_sizes_.back());
         }
         for (int f : {kSin, kCos})
@@ -367,6 +449,11 @@ CaptureReader::CaptureReader(const std::string& path) : path_(path), fmt_(captur
         cols_.theta_true = seen[kTheta];
         cols_.omega_true = seen[kOmega];
         cols_.index = seen[kIndex];
+        cols_.a = seen[kA];
+        cols_.b = seen[kB];
+        cols_.z = seen[kZ];
+        if ((cols_.a != cols_.b) || (cols_.z && !cols_.a))
+            throw CaptureError(where + ": digital columns: a and b come together (z is optional with them)");
         const auto data_bytes = size - (12 + static_cast<std::uintmax_t>(len));
         if (data_bytes % frame_bytes_ != 0)
             throw CaptureError(path + ": truncated: " + std::to_string(data_bytes % frame_bytes_) +
@@ -382,7 +469,27 @@ CaptureReader::CaptureReader(const std::string& path) : path_(path), fmt_(captur
 
 bool CaptureReader::read(std::size_t max_frames, CaptureData& out) {
     out.clear();
+    if (fmt_ == CaptureFormat::Sigrok) return read_sr(max_frames, out);
     return fmt_ == CaptureFormat::Csv ? read_csv(max_frames, out) : read_bin(max_frames, out);
+}
+
+bool CaptureReader::read_sr(std::size_t max_frames, CaptureData& out) {
+    const std::uint64_t n = std::min<std::uint64_t>(max_frames, total_frames_ - frame_);
+    if (n == 0) return false;
+    for (auto& [c, v] : sr_cols_) v.clear();
+    sr_->read(static_cast<std::size_t>(n), sr_cols_);
+    for (int f = kSin; f < kFieldCount; ++f) {
+        auto it = sr_cols_.find(kNames[f]);
+        if (it == sr_cols_.end()) continue;
+        for (std::size_t i = 0; i < it->second.size(); ++i)
+            if (!std::isfinite(it->second[i]))
+                throw CaptureError(path_ + ": sample " + std::to_string(frame_ + i) + ": channel of column " + kNames[f] + ": " +
+                                   (std::isnan(it->second[i]) ? "NaN" : "infinite value"));
+        field_vec(out, f).swap(it->second);
+    }
+    for (std::uint64_t i = 0; i < n; ++i) out.t_s.push_back(t0_ + static_cast<double>(frame_ + i) / fs_);
+    frame_ += n;
+    return true;
 }
 
 bool CaptureReader::read_csv(std::size_t max_frames, CaptureData& out) {
@@ -417,6 +524,8 @@ bool CaptureReader::read_csv(std::size_t max_frames, CaptureData& out) {
                 throw CaptureError(path_ + ":" + std::to_string(line_) + ": column " + col + ": not a number: " + quote(std::string(p, cell_end)));
             if (!std::isfinite(v))
                 throw CaptureError(path_ + ":" + std::to_string(line_) + ": column " + col + ": " + (std::isnan(v) ? "NaN" : "infinite value"));
+            if (digital(col_map_[c]) && v != 0.0 && v != 1.0)
+                throw CaptureError(path_ + ":" + std::to_string(line_) + ": column " + col + ": a logic level must be 0 or 1, got " + quote(std::string(p, cell_end)));
             if (col_map_[c] == kT) {
                 if (have_last_ && !(v > last_t_))
                     throw CaptureError(path_ + ":" + std::to_string(line_) + ": column t: time does not increase (" + std::string(p, cell_end) + " after previous row)");
@@ -452,10 +561,13 @@ bool CaptureReader::read_bin(std::size_t max_frames, CaptureData& out) {
         for (std::size_t c = 0; c < bin_fields_.size(); ++c) {
             double v;
             if (bin_sizes_[c] == 8) { std::memcpy(&v, p, 8); }
-            else { float f; std::memcpy(&f, p, 4); v = f; }
+            else if (bin_sizes_[c] == 4) { float f; std::memcpy(&f, p, 4); v = f; }
+            else v = static_cast<unsigned char>(*p);
             p += bin_sizes_[c];
             if (!std::isfinite(v))
                 throw CaptureError(path_ + ": frame " + std::to_string(frame_ + i) + ": column " + kNames[bin_fields_[c]] + ": " + (std::isnan(v) ? "NaN" : "infinite value"));
+            if (digital(bin_fields_[c]) && v != 0.0 && v != 1.0)
+                throw CaptureError(path_ + ": frame " + std::to_string(frame_ + i) + ": column " + kNames[bin_fields_[c]] + ": a logic level must be 0 or 1");
             field_vec(out, bin_fields_[c]).push_back(v);
         }
     }
@@ -463,8 +575,8 @@ bool CaptureReader::read_bin(std::size_t max_frames, CaptureData& out) {
     return true;
 }
 
-CaptureData read_capture(const std::string& path, json* meta, double* fs) {
-    CaptureReader r(path);
+CaptureData read_capture(const std::string& path, json* meta, double* fs, const CaptureOptions& options) {
+    CaptureReader r(path, options);
     CaptureData all, chunk;
     while (r.read(1 << 16, chunk)) {
         for (int f = 0; f < kFieldCount; ++f) {

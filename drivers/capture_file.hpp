@@ -3,6 +3,9 @@
 //    electrical phase), omega_true (rad/s), index (V); a JSON sidecar <stem>.json beside it.
 //  - Binary .fcap: magic "FRNGCAP1", u32 LE header length, JSON header, then fixed-size
 //    little-endian frames; time is implicit (t0_s + k/sample_rate_hz).
+//  - sigrok session .sr (sigrok_file.hpp): channels mapped to columns by name, an optional
+//    sidecar <stem>.json as for CSV; time is implicit.
+//  - Optional digital columns a, b, z (0 or 1): a DUT's quadrature output (drivers/abz.hpp).
 // Malformed input throws CaptureError naming file and line (or frame). The readers check
 // the header before reading a sample (docs/capture-format.md "What the readers check"):
 // every present column has exactly one value per frame.
@@ -14,6 +17,7 @@
 
 #include <cstdint>
 #include <fstream>
+#include <map>
 #include <memory>
 #include <optional>
 #include <stdexcept>
@@ -22,12 +26,17 @@
 
 namespace fringe {
 
+class SigrokSession;
+
 class CaptureError : public std::runtime_error {
 public:
     // Messages quote file contents: bytes that are not valid UTF-8, and control characters,
     // become \xNN, so a message is always valid UTF-8 (JSON error bodies, terminals).
     explicit CaptureError(const std::string& message);
 };
+
+// Byte offset of the first byte of s that is not valid UTF-8 (RFC 3629), nullopt if none.
+std::optional<std::size_t> first_invalid_utf8_at(const std::string& s);
 
 // Limits shared by both formats (the scenario schema's ranges, docs/schema.md).
 constexpr double kCaptureMinRateHz = 1.0, kCaptureMaxRateHz = 1e10;
@@ -37,18 +46,29 @@ struct CaptureColumns {
     bool theta_true = false;
     bool omega_true = false;
     bool index = false;
+    bool a = false, b = false, z = false;  // digital: a DUT's A/B/Z quadrature lines
+    bool abz() const { return a && b; }
 };
 
 // A chunk (or all) of a capture, structure of arrays. Optional columns are empty when absent.
 struct CaptureData {
     std::vector<double> t_s, sin_v, cos_v, theta_true_rad, omega_true_rad_s, index_v;
+    std::vector<double> a, b, z;  // digital columns, 0 or 1 (read only: the writer does not write them)
     std::size_t size() const { return t_s.size(); }
     void clear();
 };
 
-enum class CaptureFormat { Csv, Binary };
-CaptureFormat capture_format_for(const std::string& path);  // by extension: .csv, .fcap
-std::string sidecar_path(const std::string& csv_path);      // x.csv -> x.json
+enum class CaptureFormat { Csv, Binary, Sigrok };
+CaptureFormat capture_format_for(const std::string& path);  // by extension: .csv, .fcap, .sr
+std::string sidecar_path(const std::string& csv_path);      // x.csv -> x.json (x.sr -> x.json)
+
+// How a reader takes columns from a file whose channels are named by someone else (.sr):
+// column -> channel name, for the columns whose channel is not named like the column.
+struct CaptureOptions {
+    std::map<std::string, std::string> channels;
+};
+// "sin=CH1,cos=CH2" (a CLI option, a URI setting) to a channel map; throws CaptureError.
+std::map<std::string, std::string> parse_channel_map(const std::string& text);
 
 class CaptureWriter {
 public:
@@ -75,7 +95,8 @@ private:
 
 class CaptureReader {
 public:
-    explicit CaptureReader(const std::string& path);
+    explicit CaptureReader(const std::string& path, const CaptureOptions& options = {});
+    ~CaptureReader();
     // Reads up to max_frames into out (replacing its contents); false at end of file.
     bool read(std::size_t max_frames, CaptureData& out);
     const CaptureColumns& columns() const { return cols_; }
@@ -87,6 +108,7 @@ public:
 private:
     bool read_csv(std::size_t max_frames, CaptureData& out);
     bool read_bin(std::size_t max_frames, CaptureData& out);
+    bool read_sr(std::size_t max_frames, CaptureData& out);
     std::string path_;
     CaptureFormat fmt_;
     CaptureColumns cols_;
@@ -106,9 +128,13 @@ private:
     std::vector<int> bin_sizes_;
     std::size_t frame_bytes_ = 0;
     std::uint64_t frame_ = 0, total_frames_ = 0;
+    // sigrok state
+    std::unique_ptr<SigrokSession> sr_;
+    std::map<std::string, std::vector<double>> sr_cols_;
 };
 
 // Whole capture in memory.
-CaptureData read_capture(const std::string& path, nlohmann::json* meta = nullptr, double* sample_rate_hz = nullptr);
+CaptureData read_capture(const std::string& path, nlohmann::json* meta = nullptr, double* sample_rate_hz = nullptr,
+                         const CaptureOptions& options = {});
 
 }  // namespace fringe

@@ -122,6 +122,14 @@ public:
         (void)theta_rad; (void)omega_rad_s;
         return false;
     }
+    // A DUT read out alongside the stream (ABZ lines in a capture, DeviceInfo::dut_position)
+    // fills its position (rad, NaN where it has none) for the frames of the last read; what
+    // the readout counted (edges, illegal transitions, index checks) is dut_readout().
+    virtual bool last_dut(std::span<double> theta_rad) {
+        (void)theta_rad;
+        return false;
+    }
+    virtual nlohmann::json dut_readout() const { return nullptr; }
 
     // Instrument mode (DeviceInfo::can_play / can_record). play: upload both channels (V) at
     // sample_rate_hz and start the output; cyclic repeats the block until stop_output, else it

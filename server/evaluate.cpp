@@ -6,6 +6,7 @@
 #include "scoring.hpp"
 
 #include <charconv>
+#include <cmath>
 #include <chrono>
 #include <cstdio>
 #include <cstring>
@@ -42,7 +43,7 @@ void EstimatesWriter::close() {
 }
 
 json evaluate_capture(const EvaluateOptions& o) {
-    CaptureReader reader(o.capture_path);
+    CaptureReader reader(o.capture_path, o.capture);
     CaptureData d;
     // A CSV without a sidecar gives its rate from the first time stamps: read a block first.
     bool more = reader.read(o.block, d);
@@ -58,6 +59,19 @@ json evaluate_capture(const EvaluateOptions& o) {
     auto estimator = est::make(o.estimator, cfg);
 
     const bool truth = reader.columns().theta_true;
+    std::optional<AbzDecoder> abz;
+    if (o.abz) {
+        if (!reader.columns().abz())
+            throw ConfigError("dut_interpolation", "the capture has no a/b lines to read a DUT's position from (docs/abz.md)");
+        try {
+            abz.emplace(*o.abz);
+        } catch (const std::invalid_argument& e) {
+            throw ConfigError("dut_interpolation", e.what());
+        }
+    }
+    Scorer dut_scorer(ScoringOptions{o.settle_s, 0.1, o.max_harmonic});
+    std::vector<double> dut_th;
+    std::vector<std::uint8_t> dut_valid;
     std::optional<EstimatesWriter> out;
     if (!o.estimates_path.empty()) out.emplace(o.estimates_path);
     Scorer scorer(ScoringOptions{o.settle_s, 0.1, o.max_harmonic});
@@ -79,6 +93,16 @@ json evaluate_capture(const EvaluateOptions& o) {
                        d.omega_true_rad_s.empty() ? nullptr : d.omega_true_rad_s.data(), th.data(), om.data(), valid.data());
             conventions.add(n, d.theta_true_rad.data(), th.data(), valid.data());
         }
+        if (abz) {
+            dut_th.resize(n);
+            dut_valid.resize(n);
+            abz->process(n, d.t_s.data(), d.a.data(), d.b.data(), d.z.empty() ? nullptr : d.z.data(),
+                         truth ? d.theta_true_rad.data() : nullptr, dut_th.data());
+            for (std::size_t i = 0; i < n; ++i) dut_valid[i] = std::isfinite(dut_th[i]);
+            if (truth)
+                dut_scorer.add(n, d.t_s.data(), d.theta_true_rad.data(), d.omega_true_rad_s.empty() ? nullptr : d.omega_true_rad_s.data(),
+                               dut_th.data(), nullptr, dut_valid.data());
+        }
         total += n;
         if (o.progress) o.progress(total);
     }
@@ -94,6 +118,11 @@ json evaluate_capture(const EvaluateOptions& o) {
     r["encoder_source"] = o.encoder ? "profile file" : (from_capture ? "capture metadata" : "none");
     r["timing"] = {{"estimator_s", est_seconds}, {"wall_s", wall},
                    {"estimator_samples_per_s", est_seconds > 0 ? static_cast<double>(total) / est_seconds : 0.0}};
+    if (abz) {
+        const std::optional<EncoderProfile>& enc = from_capture ? from_capture : o.encoder;
+        r["dut"] = {{"readout", abz->to_json()},
+                    {"metrics", truth ? to_json(dut_scorer.finish(), enc ? enc->lines_per_rev : 0) : json()}};
+    }
     if (!truth) {
         r["metrics"] = nullptr;
         r["note"] = "the capture has no theta_true column: estimates only, no scores";

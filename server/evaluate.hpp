@@ -3,6 +3,8 @@
 // the capture has theta_true.
 #pragma once
 
+#include "drivers/abz.hpp"
+#include "drivers/capture_file.hpp"
 #include "signal_gen/encoder.hpp"
 
 #include <nlohmann/json.hpp>
@@ -26,6 +28,10 @@ struct EvaluateOptions {
     std::string estimates_path;  // optional CSV t,theta_rad,omega_rad_s,valid
     std::size_t block = 65536;
     std::function<void(std::uint64_t done)> progress;
+    CaptureOptions capture;            // a sigrok session's channel map
+    // The DUT's ABZ readout (docs/abz.md): decode the capture's a/b/z lines and score them as
+    // "dut" beside the estimator (report "dut").
+    std::optional<AbzConfig> abz;
 };
 
 // The report (schema "fringe.estimate", version 1). Throws ConfigError / CaptureError /

@@ -130,7 +130,7 @@ private:
 
 class ReplaySource final : public FrameSource {
 public:
-    ReplaySource(const Scenario& sc, dev::Device& d) : sc_(sc), dev_(d), total_(sc.samples()) {
+    ReplaySource(const Scenario& sc, dev::Device& d, bool dut) : sc_(sc), dev_(d), total_(sc.samples()), dut_(dut) {
         dev_.start(sc.sample_rate_hz);
         started_ = true;
     }
@@ -143,23 +143,25 @@ public:
     }
     SourceStatus next(std::size_t max, Frames& out) override {
         const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(max, total_ - k_));
-        out.resize(want, false);
+        out.resize(want, dut_);
         std::size_t got = 0;
         while (got < want) {
             const auto r = dev_.read(std::span(out.sin_v).subspan(got), std::span(out.cos_v).subspan(got), 1000);
             if (r.status != dev::StreamStatus::Ok || r.dropped) {
-                out.resize(got, false);
+                out.resize(got, dut_);
                 k_ += got;
                 return {false, false, std::string("input ") + dev::to_string(r.status) + " at input sample " + std::to_string(k_) + ": " + r.message};
             }
             if (r.frames == 0) {  // the capture's end
-                out.resize(got, false);
+                out.resize(got, dut_);
                 k_ += got;
                 return {true, true, ""};
             }
             th_.resize(r.frames);
             om_.resize(r.frames);
             const bool has = dev_.last_truth(th_, om_);
+            if (dut_ && !dev_.last_dut(std::span(out.dut_theta_rad).subspan(got, r.frames)))
+                std::fill_n(out.dut_theta_rad.begin() + static_cast<std::ptrdiff_t>(got), r.frames, kNaN);
             for (std::size_t i = 0; i < r.frames; ++i) {
                 out.t_s[got + i] = sc_.t0_s + static_cast<double>(k_ + got + i) / sc_.sample_rate_hz;
                 out.theta_true_rad[got + i] = has ? th_[i] : kNaN;
@@ -178,6 +180,7 @@ private:
     std::uint64_t total_, k_ = 0;
     std::vector<double> th_, om_;
     bool started_ = false;
+    bool dut_;
 };
 
 // Instrument mode: synthesise the whole run, play it from the generator's memory, record it
@@ -356,7 +359,7 @@ std::unique_ptr<FrameSource> make_frame_source(const Scenario& sc, dev::Device& 
                                                std::size_t block) {
     if (info.can_play && info.can_record) return std::make_unique<InstrumentSource>(sc, device, device, info);
     if (!info.streaming && info.step_mode) return std::make_unique<StepSource>(sc, device, info.dut_position);
-    if (!info.needs_output) return std::make_unique<ReplaySource>(sc, device);
+    if (!info.needs_output) return std::make_unique<ReplaySource>(sc, device, info.dut_position);
     return std::make_unique<StreamSource>(sc, device, info, block);
 }
 

@@ -41,6 +41,8 @@ const std::vector<MetricInfo>& metric_catalog() {
             {"valid_fraction", "", "valid share of the samples after the settle time (evidence)"},
             {"harmonic_power_fraction", "", "share of the error variance in the fitted harmonics"},
             {"broadband_rms_rad", "rad", "rms error left after the fitted harmonics"},
+            {"abz_illegal_transitions", "transitions", "DUT ABZ readout: A and B changed together (docs/abz.md)"},
+            {"abz_index_errors", "pulses", "DUT ABZ readout: index pulses where the count was off (docs/abz.md)"},
         };
         for (int k = 1; k <= 16; ++k)
             v.push_back({"harmonic_" + std::to_string(k) + "x_rad", "rad", std::to_string(k) + "x harmonic of the error (amplitude)"});
@@ -97,6 +99,11 @@ std::optional<double> metric_value(const std::string& name, const json& metrics,
         if (!bounds.is_object()) return none("no bound (nothing scored, or no signal model)");
         if (bounds.value("efficiency", json()).is_number()) return bounds["efficiency"].get<double>();
         return none("no efficiency: " + bounds.value("efficiency_against", std::string("no bound")));
+    }
+    if (name == "abz_illegal_transitions" || name == "abz_index_errors") {
+        const json abz = metrics.value("abz", json());
+        if (!abz.is_object()) return none("only a DUT read out by ABZ has it (estimator \"dut\" on a capture with a/b lines)");
+        return num(abz.value(name == "abz_illegal_transitions" ? "illegal_transitions" : "index_errors", json()), "not counted");
     }
     if (name == "scored_samples") return num(ev.value("scored_samples", json()), "not counted");
     if (name == "scored_cycles") return num(ev.value("scored_cycles", json()), "not counted");

@@ -221,7 +221,8 @@ private:
 
 // The scored lanes' report entries: metrics with their evidence, bounds from the signal as
 // delivered, and convention findings.
-json score_lanes(const Scenario& sc, const dev::DeviceInfo& dinfo, std::vector<std::unique_ptr<Lane>>& lanes, json& warnings) {
+json score_lanes(const Scenario& sc, const dev::DeviceInfo& dinfo, std::vector<std::unique_ptr<Lane>>& lanes, const json& dut_readout,
+                 json& warnings) {
     json basis;
     const EncoderProfile delivered = delivered_profile(sc.encoder, dinfo.converter, &basis);
     json out = json::array();
@@ -233,6 +234,22 @@ json score_lanes(const Scenario& sc, const dev::DeviceInfo& dinfo, std::vector<s
         ej["params"] = lane->spec->params;
         ej["state"] = lane->e ? lane->e->state() : json();
         ej["metrics"] = to_json(m, sc.encoder.lines_per_rev);
+        // The DUT's ABZ readout: what the decoder counted is part of its metrics (limits name
+        // abz_illegal_transitions, abz_index_errors), and an illegal transition is an error.
+        if (!lane->e && dut_readout.is_object()) {
+            ej["metrics"]["abz"] = dut_readout;
+            const auto illegal = dut_readout.value("illegal_transitions", std::uint64_t{0});
+            if (illegal > 0)
+                warnings.push_back({{"severity", "error"}, {"code", "dut_illegal_transitions"}, {"field", "estimators.dut"},
+                                    {"message", "dut: " + std::to_string(illegal) + " illegal A/B transitions (both lines changed between two samples); "
+                                                "the position was invalid from each until the next index (" +
+                                                std::to_string(dut_readout.value("invalid_samples", std::uint64_t{0})) + " samples without a position)"}});
+            const auto index_errors = dut_readout.value("index_errors", std::uint64_t{0});
+            if (index_errors > 0)
+                warnings.push_back({{"severity", "error"}, {"code", "dut_index_errors"}, {"field", "estimators.dut"},
+                                    {"message", "dut: the count was off at " + std::to_string(index_errors) + " index pulses (by up to " +
+                                                std::to_string(dut_readout.value("max_index_error_counts", 0LL)) + " counts) and was reset there"}});
+        }
         ej["spectrum"] = lane->spectrum->to_json(m.mean_abs_omega_true_rad_s / kTwoPi);
         if (m.scored > 0 && lane->e) {
             ej["bounds"] = bounds_json(delivered, *lane->e, sc.sample_rate_hz, m.scored, m.rms_rad);
@@ -294,6 +311,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
     const std::uint64_t total = sc.samples();
     std::uint64_t processed = 0;
     std::optional<TraceRecorder> traces;
+    json dut_readout;
     static const EstimatorSpec dut_spec{"dut", "dut", nlohmann::json::object(), std::nullopt};
     const std::size_t segment = ErrorSpectrum::choose_segment(
         sc.sample_rate_hz, planned_electrical_hz(sc), static_cast<std::uint64_t>(std::max(0.0, (sc.duration_s - sc.settle_s) * sc.sample_rate_hz)));
@@ -367,6 +385,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             if (st.end) break;
         }
         source->stop();
+        if (dinfo.dut_position) dut_readout = device->dut_readout();
         if (status == RunStatus::Done)
             for (auto& lane : lanes)
                 if (lane->e) lane->e->finish();
@@ -378,7 +397,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
 
     json estimators;
     try {
-        estimators = score_lanes(sc, dinfo, lanes, warnings);
+        estimators = score_lanes(sc, dinfo, lanes, dut_readout, warnings);
     } catch (const std::exception& e) {
         estimators = json::array();
         if (status == RunStatus::Done) status = RunStatus::Error;

@@ -35,7 +35,7 @@ std::string Service::new_upload_path() {
 }
 
 std::string Service::capture_path(const std::string& id) const {
-    for (const char* ext : {".fcap", ".csv"}) {
+    for (const char* ext : {".fcap", ".csv", ".sr"}) {
         const fs::path p = fs::path(cfg_.data_dir) / "captures" / (id + ext);
         if (fs::is_regular_file(p)) return fs::absolute(p).string();
     }
@@ -61,12 +61,13 @@ HttpResponse Service::upload_capture(const HttpRequest& req, const std::map<std:
     std::string format;
     if (auto it = query.find("format"); it != query.end()) {
         format = it->second;
-        if (format != "csv" && format != "fcap") throw ConfigError("format", "expected csv or fcap");
+        if (format != "csv" && format != "fcap" && format != "sr") throw ConfigError("format", "expected csv, fcap or sr");
     } else {
         std::ifstream f(src, std::ios::binary);
         char magic[8] = {};
         f.read(magic, 8);
-        format = std::string(magic, 8) == "FRNGCAP1" ? "fcap" : "csv";
+        // A ZIP's local file header: a sigrok session (.sr).
+        format = std::string(magic, 8) == "FRNGCAP1" ? "fcap" : std::string(magic, 4) == std::string("PK\x03\x04", 4) ? "sr" : "csv";
     }
     if (fs::file_size(src) == 0) throw ConfigError("body", "the upload is empty");
     const std::string id = new_run_id();

@@ -14,8 +14,11 @@ namespace {
 using nlohmann::json;
 
 struct EstimateOptions {
-    std::string capture, estimator, encoder, output, report;
+    std::string capture, estimator, encoder, output, report, channels;
     std::vector<std::string> params;
+    int dut_interpolation = 0;  // 0: no ABZ readout
+    long long dut_index_count = 0;
+    double dut_offset_rad = 0;
     double settle_s = 0.1;
     bool list = false, json_list = false, quiet = false;
 };
@@ -74,6 +77,8 @@ int run_estimate(const EstimateOptions& o) {
     if (!o.encoder.empty()) e.encoder = load_encoder(o.encoder);
     e.settle_s = o.settle_s;
     e.estimates_path = o.output;
+    if (!o.channels.empty()) e.capture.channels = parse_channel_map(o.channels);
+    if (o.dut_interpolation > 0) e.abz = AbzConfig{o.dut_interpolation, o.dut_index_count, o.dut_offset_rad};
     Progress progress("estimate", "samples", o.quiet);
     if (progress.active()) e.progress = [&](std::uint64_t done) { progress.update(done); };
     const json r = evaluate_capture(e);
@@ -116,6 +121,19 @@ int run_estimate(const EstimateOptions& o) {
             }
             for (const auto& d : r["diagnosis"]) std::printf("warning: %s\n", d["message"].get<std::string>().c_str());
         }
+        if (r.contains("dut")) {
+            const auto& ro = r["dut"]["readout"];
+            const auto& m = r["dut"]["metrics"];
+            std::printf("dut (ABZ, %d counts per cycle, reference %s): %llu edges, %llu illegal transitions, %llu index pulses (%llu off)",
+                        ro["counts_per_cycle"].get<int>(), ro["reference"].get<std::string>().c_str(),
+                        static_cast<unsigned long long>(ro["edges"].get<std::uint64_t>()),
+                        static_cast<unsigned long long>(ro["illegal_transitions"].get<std::uint64_t>()),
+                        static_cast<unsigned long long>(ro["index_pulses"].get<std::uint64_t>()),
+                        static_cast<unsigned long long>(ro["index_errors"].get<std::uint64_t>()));
+            if (m.is_object() && m["rms"].is_object())
+                std::printf(", error rms %.3e rad, max|e| %.3e rad", m["rms"]["rad"].get<double>(), m["max_abs"]["rad"].get<double>());
+            std::printf("\n");
+        }
     }
     return kExitOk;
 }
@@ -125,7 +143,13 @@ int run_estimate(const EstimateOptions& o) {
 Command add_estimate(CLI::App& app) {
     auto o = std::make_shared<EstimateOptions>();
     auto* es = app.add_subcommand("estimate", "Run an estimator on a capture; score it when the capture has theta_true");
-    es->add_option("capture", o->capture, "Capture file (.csv with sidecar, or .fcap)")->check(CLI::ExistingFile);
+    es->add_option("capture", o->capture, "Capture file (.csv with sidecar, .fcap, or a sigrok session .sr)")->check(CLI::ExistingFile);
+    es->add_option("--channels", o->channels, "sigrok session (.sr) channels to read as columns: sin=CH1,cos=CH2[,theta_true=..,a=..,b=..,z=..] "
+                                              "(default: channels named like the columns)");
+    es->add_option("--dut-interpolation", o->dut_interpolation, "Also score the DUT's ABZ lines (a, b, z columns) as \"dut\": its interpolation "
+                                                               "factor N (A/B periods per electrical cycle; docs/abz.md)")->check(CLI::Range(1, 1000000));
+    es->add_option("--dut-index-count", o->dut_index_count, "With --dut-interpolation: the DUT's count at its Z index, mod 4N");
+    es->add_option("--dut-offset-rad", o->dut_offset_rad, "With --dut-interpolation: electrical angle of count 0's lower edge");
     es->add_option("--estimator", o->estimator, "Estimator name (see --list)");
     es->add_option("--encoder", o->encoder, "Encoder profile JSON the estimator is told (default: the capture's metadata)")->check(CLI::ExistingFile);
     es->add_option("--param", o->params, "Estimator parameter key=value (repeatable)");

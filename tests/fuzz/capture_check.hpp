@@ -30,7 +30,7 @@ inline void check_capture(const std::string& path) {
         while (r.read(37, d)) {  // small odd blocks: every chunk boundary is exercised
             const std::size_t n = d.size();
             if (d.sin_v.size() != n || d.cos_v.size() != n) fail("sin/cos not one value per frame");
-            for (auto* v : {&d.theta_true_rad, &d.omega_true_rad_s, &d.index_v})
+            for (auto* v : {&d.theta_true_rad, &d.omega_true_rad_s, &d.index_v, &d.a, &d.b, &d.z})
                 if (!v->empty() && v->size() != n) fail("an optional column not one value per frame");
             if (r.columns().theta_true != !d.theta_true_rad.empty()) fail("columns().theta_true disagrees with the data");
         }
@@ -38,6 +38,7 @@ inline void check_capture(const std::string& path) {
         o.capture_path = path;
         o.estimator = "atan2";
         o.block = 53;
+        if (CaptureReader(path).columns().abz()) o.abz = AbzConfig{4, 0, 0.0};  // the DUT's ABZ readout too
         (void)evaluate_capture(o);
     } catch (const CaptureError& e) {
         check_message("CaptureError", e.what());
