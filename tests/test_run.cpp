@@ -328,7 +328,7 @@ TEST_CASE("run history: begin, finish, list, interrupted runs", "[store]") {
     const std::string dir = std::filesystem::temp_directory_path() / ("fringe-store-" + std::to_string(getpid()));
     std::filesystem::remove_all(dir);
     {
-        RunStore st(dir + "/runs.db");
+        SqliteStore st(dir + "/runs.db");
         Scenario sc = short_run(0.2);
         RunOptions o;
         o.run_id = "run-a";
@@ -338,7 +338,7 @@ TEST_CASE("run history: begin, finish, list, interrupted runs", "[store]") {
         // a run whose process died: pid that cannot exist
         st.begin("run-b", "2026-01-01T00:00:01Z", "dead", "");
     }
-    RunStore st(dir + "/runs.db");
+    SqliteStore st(dir + "/runs.db");
     auto rows = st.list();
     REQUIRE(rows.size() == 2);
     const auto a = st.report("run-a");
