@@ -34,12 +34,23 @@ struct Sim {
     std::normal_distribution<double> gauss{0.0, 1.0};
     std::unique_ptr<est::Estimator> dut;
     double analog_s = 0, analog_c = 0;  // the analog signals at the ADC input, V
+    bool adc_in_holding = false;        // sin_in/cos_in are holding registers
 
     explicit Sim(const BoardSimOptions& opt) : o(opt), board(load_board(opt.board)), rng(opt.seed) {
         int hold = 1, in = 1;
-        for (const auto& [role, r] : board.regs) (r.table == RegTable::Holding ? hold : in) = std::max(r.table == RegTable::Holding ? hold : in, r.address + r.words());
+        auto extent = [&](const RegisterDef& r) { (r.table == RegTable::Holding ? hold : in) = std::max(r.table == RegTable::Holding ? hold : in, r.address + r.words()); };
+        for (const auto& [role, r] : board.regs) extent(r);
+        for (const auto& c : board.checks) extent(c.reg);
+        for (const auto& w : board.init) extent(w.reg);
+        for (const char* role : {"sin_in", "cos_in"})
+            if (const auto* r = board.find(role)) adc_in_holding |= r->table == RegTable::Holding;
         map = modbus_mapping_new(0, 0, hold, in);
         if (!map) throw std::runtime_error(std::string("board-sim: ") + modbus_strerror(errno));
+        // The profile's identity checks read what it expects (a LabJack's TEST and PRODUCT_ID).
+        for (const auto& c : board.checks) {
+            const auto w = encode_register(c.reg, c.expect);
+            std::copy(w.begin(), w.end(), slot(c.reg));
+        }
         if (board.has_dut_position()) {
             est::EstimatorConfig cfg;
             cfg.sample_rate_hz = 1000.0;  // quasi-static: one conversion per step
@@ -107,7 +118,9 @@ bool serve_one(Sim& sim, modbus_t* ctx, const std::uint8_t* query, int len, long
     }
     const int hl = modbus_get_header_length(ctx);
     const int fc = query[hl];
-    if (fc == MODBUS_FC_READ_INPUT_REGISTERS) sim.on_read_inputs();
+    // A fresh conversion for every read of the table the ADC registers are in (input
+    // registers, or holding registers on boards with one address space, like a LabJack).
+    if (fc == MODBUS_FC_READ_INPUT_REGISTERS || (fc == MODBUS_FC_READ_HOLDING_REGISTERS && sim.adc_in_holding)) sim.on_read_inputs();
     modbus_reply(ctx, query, len, sim.map);
     if (fc == MODBUS_FC_WRITE_SINGLE_REGISTER || fc == MODBUS_FC_WRITE_MULTIPLE_REGISTERS || fc == MODBUS_FC_WRITE_AND_READ_REGISTERS) sim.on_write();
     return true;

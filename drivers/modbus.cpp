@@ -12,6 +12,7 @@
 #include <cerrno>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <thread>
 
 namespace fringe::dev {
@@ -19,6 +20,12 @@ namespace fringe::dev {
 namespace {
 
 constexpr double kTwoPi = 6.283185307179586476925286766559;
+
+std::string num(double v) {
+    char b[32];
+    std::snprintf(b, sizeof b, "%.9g", v);
+    return b;
+}
 
 bool connection_error(int e) {
     return e == ECONNRESET || e == EPIPE || e == EBADF || e == ECONNREFUSED || e == ENOTCONN || e == ECONNABORTED || e == EIO;
@@ -61,6 +68,14 @@ public:
         modbus_set_slave(ctx_, unit_);
         modbus_set_response_timeout(ctx_, static_cast<std::uint32_t>(timeout_ms_ / 1000), static_cast<std::uint32_t>((timeout_ms_ % 1000) * 1000));
         connect();
+        try {
+            open_board();
+        } catch (...) {
+            modbus_close(ctx_);
+            modbus_free(ctx_);  // the constructor throws: no destructor will
+            ctx_ = nullptr;
+            throw;
+        }
         std::vector<const RegisterDef*> readback;
         for (const char* role : {"sin_in", "cos_in", "position_count", "position_fraction", "position_rad", "status", "error_flags"})
             if (const auto* r = board_.find(role); r && r->readable) readback.push_back(r);
@@ -102,15 +117,24 @@ public:
         i.dut_position = board_.has_dut_position();
         i.settings = {{"board", board_.name}, {"unit", unit_}, {"timeout_ms", timeout_ms_}, {"retries", retries_},
                       {"settle_s", settle_s_}, {"average", average_}, {"board_profile", board_.path}};
-        // Integer registers quantise by their scale (V per count); floats do not.
-        auto step = [&](const char* role) {
-            const RegisterDef* r = board_.find(role);
-            return r && r->type != RegType::F32 ? std::fabs(r->scale) : 0.0;
-        };
+        // The profile's bits over range where given, else an integer register's scale (V per
+        // count); a float register with neither is taken as ideal.
+        const RegisterDef* dac = board_.find("sin_out");
+        const RegisterDef* adc = board_.find("sin_in");
         i.converter.known = true;
-        i.converter.dac_step_v = step("sin_out");
-        i.converter.adc_step_v = step("sin_in");
-        i.converter.note = "quantisation from the register scale; the board's analog noise is unknown";
+        i.converter.dac_step_v = dac ? dac->step() : 0.0;
+        i.converter.adc_step_v = adc ? adc->step() : 0.0;
+        i.converter.dac_bits = dac ? dac->bits : 0;
+        i.converter.adc_bits = adc ? adc->bits : 0;
+        i.converter.dac_range_v = dac ? dac->symmetric_range() : 0.0;
+        i.converter.adc_range_v = adc ? adc->symmetric_range() : 0.0;
+        std::string from;
+        for (const RegisterDef* r : {dac, adc})
+            if (r && r->bits > 0)
+                from += (from.empty() ? "" : ", ") + r->role + " " + std::to_string(r->bits) + " bits over " + num(r->range_lo) + ".." + num(r->range_hi) +
+                        (r->unit.empty() ? "" : " " + r->unit) + " at the register";
+        i.converter.note = (from.empty() ? "quantisation from the register scale" : "quantisation from the board profile (" + from + ")") +
+                           std::string("; the board's analog noise is unknown");
         i.converter.added_noise_v = i.converter.independent_noise_v();
         return i;
     }
@@ -135,8 +159,8 @@ public:
         bool dut_bad = false;
         for (int a = 0; a < average; ++a) {
             read_all();
-            if (sin_in_) ss += decode_register(*sin_in_, &regs_[key(*sin_in_)]);
-            if (cos_in_) cs += decode_register(*cos_in_, &regs_[key(*cos_in_)]);
+            if (sin_in_) ss += read_input(*sin_in_);
+            if (cos_in_) cs += read_input(*cos_in_);
         }
         out.sin_v = ss / average;
         out.cos_v = cs / average;
@@ -186,16 +210,83 @@ private:
         }
     }
 
+    // Identity and word-order checks, then the configuration writes (a board that is not
+    // what the profile says is not configured).
+    void open_board() {
+        for (const auto& c : board_.checks) {
+            std::uint16_t w[2] = {0, 0};
+            read_register(c.reg, w, "check " + c.reg.role + " @" + std::to_string(c.reg.address));
+            const double got = decode_register(c.reg, w);
+            if (std::fabs(got - c.expect) <= c.tolerance) continue;
+            std::string msg = "board " + board_.name + " at " + endpoint_ + ": check " + c.reg.role + " @" + std::to_string(c.reg.address) + " reads " +
+                              num(got) + ", expected " + num(c.expect) + (c.tolerance > 0 ? " +- " + num(c.tolerance) : "");
+            if (!c.hint.empty()) msg += " (" + c.hint + ")";
+            if (c.reg.words() == 2 && std::fabs(decode_swapped(c.reg, w) - c.expect) <= c.tolerance)
+                msg += "; with the words swapped it reads " + num(c.expect) + ": the profile's word_order '" + (c.reg.low_word_first ? "little" : "big") +
+                       "' is not the board's";
+            throw DeviceError(uri_, msg);
+        }
+        for (const auto& iw : board_.init)
+            write_register(iw.reg, encode_register(iw.reg, iw.value), "init " + iw.reg.role + "=" + num(iw.value) + " @" + std::to_string(iw.reg.address));
+    }
+
+    // One register's words with its write function: 16 in one request, 6 one request per word.
+    void write_register(const RegisterDef& r, const std::vector<std::uint16_t>& w, const std::string& what) {
+        if (r.write_function == 16) {
+            with_retries(what, [&] { return modbus_write_registers(ctx_, r.address, static_cast<int>(w.size()), w.data()); });
+            return;
+        }
+        for (std::size_t k = 0; k < w.size(); ++k)
+            with_retries(what + " (function 6, word " + std::to_string(k) + ")", [&] { return modbus_write_register(ctx_, r.address + static_cast<int>(k), w[k]); });
+    }
+
+    void read_register(const RegisterDef& r, std::uint16_t* dst, const std::string& what) {
+        with_retries(what, [&] {
+            const int n = r.table == RegTable::Input ? modbus_read_input_registers(ctx_, r.address, r.words(), dst) : modbus_read_registers(ctx_, r.address, r.words(), dst);
+            if (n != -1 && n != r.words()) {
+                errno = EMBBADDATA;
+                return -1;
+            }
+            return n;
+        });
+    }
+
+    // A drive value outside the register's range would clip in the converter: an error, not
+    // a silently distorted signal.
+    std::vector<std::uint16_t> encode_checked(const RegisterDef& r, double v) const {
+        const double raw = r.raw_of(v);
+        if (r.has_range && !(raw >= r.range_lo && raw <= r.range_hi))
+            throw DeviceError(uri_, "board " + board_.name + ": " + r.role + " = " + num(v) + " V needs " + num(raw) + " at register " + std::to_string(r.address) +
+                                        ", outside its range " + num(r.range_lo) + ".." + num(r.range_hi) +
+                                        " (the signal does not fit the converter: lower its amplitude or change the profile's offset)");
+        return encode_register(r, v);
+    }
+
+    // A reading that is not a number, or far outside what the converter can return, is a
+    // misread register (type, word order, address), not a measurement.
+    double read_input(const RegisterDef& r) const {
+        const std::uint16_t* w = &regs_[key(r)];
+        const double v = decode_register(r, w);
+        const double raw = r.raw_of(v);
+        const double margin = r.has_range ? 0.1 * (r.range_hi - r.range_lo) : 0.0;
+        if (!std::isfinite(v) || (r.has_range && (raw < r.range_lo - margin || raw > r.range_hi + margin)))
+            throw DeviceError(uri_, "board " + board_.name + " at " + endpoint_ + ": " + r.role + " @" + std::to_string(r.address) + " reads " + num(raw) +
+                                        (r.has_range ? ", far outside its range " + num(r.range_lo) + ".." + num(r.range_hi) : "") +
+                                        ": the register's type or word_order does not match the board (with the words swapped it reads " +
+                                        num(r.raw_of(decode_swapped(r, w))) + ")");
+        return v;
+    }
+
     void write_pair(double s, double c) {
         const auto& rs = *sin_out_;
         const auto& rc = *cos_out_;
-        auto ws = encode_register(rs, s), wc = encode_register(rc, c);
-        if (rc.address == rs.address + rs.words()) {  // adjacent: one request
+        auto ws = encode_checked(rs, s), wc = encode_checked(rc, c);
+        if (rc.address == rs.address + rs.words() && rs.write_function == 16 && rc.write_function == 16) {  // adjacent: one request
             ws.insert(ws.end(), wc.begin(), wc.end());
             with_retries(write_what_[0], [&] { return modbus_write_registers(ctx_, rs.address, static_cast<int>(ws.size()), ws.data()); });
         } else {
-            with_retries(write_what_[1], [&] { return modbus_write_registers(ctx_, rs.address, static_cast<int>(ws.size()), ws.data()); });
-            with_retries(write_what_[2], [&] { return modbus_write_registers(ctx_, rc.address, static_cast<int>(wc.size()), wc.data()); });
+            write_register(rs, ws, write_what_[1]);
+            write_register(rc, wc, write_what_[2]);
         }
     }
 

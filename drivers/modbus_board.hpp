@@ -8,6 +8,10 @@
 //   position_rad               DUT position in radians (alternative to count + fraction)
 //   status, error_flags        DUT status words (error_flags != 0 marks the reading invalid)
 // physical = raw * scale + offset; 32-bit types span two registers in word_order.
+// Optional per register: the converter's bits over its range (raw units, e.g. volts at the
+// pin), which gives fringe's bounds the quantisation step and makes a write outside the
+// range an error, and the write function (16, or 6 one word per request). Per board: init
+// writes at open (configuration registers) and checks read at open (identity, word order).
 #pragma once
 
 #include <nlohmann/json.hpp>
@@ -32,7 +36,29 @@ struct RegisterDef {
     double scale = 1.0, offset = 0.0;
     std::string unit;
     bool readable = true, writable = false;
+    int write_function = 16;  // 16: write multiple registers; 6: write single register, one request per word
+    int bits = 0;             // converter resolution over [range_lo, range_hi] (0: not given)
+    bool has_range = false;
+    double range_lo = 0, range_hi = 0;  // raw units (what the register holds, e.g. volts at the pin)
     int words() const { return type == RegType::U16 || type == RegType::S16 ? 1 : 2; }
+    double raw_of(double physical) const { return (physical - offset) / scale; }
+    // Quantisation step in physical units: range / 2^bits when both are given, else the scale
+    // of an integer register, else 0 (a float register with no stated resolution).
+    double step() const;
+    // The physical span around 0 that the range allows, symmetric (0: no range, or 0 outside it).
+    double symmetric_range() const;
+};
+
+// A register written once at open (configuration) or read once at open and compared
+// (identity, word order). Values are raw: no scale or offset.
+struct RegisterWrite {
+    RegisterDef reg;  // reg.role holds the entry's name
+    double value = 0;
+};
+struct RegisterCheck {
+    RegisterDef reg;
+    double expect = 0, tolerance = 0;
+    std::string hint;  // what a mismatch means, for the error
 };
 
 struct BoardProfile {
@@ -41,6 +67,8 @@ struct BoardProfile {
     std::map<std::string, RegisterDef> regs;
     double settle_s = 0.001;  // after a write, before reading back
     int average = 1;          // readings averaged per step
+    std::vector<RegisterCheck> checks;  // read at open, before the init writes
+    std::vector<RegisterWrite> init;    // written at open, in order
     const RegisterDef* find(const std::string& role) const {
         auto it = regs.find(role);
         return it == regs.end() ? nullptr : &it->second;
@@ -59,6 +87,8 @@ std::vector<std::string> board_names();
 std::vector<std::uint16_t> encode_register(const RegisterDef& r, double value);
 // Register words -> physical value.
 double decode_register(const RegisterDef& r, const std::uint16_t* words);
+// The same words decoded with the other word order (for "the words are swapped" errors).
+double decode_swapped(const RegisterDef& r, const std::uint16_t* words);
 
 // Contiguous read batches: registers of one table merged while the span stays <= max_regs
 // (Modbus allows at most 125 registers per read).

@@ -26,7 +26,7 @@ struct Flavor {
 std::vector<ParamInfo> ekf_params(const Flavor& f) {
     std::vector<ParamInfo> p;
     p.push_back({"natural_freq_hz", "Hz", ParamType::Number, 100.0, 1e-3, 1e7, {},
-                 "tracking natural frequency fn; sets q = wn^4*r*T (CV) or wn^6*r*T (CA), r the per-sample phase variance (MODEL.md 4.3)"});
+                 "tracking natural frequency fn; sets q = wn^4*r*T (CV) or wn^6*r*T (CA), r the per-sample phase variance (docs/model.md, Bounds)"});
     p.push_back({"kinematics", "", ParamType::Choice, "cv", -kInf, kInf, {"cv", "ca"},
                  "cv: [theta, omega], white acceleration; ca: [theta, omega, alpha], white jerk"});
     if (!f.model) p.push_back({"model", "", ParamType::Choice, "diffraction", -kInf, kInf, {"diffraction", "ideal"},

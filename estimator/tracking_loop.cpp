@@ -144,7 +144,7 @@ private:
 }  // namespace
 
 void register_tracking_loop(std::vector<EstimatorInfo>& r) {
-    r.push_back({"pll2", "Ratiometric type-II tracking loop (MODEL.md 4.2), natural frequency and damping as parameters",
+    r.push_back({"pll2", "Ratiometric type-II tracking loop (docs/model.md), natural frequency and damping as parameters",
                  Pll2::params(), [] { return std::make_unique<Pll2>(); }});
 }
 

@@ -142,6 +142,13 @@ std::vector<Finding> preflight_device(const Scenario& sc, const dev::DeviceInfo&
         if (peak >= c.adc_range_v)
             w.push_back({false, "clipping", "device", "the signal reaches " + fmt(peak) + " V but the device's ADC spans +-" + fmt(c.adc_range_v) + " V"});
     }
+    // A unipolar DAC (a LabJack's 0..5 V) with the signal at mid-scale has less room than its ADC.
+    if (c.known && c.dac_range_v > 0 && c.dac_range_v != c.adc_range_v) {
+        const double peak = peak_signal_v(sc.encoder);
+        if (peak >= c.dac_range_v)
+            w.push_back({false, "clipping", "device", "the signal reaches " + fmt(peak) + " V but the device's DAC spans +-" + fmt(c.dac_range_v) +
+                                                          " V around the signal's zero"});
+    }
     return w;
 }
 

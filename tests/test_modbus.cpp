@@ -4,14 +4,20 @@
 #include "drivers/board_sim.hpp"
 #include "drivers/device.hpp"
 #include "drivers/modbus_board.hpp"
+#include "server/preflight.hpp"
+#include "server/scenario.hpp"
 #include "signal_gen/config.hpp"
 
 #include <catch2/catch.hpp>
+
+#include <unistd.h>
 
 #include <atomic>
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
+#include <filesystem>
+#include <fstream>
 #include <mutex>
 #include <thread>
 
@@ -237,4 +243,135 @@ TEST_CASE("modbus: the driver against board-sim over TCP", "[modbus][socket]") {
         CHECK_THROWS_WITH(open("modbus+tcp://127.0.0.1:1?board=generic-aio&colour=red"), Catch::Contains("device.colour"));
         CHECK_THROWS_AS(open("modbus+tcp://127.0.0.1:1?board=generic-aio&timeout_ms=50&retries=0"), DeviceError);  // refused
     }
+}
+
+TEST_CASE("modbus: profile format extensions (checks, init, write function, bits over range)", "[modbus]") {
+    const json base = {{"name", "x"},
+                       {"registers",
+                        {{"sin_out", {{"address", 1000}, {"type", "f32"}, {"offset", -2.5}, {"bits", 12}, {"range", {0.0, 5.0}}}},
+                         {"cos_out", {{"address", 1002}, {"type", "f32"}, {"offset", -2.5}, {"bits", 12}, {"range", {0.0, 5.0}}}},
+                         {"sin_in", {{"address", 0}, {"type", "f32"}, {"offset", -2.5}, {"bits", 16}, {"range", {-10.0, 10.0}}}},
+                         {"cos_in", {{"address", 2}, {"type", "f32"}, {"offset", -2.5}}}}},
+                       {"checks", {{{"name", "TEST"}, {"address", 55100}, {"type", "u32"}, {"expect", 1122867}}}},
+                       {"init", {{{"name", "AIN0_RANGE"}, {"address", 40000}, {"type", "f32"}, {"value", 10.0}}}}};
+    const auto b = board_from_json(base, "");
+    const auto& so = *b.find("sin_out");
+    CHECK(so.write_function == 16);
+    CHECK(so.step() == Approx(5.0 / 4096));
+    CHECK(so.symmetric_range() == Approx(2.5));  // 0..5 V around a 2.5 V zero
+    CHECK(so.raw_of(0.5) == Approx(3.0));
+    CHECK(b.find("sin_in")->step() == Approx(20.0 / 65536));
+    CHECK(b.find("sin_in")->symmetric_range() == Approx(7.5));  // -12.5..7.5 V of signal
+    CHECK(b.find("cos_in")->step() == 0.0);                     // a float with no stated resolution
+    REQUIRE(b.checks.size() == 1);
+    CHECK(b.checks[0].expect == 1122867);
+    REQUIRE(b.init.size() == 1);
+    CHECK((b.init[0].reg.role == "AIN0_RANGE" && b.init[0].value == 10.0 && b.init[0].reg.type == RegType::F32));
+
+    auto bad = base;
+    bad["write_function"] = 5;
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("write_function") && Catch::Contains("16"));
+    bad = base;
+    bad["registers"]["sin_out"]["write_function"] = 6;
+    CHECK(board_from_json(bad, "").find("sin_out")->write_function == 6);
+    bad = base;
+    bad["registers"]["cos_in"]["bits"] = 16;  // bits with no range to divide
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("registers.cos_in.bits"));
+    bad = base;
+    bad["registers"]["sin_out"]["range"] = {5.0, 0.0};
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("registers.sin_out.range"));
+    bad = base;
+    bad["checks"][0]["tolerence"] = 1;  // a misspelt key, named with a suggestion
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("checks[0].tolerence") && Catch::Contains("did you mean 'tolerance'"));
+    bad = base;
+    bad["init"][0].erase("value");
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("init[0].value"));
+    bad = base;
+    bad["init"][0]["type"] = "u16";
+    bad["init"][0]["value"] = 70000;  // would clamp to 65535
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("init[0].value: must be an integer in 0..65535"));
+    bad["init"][0]["value"] = 8.5;
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("init[0].value"));
+    bad = base;
+    bad["init"][0]["table"] = "input";
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("init[0].table"));
+    bad = base;
+    bad["init"] = json::object();
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("init: expected an array"));
+    bad = base;
+    bad["wordorder"] = "big";
+    CHECK_THROWS_WITH(board_from_json(bad, ""), Catch::Contains("wordorder") && Catch::Contains("did you mean 'word_order'"));
+
+    // The shipped LabJack profiles: the same map, different converters.
+    const auto t7 = load_board("labjack-t7"), t4 = load_board("labjack-t4"), t8 = load_board("labjack-t8");
+    for (const auto* p : {&t7, &t4, &t8}) {
+        CHECK(p->find("sin_out")->address == 1000);
+        CHECK(p->find("cos_out")->address == 1002);
+        CHECK(p->find("sin_in")->address == 0);
+        CHECK(p->find("cos_in")->address == 2);
+        CHECK(p->find("sin_out")->type == RegType::F32);
+        CHECK_FALSE(p->find("sin_out")->low_word_first);
+        CHECK(p->checks.size() == 2);
+    }
+    CHECK(t7.find("sin_out")->step() == Approx(5.0 / 4096));
+    CHECK(t4.find("sin_out")->step() == Approx(5.0 / 1024));
+    CHECK(t8.find("sin_out")->step() == Approx(10.1 / 65536));
+    CHECK(t7.checks[1].expect == 7);
+    CHECK(t4.checks[1].expect == 4);
+    CHECK(t8.checks[1].expect == 8);
+}
+
+TEST_CASE("modbus: LabJack T7 profile against board-sim (checks, offset to mid-scale, range, word order)", "[modbus][socket]") {
+    BoardSimOptions o;
+    o.board = "labjack-t7";
+    o.adc_bits = 0;
+    SimThread sim(o);
+    REQUIRE(sim.where.rfind("tcp://", 0) == 0);
+    SECTION("steps read back through the offset registers; the converter comes from the profile") {
+        auto dev = open(sim.uri("board=labjack-t7&settle_s=0"));
+        const auto c = dev->info().converter;
+        CHECK(c.dac_q_v() == Approx(5.0 / 4096));
+        CHECK(c.adc_q_v() == Approx(20.0 / 65536));
+        CHECK(c.dac_bits == 12);
+        CHECK(c.adc_bits == 16);
+        CHECK(c.dac_range_v == Approx(2.5));
+        CHECK(c.note.find("sin_out 12 bits over 0..5 V") != std::string::npos);
+        for (double th = 0; th < 2 * kPi; th += 0.7) {
+            const auto r = dev->step(1.1 * std::sin(th), 1.1 * std::cos(th), 0.0, 1);
+            CHECK(r.sin_v == Approx(1.1 * std::sin(th)).margin(1e-6));  // f32 registers at 2.5 V +- 1.1 V
+            CHECK(r.cos_v == Approx(1.1 * std::cos(th)).margin(1e-6));
+        }
+        // 2.6 V of signal needs 5.1 V from a 0..5 V DAC: an error, not a clipped step.
+        CHECK_THROWS_WITH(dev->step(2.6, 0.0, 0.0, 1), Catch::Contains("sin_out = 2.6 V needs 5.1") && Catch::Contains("outside its range 0..5"));
+    }
+    SECTION("the wrong word order fails at open, naming the check and the swap") {
+        auto j = json::parse(std::ifstream(boards_dir() + "/labjack-t7.json"));
+        j["word_order"] = "little";
+        const auto path = std::filesystem::temp_directory_path() / ("fringe-lj-little-" + std::to_string(::getpid()) + ".json");
+        std::ofstream(path) << j.dump();
+        CHECK_THROWS_WITH(open(sim.uri("board=" + path.string() + "&settle_s=0")),
+                          Catch::Contains("check TEST @55100 reads 573767697, expected 1122867") &&
+                              Catch::Contains("with the words swapped it reads 1122867: the profile's word_order 'little' is not the board's"));
+        std::filesystem::remove(path);
+    }
+    SECTION("a T4 profile on this board names the product id it found") {
+        CHECK_THROWS_WITH(open(sim.uri("board=labjack-t4&settle_s=0")), Catch::Contains("check PRODUCT_ID @60000 reads 7, expected 4"));
+    }
+}
+
+TEST_CASE("modbus: the preflight warns when the signal does not fit a unipolar DAC around its zero", "[modbus][preflight]") {
+    const Scenario sc = load_scenario(std::string(FRINGE_SOURCE_DIR) + "/fixtures/scenarios/labjack-t7-step.json");
+    DeviceInfo d;
+    d.driver = "modbus";
+    d.converter.known = true;
+    d.converter.dac_range_v = 2.5;  // the T7 profile: 0..5 V around 2.5 V
+    d.converter.adc_range_v = 7.5;
+    auto dac_clip = [&] {
+        for (const auto& f : preflight_device(sc, d))
+            if (f.code == "clipping" && f.message.find("DAC spans") != std::string::npos) return true;
+        return false;
+    };
+    CHECK_FALSE(dac_clip());        // the paper encoder's ~1.1 V fits
+    d.converter.dac_range_v = 0.5;  // a DAC with +-0.5 V of room does not
+    CHECK(dac_clip());
 }

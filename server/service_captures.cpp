@@ -1,0 +1,148 @@
+// The service's capture store (service.hpp): uploads streamed to DATA/captures within a quota,
+// listed, and evaluated on the worker pool.
+#include "service_internal.hpp"
+
+#include "drivers/capture_file.hpp"
+#include "estimator/estimator.hpp"
+#include "evaluate.hpp"
+#include "report_formats.hpp"
+#include "run.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+
+namespace fringe {
+
+using namespace service_detail;
+
+std::uint64_t Service::upload_room() const {
+    std::uint64_t used = 0;
+    std::error_code ec;
+    for (const auto& e : fs::directory_iterator(fs::path(cfg_.data_dir) / "captures", ec)) {
+        std::error_code sec;
+        if (e.is_regular_file(sec)) used += e.file_size(sec);
+    }
+    return used >= cfg_.upload_quota_bytes ? 0 : cfg_.upload_quota_bytes - used;
+}
+
+std::string Service::new_upload_path() {
+    std::lock_guard<std::mutex> l(upload_mu_);
+    return (fs::path(cfg_.data_dir) / "captures" / (".upload-" + std::to_string(getpid()) + "-" + std::to_string(++upload_counter_))).string();
+}
+
+std::string Service::capture_path(const std::string& id) const {
+    for (const char* ext : {".fcap", ".csv"}) {
+        const fs::path p = fs::path(cfg_.data_dir) / "captures" / (id + ext);
+        if (fs::is_regular_file(p)) return fs::absolute(p).string();
+    }
+    return "";
+}
+
+HttpResponse Service::upload_capture(const HttpRequest& req, const std::map<std::string, std::string>& query) {
+    struct Cleanup {
+        std::string path;
+        ~Cleanup() {
+            std::error_code ec;
+            if (!path.empty()) fs::remove(path, ec);
+        }
+    } tmp;
+    std::string src = req.body_file;
+    if (src.empty()) {  // handle() called with the body in memory (tests): write it out
+        src = new_upload_path();
+        std::ofstream(src, std::ios::binary) << req.body;
+    }
+    tmp.path = src;
+    for (const auto& [k, v] : query)
+        if (k != "format") throw ConfigError(k, "unknown query parameter (known: format)");
+    std::string format;
+    if (auto it = query.find("format"); it != query.end()) {
+        format = it->second;
+        if (format != "csv" && format != "fcap") throw ConfigError("format", "expected csv or fcap");
+    } else {
+        std::ifstream f(src, std::ios::binary);
+        char magic[8] = {};
+        f.read(magic, 8);
+        format = std::string(magic, 8) == "FRNGCAP1" ? "fcap" : "csv";
+    }
+    if (fs::file_size(src) == 0) throw ConfigError("body", "the upload is empty");
+    const std::string id = new_run_id();
+    const fs::path dst = fs::path(cfg_.data_dir) / "captures" / (id + "." + format);
+    fs::rename(src, dst);
+    tmp.path = dst.string();
+    json meta;
+    double fs_hz = 0;
+    CaptureData d;
+    try {
+        d = read_capture(dst.string(), &meta, &fs_hz);
+    } catch (const CaptureError& e) {
+        // Name what the client sent, not our file name.
+        std::string msg = e.what();
+        if (auto pos = msg.find(dst.string()); pos != std::string::npos) msg.replace(pos, dst.string().size(), "upload");
+        return json_error(400, "bad_capture", msg);
+    }
+    const json info{{"id", id}, {"format", format}, {"samples", d.size()}, {"sample_rate_hz", fs_hz},
+                    {"has_truth", !d.theta_true_rad.empty()}, {"bytes", fs::file_size(dst)}, {"uploaded_at", iso_now()}};
+    write_file_atomic((fs::path(cfg_.data_dir) / "captures" / (id + ".upload.json")).string(), info.dump());
+    tmp.path.clear();  // keep it
+    auto r = json_ok(info, 201);
+    r.headers.emplace_back("Location", "/api/v1/captures/" + id);
+    return r;
+}
+
+json Service::captures() const {
+    json list = json::array();
+    const fs::path dir = fs::path(cfg_.data_dir) / "captures";
+    std::vector<fs::path> infos;
+    for (const auto& e : fs::directory_iterator(dir)) {
+        const auto name = e.path().filename().string();
+        if (name.size() > 12 && name.compare(name.size() - 12, 12, ".upload.json") == 0) infos.push_back(e.path());
+    }
+    std::sort(infos.rbegin(), infos.rend());
+    for (const auto& p : infos) {
+        const json j = json::parse(read_file(p), nullptr, false);
+        if (!j.is_discarded()) list.push_back(j);
+    }
+    return list;
+}
+
+HttpResponse Service::evaluate(const HttpRequest& req, const std::string& id) {
+    const std::string cap = capture_path(id);
+    if (cap.empty()) return json_error(404, "not_found", "no uploaded capture " + id, "id");
+    const json body = parse_body(req.body);
+    only_keys(body, {"estimator", "params", "encoder", "settle_s"}, "");
+    EvaluateOptions o;
+    o.capture_path = cap;
+    if (!body.contains("estimator") || !body["estimator"].is_string()) throw ConfigError("estimator", "expected an estimator name (GET /api/v1/estimators)");
+    o.estimator = body["estimator"].get<std::string>();
+    est::find(o.estimator);  // throws ConfigError naming the known ones
+    if (o.estimator == "external" && !cfg_.allow_external)
+        throw ConfigError("estimator", "the external estimator runs a command on this host; start the service with --allow-external");
+    if (body.contains("params")) {
+        if (!body["params"].is_object()) throw ConfigError("params", "expected an object");
+        o.params = body["params"];
+    }
+    if (body.contains("settle_s")) {
+        if (!body["settle_s"].is_number() || body["settle_s"].get<double>() < 0) throw ConfigError("settle_s", "expected a number >= 0");
+        o.settle_s = body["settle_s"].get<double>();
+    }
+    if (body.contains("encoder")) {
+        json enc = body["encoder"];
+        if (enc.is_string()) {
+            const std::string name = enc.get<std::string>();
+            const fs::path p = fs::path(cfg_.fixtures_dir) / "encoders" / (name + ".json");
+            if (!valid_id(name) || !fs::is_regular_file(p)) throw ConfigError("encoder", "no encoder fixture named '" + name + "'");
+            o.encoder = load_encoder(p.string());
+        } else {
+            o.encoder = encoder_from_json(enc, "encoder");
+        }
+    }
+    json rep = evaluate_capture(o);
+    rep["capture"] = id;
+    return json_ok(rep);
+}
+
+}  // namespace fringe
