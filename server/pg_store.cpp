@@ -2,7 +2,9 @@
 
 #include "provenance.hpp"
 
+#ifndef FRINGE_NO_POSTGRES
 #include <libpq-fe.h>
+#endif
 
 namespace fringe {
 
@@ -39,6 +41,7 @@ std::string redact_store_uri(const std::string& uri) {
     return s;
 }
 
+#ifndef FRINGE_NO_POSTGRES
 void PgConn::ResultDeleter::operator()(pg_result* r) const { PQclear(r); }
 
 PgConn::PgConn(const std::string& uri) : shown_(redact_store_uri(uri)) {
@@ -85,6 +88,19 @@ std::string PgConn::value(const Result& r, int row, int col) {
     return std::string(PQgetvalue(r.get(), row, col), static_cast<std::size_t>(PQgetlength(r.get(), row, col)));
 }
 bool PgConn::is_null(const Result& r, int row, int col) { return PQgetisnull(r.get(), row, col) != 0; }
+#else
+// Built with -DFRINGE_POSTGRES=OFF (no libpq): a PostgreSQL --store is refused with this message.
+void PgConn::ResultDeleter::operator()(pg_result*) const {}
+PgConn::PgConn(const std::string& uri) : shown_(redact_store_uri(uri)) {
+    throw StoreError("run store " + shown_ + ": this fringe was built without PostgreSQL (cmake -DFRINGE_POSTGRES=OFF); rebuild with libpq-dev installed");
+}
+PgConn::~PgConn() = default;
+bool PgConn::ok() const { return false; }
+PgConn::Result PgConn::exec(const std::string&, const std::vector<std::optional<std::string>>&) { throw StoreError("run store " + shown_ + ": no PostgreSQL in this build"); }
+int PgConn::rows(const Result&) { return 0; }
+std::string PgConn::value(const Result&, int, int) { return {}; }
+bool PgConn::is_null(const Result&, int, int) { return true; }
+#endif
 
 namespace {
 
