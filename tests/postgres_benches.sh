@@ -54,7 +54,9 @@ assert p["dut"] == {"serial": "SN-A1", "part": "P-100"}, p
 assert p["fringe_version"] == r["fringe_version"] and re.fullmatch("[0-9a-f]{64}", p["scenario_sha256"]), p
 PY
 [ "$(pg_sql "SELECT jsonb_typeof(report) FROM runs WHERE id = '$id'")" = object ] || fail "reports are jsonb"
-[ "$(pg_sql "SELECT COUNT(DISTINCT scenario_sha256) FROM runs")" = 1 ] || fail "one scenario, one checksum"
+# The scenario as run includes its "dut": one checksum per bench here.
+[ "$(pg_sql "SELECT string_agg(n::text, ',') FROM (SELECT COUNT(DISTINCT scenario_sha256) n FROM runs GROUP BY bench) x")" = "1,1" ] || fail "one scenario per bench, one checksum"
+[ "$(pg_sql "SELECT COUNT(DISTINCT scenario_sha256) FROM runs")" = 2 ] || fail "two scenarios (two DUTs), two checksums"
 
 # Outage: the run finishes, is kept locally, and forwarding is pending (exit code is the verdict's).
 pg_halt "$dir"

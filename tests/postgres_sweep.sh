@@ -30,7 +30,7 @@ sweep_runs() { pg_sql "SELECT COUNT(*) FROM runs WHERE id LIKE 'sweep-%'"; }
 "$FRINGE" sweep "$T" --csv "$dir/single.csv" --md "$dir/single.md" -q || fail "single-process sweep"
 
 # Shards 0 and 1 at once, as two hosts would run them.
-parallel --will-cite --halt now,fail=1 -j2 "$FRINGE" sweep "$T" --store "$PGURI" --data "$dir/host{}" --shard {}/3 --jobs 1 -q ::: 0 1 \
+parallel --will-cite -q --halt now,fail=1 -j2 "$FRINGE" sweep "$T" --store "$PGURI" --data "$dir/host{}" --shard {}/3 --jobs 1 -q ::: 0 1 \
   || fail "shards 0 and 1 under GNU parallel"
 n01=$(sweep_runs)
 expect=$(( (rows + 2) / 3 + (rows + 1) / 3 ))
