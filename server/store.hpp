@@ -47,9 +47,9 @@ struct RunFilter {
     std::string verdict;  // empty: any
     std::string scenario;
     std::string since;    // ISO time, inclusive
+    int limit = 100;
     std::string bench;    // provenance bench name
     std::string dut;      // DUT serial
-    int limit = 100;
 };
 
 // Not thread-safe: one user at a time (the service guards it with a mutex).
