@@ -46,6 +46,7 @@ grep -q "already stored, running 0" "$dir/again.txt" || fail "a retried shard ru
 for _ in $(seq 1200); do [ "$(sweep_runs)" -ge $((n01 + 2)) ] && break; sleep 0.05; done
 kill -9 $spid; wait $spid 2>/dev/null || true; spid=
 have=$(sweep_runs)
+echo "shard 2 killed with $have of $rows rows in the store"
 [ "$have" -ge $((n01 + 2)) ] && [ "$have" -lt "$rows" ] || fail "shard 2 should be killed halfway ($have of $rows rows stored)"
 
 set +e
