@@ -3,6 +3,11 @@
 //   -> analog noise -> anti-alias filter (1st or 2nd order Butterworth) -> ADC (bits, range,
 //   clipping) -> latency. Fault injection for tests: drop samples, stall, saturate.
 // Samples are processed when written, so read() only hands out what the chain produced.
+// own_clock=1 turns it into a generator and a digitizer on separate clocks (instrument mode,
+// issue 14): play() keeps the DAC codes, record() resamples them band-limited at the
+// digitizer's sample times as seen on the generator's clock, delayed, with gain, offset,
+// noise and the ADC (docs/alignment.md). Output and input are one instance: a run gives the
+// same URI as device.output and device.input (or the URI alone as device).
 #include "device.hpp"
 
 #include "signal_gen/config.hpp"
@@ -57,6 +62,15 @@ public:
         drop_count_ = s.at("drop_count").get<long long>();
         stall_after_ = s.at("stall_after").get<long long>();
         saturate_after_ = s.at("saturate_after").get<long long>();
+        own_clock_ = s.at("own_clock").get<int>() != 0;
+        delay_s_ = s.at("delay_s").get<double>();
+        clock_ppm_ = s.at("clock_ppm").get<double>();
+        gain_ = s.at("gain").get<double>();
+        offset_v_ = s.at("offset_v").get<double>();
+        cos_gain_ratio_ = s.at("cos_gain_ratio").get<double>();
+        cos_offset_v_ = s.at("cos_offset_v").get<double>();
+        swap_ = s.at("swap_channels").get<int>() != 0;
+        max_play_ = static_cast<std::size_t>(s.at("max_play_samples").get<long long>());
     }
     DeviceInfo info() const override {
         DeviceInfo i;
@@ -68,6 +82,13 @@ public:
         i.step_mode = true;
         i.latency_samples = latency_;
         i.settings = s_;
+        if (own_clock_) {
+            i.description = "simulated generator and digitizer on separate clocks: delay, clock offset, gain, offset, noise, DAC and ADC";
+            i.streaming = i.step_mode = false;
+            i.can_play = i.can_record = i.own_clock = true;
+            i.max_play_samples = max_play_;
+            i.latency_samples = 0;
+        }
         i.converter.known = true;
         i.converter.dac_bits = dac_.bits;
         i.converter.adc_bits = adc_.bits;
@@ -92,7 +113,10 @@ public:
         // Measured: 8-bit DAC and ADC, with or without a 40 kHz anti-alias filter, give the
         // 8-bit DAC's error alone to 10 digits (tests/test_evidence.cpp).
         const double qd = i.converter.dac_q_v(), qa = i.converter.adc_q_v(), n = i.converter.noise_at_adc_v;
-        if (dac_.bits > 0 && dac_.bits == adc_.bits && n < qa / 4) {
+        if (own_clock_) {  // resampled between the grids: the ADC quantises independently
+            i.converter.note = "own clock: DAC codes resampled band-limited at the digitizer's times; DAC and ADC quantise independently";
+            i.converter.added_noise_v = i.converter.independent_noise_v();
+        } else if (dac_.bits > 0 && dac_.bits == adc_.bits && n < qa / 4) {
             i.converter.added_noise_v = std::sqrt(qd * qd / 12 + n * n);
             i.converter.note += "; the ADC re-reads the DAC's grid (same bits and range, analog noise < q/4): one quantisation";
         } else {
@@ -101,6 +125,7 @@ public:
         return i;
     }
     void start(double fs) override {
+        if (own_clock_) throw DeviceError(uri_, "an own_clock loopback is a generator and a digitizer: it plays and records blocks, it does not stream");
         if (!(fs > 0)) throw DeviceError(uri_, "sample rate must be positive");
         fs_ = fs;
         for (int ch = 0; ch < 2; ++ch) {
@@ -181,6 +206,7 @@ public:
     void stop() override { running_ = false; }
     StepResult step(double s, double c, double settle_s, int average) override {
         // Static pair: the filters settle (run settle_s of samples), then average ADC reads.
+        if (own_clock_) throw DeviceError(uri_, "step mode is not simulated with own_clock=1");
         if (!running_) start(fs_ > 0 ? fs_ : 100e3);
         const auto settle = static_cast<std::size_t>(std::ceil(std::max(settle_s, 0.0) * fs_)) + static_cast<std::size_t>(latency_);
         const std::size_t n = settle + static_cast<std::size_t>(std::max(average, 1));
@@ -199,7 +225,76 @@ public:
         return out;
     }
 
+    void play(std::span<const double> s, std::span<const double> c, double fs, bool cyclic) override {
+        if (!own_clock_) Device::play(s, c, fs, cyclic);
+        if (s.size() != c.size() || s.empty()) throw DeviceError(uri_, "play: sin and cos must have the same, non-zero length");
+        if (!(fs > 0)) throw DeviceError(uri_, "play: sample rate must be positive");
+        if (max_play_ > 0 && s.size() > max_play_)
+            throw DeviceError(uri_, "play: " + std::to_string(s.size()) + " samples per channel exceed the generator memory (max_play_samples " +
+                                        std::to_string(max_play_) + ")");
+        played_[0].resize(s.size());
+        played_[1].resize(c.size());
+        for (std::size_t i = 0; i < s.size(); ++i) { played_[0][i] = dac_.apply(s[i]); played_[1][i] = dac_.apply(c[i]); }
+        play_fs_ = fs;
+        cyclic_ = cyclic;
+    }
+    StreamResult record(std::span<double> s, std::span<double> c, double fs, double) override {
+        if (!own_clock_) return Device::record(s, c, fs, 0);
+        if (played_[0].empty())
+            throw DeviceError(uri_, "record: nothing was played on this loopback (its output and input are one instance: "
+                                    "give the same URI as device.output and device.input)");
+        if (!(fs > 0)) throw DeviceError(uri_, "record: sample rate must be positive");
+        // Sample m is taken at digitizer time m/fs; it shows what the generator emitted delay_s
+        // earlier, on a generator clock running clock_ppm fast.
+        const double k = 1 + clock_ppm_ * 1e-6;
+        const double g[2] = {gain_, gain_ * cos_gain_ratio_}, o[2] = {offset_v_, offset_v_ + cos_offset_v_};
+        const std::size_t n = std::min(s.size(), c.size());
+        for (std::size_t m = 0; m < n; ++m) {
+            const double u = (static_cast<double>(m) / fs - delay_s_) * k * play_fs_;  // generator sample position
+            double v[2];
+            resample(u, v);
+            for (int ch = 0; ch < 2; ++ch) {
+                double a = g[ch] * v[ch] + o[ch];
+                if (noise_v_ > 0) a += noise_v_ * standard_normal(rng_);
+                if (adc_.clips(a)) ++clipped_;
+                v[ch] = adc_.apply(a);
+            }
+            s[m] = swap_ ? v[1] : v[0];
+            c[m] = swap_ ? v[0] : v[1];
+        }
+        return {StreamStatus::Ok, n, 0, 0, {}};
+    }
+    void stop_output() override {}
+
 private:
+    // Band-limited value of the played codes at generator sample position u (0 V before the
+    // output starts, and after it ends unless cyclic): Blackman-Harris-windowed sinc, 32 taps a
+    // side, computed directly. Deliberately not the aligner's interpolator (server/align.cpp
+    // uses a tabulated Kaiser-windowed sinc), so the tests do not grade it against itself.
+    void resample(double u, double* v) const {
+        constexpr int H = 32;
+        v[0] = v[1] = 0;
+        const auto n = static_cast<long long>(played_[0].size());
+        if (!(u > -H) || (!cyclic_ && u >= static_cast<double>(n) - 1 + H)) return;
+        const double fl = std::floor(u), f = u - fl;
+        const auto n0 = static_cast<long long>(fl);
+        const double sf = std::sin(kPi * f);
+        for (int k = -H + 1; k <= H; ++k) {
+            long long idx = n0 + k;
+            if (idx < 0) continue;
+            if (idx >= n) {
+                if (!cyclic_) break;
+                idx %= n;
+            }
+            const double x = f - k;
+            const double sinc = std::fabs(x) < 1e-12 ? 1.0 : ((k & 1) ? -sf : sf) / (kPi * x);
+            const double y = kTwoPi * (x + H) / (2.0 * H);  // window argument over [-H, H]
+            const double w = 0.35875 - 0.48829 * std::cos(y) + 0.14128 * std::cos(2 * y) - 0.01168 * std::cos(3 * y);
+            v[0] += played_[0][static_cast<std::size_t>(idx)] * sinc * w;
+            v[1] += played_[1][static_cast<std::size_t>(idx)] * sinc * w;
+        }
+    }
+
     std::string uri_;
     nlohmann::json s_;
     Quantizer dac_, adc_;
@@ -213,6 +308,11 @@ private:
     bool running_ = false;
     double dac_rate_hz_ = 0, held_[2] = {0, 0};
     std::int64_t last_update_ = -1;
+    // own_clock (instrument mode)
+    bool own_clock_ = false, swap_ = false, cyclic_ = false;
+    double delay_s_ = 0, clock_ppm_ = 0, gain_ = 1, offset_v_ = 0, cos_gain_ratio_ = 1, cos_offset_v_ = 0, play_fs_ = 0;
+    std::size_t max_play_ = 0;
+    std::vector<double> played_[2];
 };
 
 }  // namespace
@@ -236,9 +336,30 @@ void register_loopback(std::vector<DriverInfo>& r) {
         {"drop_count", "samples", ParamType::Integer, 0, 0, 9e15, {}, "fault: how many"},
         {"stall_after", "samples", ParamType::Integer, -1, -1, 9e15, {}, "fault: no input after this many samples (-1: never)"},
         {"saturate_after", "samples", ParamType::Integer, -1, -1, 9e15, {}, "fault: drive the ADC into its rail from this index (-1: never)"},
+        {"own_clock", "", ParamType::Integer, 0, 0, 1, {}, "1: a generator and a digitizer on separate clocks (plays and records blocks; the run aligns truth, docs/alignment.md)"},
+        {"delay_s", "s", ParamType::Number, 0.0, -1.0, 10.0, {}, "own_clock: delay from the generator to the digitizer (negative: the record starts after the output)"},
+        {"clock_ppm", "ppm", ParamType::Number, 0.0, -10000.0, 10000.0, {}, "own_clock: the generator's clock runs this much fast relative to the digitizer's"},
+        {"gain", "", ParamType::Number, 1.0, -100.0, 100.0, {}, "own_clock: link gain, both channels"},
+        {"offset_v", "V", ParamType::Number, 0.0, -100.0, 100.0, {}, "own_clock: link offset, both channels"},
+        {"cos_gain_ratio", "", ParamType::Number, 1.0, -100.0, 100.0, {}, "own_clock: the cos channel's gain relative to gain (negative: inverted)"},
+        {"cos_offset_v", "V", ParamType::Number, 0.0, -100.0, 100.0, {}, "own_clock: added to the cos channel's offset"},
+        {"swap_channels", "", ParamType::Integer, 0, 0, 1, {}, "own_clock fault: the digitizer's inputs are swapped (sin records cos)"},
+        {"max_play_samples", "samples", ParamType::Integer, 0, 0, 9e15, {}, "own_clock: generator memory per channel (0: unlimited)"},
     };
     d.open = [](const std::string& uri, const std::string& path, const nlohmann::json& s) -> std::unique_ptr<Device> {
         if (!path.empty()) throw ConfigError("device", "loopback takes no path (got '" + path + "'); use loopback:?key=value");
+        // Each mode refuses the other's settings rather than ignoring them.
+        const bool own = s.at("own_clock").get<int>() != 0;
+        static const std::vector<std::pair<std::string, double>> streaming_only = {
+            {"dac_rate_hz", 0}, {"recon_cutoff_hz", 0}, {"aa_cutoff_hz", 0}, {"latency_samples", 0},
+            {"drop_after", -1}, {"drop_count", 0}, {"stall_after", -1}, {"saturate_after", -1}};
+        static const std::vector<std::pair<std::string, double>> own_only = {
+            {"delay_s", 0}, {"clock_ppm", 0}, {"gain", 1}, {"offset_v", 0}, {"cos_gain_ratio", 1}, {"cos_offset_v", 0},
+            {"swap_channels", 0}, {"max_play_samples", 0}};
+        for (const auto& [key, def] : own ? streaming_only : own_only)
+            if (s.at(key).get<double>() != def)
+                throw ConfigError("device." + key, own ? key + " is not simulated with own_clock=1 (the generator/digitizer pair models delay, clock offset, gain, offset, noise and converters)"
+                                                       : key + " needs own_clock=1 (a generator and a digitizer on separate clocks)");
         return std::make_unique<Loopback>(uri, s);
     };
     r.push_back(std::move(d));

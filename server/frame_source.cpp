@@ -1,10 +1,16 @@
 #include "frame_source.hpp"
 
+#include "align.hpp"
+#include "signal_gen/config.hpp"
+#include "signal_gen/fastmath.hpp"
 #include "signal_gen/generator.hpp"
 
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <deque>
 #include <limits>
+#include <optional>
 
 namespace fringe {
 
@@ -174,6 +180,170 @@ private:
     bool started_ = false;
 };
 
+// Instrument mode: synthesise the whole run, play it from the generator's memory, record it
+// on the digitizer's clock, align (delay, clock ratio, gain, offset) and deliver the record's
+// frames from the output's first sample on, each with the truth at the generator time it shows.
+class InstrumentSource final : public FrameSource {
+public:
+    InstrumentSource(const Scenario& sc, dev::Device& out, dev::Device& in, const dev::DeviceInfo& oi)
+        : sc_(sc), out_(out), in_(in), max_play_(oi.max_play_samples) {}
+    ~InstrumentSource() override { stop(); }
+    void stop() override {
+        if (playing_) {
+            playing_ = false;
+            out_.stop_output();
+        }
+    }
+    nlohmann::json alignment() const override { return info_; }
+    SourceStatus next(std::size_t max, Frames& out) override {
+        if (!prepared_) {
+            prepared_ = true;
+            const SourceStatus st = prepare();
+            if (!st.ok) return st;
+        }
+        const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(max, frames_ - k_));
+        out.resize(n, false);
+        if (n == 0) return {true, true, ""};
+        tb_.resize(n, false);
+        truth_->generate(m0_ + k_, tb_);
+        for (std::size_t i = 0; i < n; ++i) {
+            const std::size_t m = static_cast<std::size_t>(m0_ + k_) + i;
+            out.sin_v[i] = rs_[m];
+            out.cos_v[i] = rc_[m];
+            out.t_s[i] = tb_.t_s[i];
+            out.theta_true_rad[i] = tb_.theta_rad[i];
+            out.omega_true_rad_s[i] = tb_.omega_rad_s[i];
+            // After a single playback's last sample the output is idle: no truth there.
+            out.truth_known[i] = tb_.t_s[i] - sc_.t0_s <= t_end_s_;
+        }
+        k_ += n;
+        return {};
+    }
+
+private:
+    static std::string fmt(double v) {
+        char b[32];
+        std::snprintf(b, sizeof b, "%.6g", v);
+        return b;
+    }
+    SourceStatus fail(const std::string& why) { return {false, false, why}; }
+
+    SourceStatus prepare() {
+        const std::uint64_t N = sc_.samples();
+        const double fs = sc_.sample_rate_hz;
+        constexpr std::uint64_t kMaxSamples = 1ull << 25;  // played and recorded pairs are held in memory
+        if (N > kMaxSamples)
+            return fail("instrument mode holds the whole run in memory: " + std::to_string(N) + " samples exceed " + std::to_string(kMaxSamples) +
+                        " (shorten duration_s or lower sample_rate_hz)");
+        // What the generator plays: the whole run once, or (constant speed) a whole number of
+        // periods repeated when the run does not fit its memory.
+        // A single playback runs from kLead samples before the run's first sample to a tail after
+        // its last, so the scored frames never see the output's start or end (where a
+        // band-limited output rings); the tail also covers a generator clock up to 1000 ppm fast.
+        constexpr std::uint64_t kLead = 64;
+        const std::uint64_t tail = 64 + N / 1000;
+        bool cyclic = false;
+        double play_fs = fs;
+        std::uint64_t L = kLead + N + tail, periods = 0;
+        if (max_play_ > 0 && L > max_play_) {
+            const auto& m = sc_.motion;
+            const std::string limit = "the run needs " + std::to_string(L) + " samples per channel (" + std::to_string(N) + " and " +
+                                      std::to_string(kLead + tail) + " around them) but the generator holds " +
+                                      std::to_string(max_play_) + " (max_play_samples)";
+            if (m.kind != MotionKind::Constant || m.velocity_rad_s == 0)
+                return fail(limit + ": only a constant-speed motion can play as a repeated block; shorten duration_s or lower sample_rate_hz");
+            if (sc_.encoder.noise.drift_amplitude != 0)
+                return fail(limit + ": the encoder's gain drift (noise.drift_amplitude) does not repeat, so the run cannot play as a repeated block");
+            // The block repeats seamlessly when it holds whole electrical cycles, or whole
+            // revolutions when the encoder has per-revolution effects (eccentricity, gap).
+            const bool per_rev = sc_.encoder.geometry_varies();
+            const double f_hz = std::fabs(m.velocity_rad_s) / kTwoPi * (per_rev ? 1.0 : static_cast<double>(sc_.encoder.lines_per_rev));
+            periods = static_cast<std::uint64_t>(std::floor(static_cast<double>(max_play_) * f_hz / fs));
+            if (periods < 1)
+                return fail(limit + ": one " + std::string(per_rev ? "revolution" : "electrical cycle") + " (" + fmt(fs / f_hz) +
+                            " samples) does not fit; shorten duration_s or lower sample_rate_hz");
+            L = static_cast<std::uint64_t>(std::floor(static_cast<double>(periods) * fs / f_hz));
+            play_fs = static_cast<double>(L) * f_hz / static_cast<double>(periods);  // exactly `periods` periods in L samples
+            cyclic = true;
+        }
+        {
+            Generator g(sc_.encoder, sc_.motion, play_fs, sc_.seed, sc_.t0_s - static_cast<double>(kLead) / play_fs);
+            Block b;
+            ps_.resize(L);
+            pc_.resize(L);
+            for (std::uint64_t k = 0; k < L; k += 65536) {
+                const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(65536, L - k));
+                b.resize(n, sc_.encoder.index.enabled);
+                g.generate(k, b);
+                std::copy(b.sin_v.begin(), b.sin_v.end(), ps_.begin() + static_cast<std::ptrdiff_t>(k));
+                std::copy(b.cos_v.begin(), b.cos_v.end(), pc_.begin() + static_cast<std::ptrdiff_t>(k));
+            }
+        }
+        // The record runs on past the run by a margin for the delay (the output starts after the record).
+        const std::uint64_t pad = std::max<std::uint64_t>(4096, N / 20);
+        const std::uint64_t M = N + pad;
+        info_ = {{"playback", {{"mode", cyclic ? "cyclic" : "once"}, {"samples", L}, {"lead_samples", kLead}, {"rate_hz", play_fs}, {"record_samples", M}, {"record_rate_hz", fs}}}};
+        if (cyclic) info_["playback"]["periods"] = periods;
+        out_.play(ps_, pc_, play_fs, cyclic);
+        playing_ = true;
+        rs_.resize(M);
+        rc_.resize(M);
+        const dev::StreamResult r = in_.record(rs_, rc_, fs, static_cast<double>(M) / fs * 1.5 + 10.0);
+        stop();
+        if (r.status != dev::StreamStatus::Ok || r.dropped)
+            return fail(std::string("record ") + dev::to_string(r.status) + ": " + r.message);
+        if (r.frames < M) return fail("record returned " + std::to_string(r.frames) + " of " + std::to_string(M) + " samples");
+
+        AlignInput ai;
+        ai.played_sin_v = ps_;
+        ai.played_cos_v = pc_;
+        ai.play_rate_hz = play_fs;
+        ai.cyclic = cyclic;
+        ai.recorded_sin_v = rs_;
+        ai.recorded_cos_v = rc_;
+        ai.record_rate_hz = fs;
+        const AlignResult a = align(ai);
+        nlohmann::json aj = a;
+        aj["playback"] = info_["playback"];
+        info_ = aj;
+        if (!a.ok) return fail("alignment not confident: " + a.error);
+
+        // Frames from the first record sample at or after the run's first sample (generator time
+        // kLead / play_fs: played sample n is at t0 + (n - kLead) / play_fs).
+        const double kappa = a.clock_offset_ppm * 1e-6;
+        const double lead_s = static_cast<double>(kLead) / play_fs;
+        const double first = std::ceil((lead_s - a.tau0_s) * fs / (1 + kappa) - 1e-9);
+        m0_ = static_cast<std::uint64_t>(std::max(0.0, first));
+        if (m0_ + N > M)
+            return fail("the output appeared " + fmt(a.delay_s) + " s after the record started: the record (" + std::to_string(M) +
+                        " samples) ends before the run's " + std::to_string(N) + " samples that follow");
+        frames_ = N;
+        t_end_s_ = cyclic ? std::numeric_limits<double>::infinity() : static_cast<double>(L - 1 - kLead) / play_fs;
+        info_["first_frame"] = m0_;
+        // Truth at the record's sample times on the generator's clock: a generator whose sample m
+        // lies at t0 + tau(m). Noise does not touch the truth: left out for speed.
+        EncoderProfile enc = sc_.encoder;
+        enc.noise.sigma_add_v = enc.noise.sigma_gain = enc.noise.drift_amplitude = 0;
+        truth_.emplace(enc, sc_.motion, fs / (1 + kappa), sc_.seed, sc_.t0_s + a.tau0_s - lead_s);
+        // Played and recorded samples before the first frame are no longer needed; the rest stays.
+        std::vector<double>().swap(ps_);
+        std::vector<double>().swap(pc_);
+        return {};
+    }
+
+    const Scenario& sc_;
+    dev::Device& out_;
+    dev::Device& in_;
+    std::size_t max_play_;
+    bool prepared_ = false, playing_ = false;
+    std::vector<double> ps_, pc_, rs_, rc_;
+    std::uint64_t m0_ = 0, frames_ = 0, k_ = 0;
+    double t_end_s_ = 0;
+    std::optional<Generator> truth_;
+    Block tb_;
+    nlohmann::json info_;
+};
+
 }  // namespace
 
 void Frames::resize(std::size_t n, bool dut) {
@@ -184,9 +354,19 @@ void Frames::resize(std::size_t n, bool dut) {
 
 std::unique_ptr<FrameSource> make_frame_source(const Scenario& sc, dev::Device& device, const dev::DeviceInfo& info,
                                                std::size_t block) {
+    if (info.can_play && info.can_record) return std::make_unique<InstrumentSource>(sc, device, device, info);
     if (!info.streaming && info.step_mode) return std::make_unique<StepSource>(sc, device, info.dut_position);
     if (!info.needs_output) return std::make_unique<ReplaySource>(sc, device);
     return std::make_unique<StreamSource>(sc, device, info, block);
+}
+
+}  // namespace fringe
+
+namespace fringe {
+
+std::unique_ptr<FrameSource> make_instrument_source(const Scenario& sc, dev::Device& output, dev::Device& input,
+                                                    const dev::DeviceInfo& output_info) {
+    return std::make_unique<InstrumentSource>(sc, output, input, output_info);
 }
 
 }  // namespace fringe

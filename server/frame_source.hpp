@@ -6,7 +6,8 @@
 //   StreamSource  output and input streams (loopback, USB): write ahead, read, align truth
 //                 for the device's declared latency
 //   ReplaySource  input-only (capture replay): frames and truth from the file
-// New kinds (separate generator and digitizer on different clocks) are new sources.
+//   InstrumentSource  a generator plays the whole signal from memory, a digitizer on its own
+//                 clock records it; truth is aligned from the signals (server/align.*)
 #pragma once
 
 #include "drivers/device.hpp"
@@ -41,9 +42,14 @@ public:
     // path come back as a status; configuration faults throw.
     virtual SourceStatus next(std::size_t max, Frames& out) = 0;
     virtual void stop() {}
+    // The truth alignment (report "alignment"; docs/alignment.md), null for sources without one.
+    virtual nlohmann::json alignment() const { return nullptr; }
 };
 
 std::unique_ptr<FrameSource> make_frame_source(const Scenario& sc, dev::Device& device, const dev::DeviceInfo& info,
                                                std::size_t block);
+// A generator (output, can_play) and a digitizer (input, can_record); they may be one device.
+std::unique_ptr<FrameSource> make_instrument_source(const Scenario& sc, dev::Device& output, dev::Device& input,
+                                                    const dev::DeviceInfo& output_info);
 
 }  // namespace fringe

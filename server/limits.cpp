@@ -44,6 +44,11 @@ const std::vector<MetricInfo>& metric_catalog() {
         };
         for (int k = 1; k <= 16; ++k)
             v.push_back({"harmonic_" + std::to_string(k) + "x_rad", "rad", std::to_string(k) + "x harmonic of the error (amplitude)"});
+        // The run's truth alignment (output and input instruments on their own clocks).
+        v.push_back({"alignment_delay_s", "s", "delay from the record's start to the output's first sample (alignment)", true});
+        v.push_back({"clock_offset_ppm", "ppm", "generator clock relative to the digitizer's (alignment)", true});
+        v.push_back({"alignment_residual", "", "alignment fit residual rms / recorded signal rms", true});
+        v.push_back({"alignment_residual_rms_v", "V", "alignment fit residual rms", true});
         return v;
     }();
     return m;
@@ -108,14 +113,31 @@ std::optional<double> metric_value(const std::string& name, const json& metrics,
     return none("unknown metric");
 }
 
-json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus status, Verdict& verdict) {
+std::optional<double> run_metric_value(const std::string& name, const json& a, std::string* why) {
+    auto none = [&](const std::string& w) -> std::optional<double> {
+        if (why) *why = w;
+        return std::nullopt;
+    };
+    if (!a.is_object())
+        return none("the run has no alignment (only runs whose device plays and records on its own clock are aligned: docs/alignment.md)");
+    if (!a.value("ok", false)) return none("the alignment failed: " + (a.value("error", json()).is_string() ? a["error"].get<std::string>() : std::string("not run")));
+    const char* key = name == "alignment_delay_s" ? "delay_s" : name == "clock_offset_ppm" ? "clock_offset_ppm"
+                    : name == "alignment_residual" ? "residual_relative" : name == "alignment_residual_rms_v" ? "residual_rms_v" : nullptr;
+    if (!key) return none("unknown metric");
+    const json& v = a.value(key, json());
+    if (!v.is_number()) return none("not measured");
+    return v.get<double>();
+}
+
+json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus status, Verdict& verdict, const json& alignment) {
     json out = json::array();
     verdict = Verdict::Pass;
     auto measure = [&](const std::string& label, const std::string& metric, std::optional<double> max, std::optional<double> min,
                        double marginal, bool implicit, const json& ej) {
         const auto mi = find_metric(metric);
         std::string why;
-        const auto v = metric_value(metric, ej.value("metrics", json()), ej.value("bounds", json()), &why);
+        const auto v = mi && mi->run_level ? run_metric_value(metric, alignment, &why)
+                                           : metric_value(metric, ej.value("metrics", json()), ej.value("bounds", json()), &why);
         json mj{{"estimator", label}, {"metric", metric}, {"unit", mi ? mi->unit : ""}, {"value", v ? json(*v) : json()}};
         if (implicit) mj["implicit"] = true;
         json lim = json::object();
@@ -142,12 +164,17 @@ json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus statu
         if (r.min_scored_cycles > 0) measure(label, "scored_cycles", std::nullopt, r.min_scored_cycles, 0.0, true, ej);
         measure(label, "valid_fraction", std::nullopt, r.min_valid_fraction, 0.0, true, ej);
     }
-    for (const auto& l : sc.limits)
+    for (const auto& l : sc.limits) {
+        if (const auto mi = find_metric(l.metric); mi && mi->run_level) {  // once for the run
+            measure("run", l.metric, l.max, l.min, l.marginal_fraction, false, json::object());
+            continue;
+        }
         for (const auto& ej : estimators) {
             const std::string label = ej.value("label", "");
             if (l.estimator != "*" && l.estimator != label) continue;
             measure(label, l.metric, l.max, l.min, l.marginal_fraction, false, ej);
         }
+    }
     if (status == RunStatus::Error) verdict = Verdict::Error;
     if (status == RunStatus::Aborted || status == RunStatus::Interrupted) verdict = Verdict::Aborted;
     return out;

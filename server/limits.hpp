@@ -16,6 +16,7 @@ namespace fringe {
 
 struct MetricInfo {
     std::string name, unit, description;
+    bool run_level = false;  // a measurement of the run (alignment), not of an estimator
 };
 // The fixed metrics, then harmonic_1x_rad .. harmonic_16x_rad (any order up to 64 is accepted).
 const std::vector<MetricInfo>& metric_catalog();
@@ -28,6 +29,11 @@ std::optional<double> metric_value(const std::string& name, const nlohmann::json
 // The measurements of a finished run (report "measurements") from its "estimators" array.
 // status: the run's; measurements of a run that did not complete are ERROR. verdict receives
 // the worst outcome (PASS when there is none).
-nlohmann::json evaluate_limits(const Scenario& sc, const nlohmann::json& estimators, RunStatus status, Verdict& verdict);
+// alignment: the report's "alignment" (null without one); run-level metrics read it, measured
+// once with estimator "run".
+nlohmann::json evaluate_limits(const Scenario& sc, const nlohmann::json& estimators, RunStatus status, Verdict& verdict,
+                               const nlohmann::json& alignment = nullptr);
+// A run-level metric's value from the report's "alignment" (nullopt and why when not measured).
+std::optional<double> run_metric_value(const std::string& name, const nlohmann::json& alignment, std::string* why = nullptr);
 
 }  // namespace fringe

@@ -104,7 +104,7 @@ std::vector<Finding> preflight(const Scenario& sc) {
     }
     // The device's converter, as far as the URI says (loopback).
     try {
-        const auto parts = dev::check_uri(sc.device);
+        const auto parts = dev::check_uri(sc.instruments ? sc.instruments->input : sc.device);
         if (parts.scheme == "loopback") {
             const int adc_bits = parts.settings.value("adc_bits", 16);
             const double range_v = parts.settings.value("range_v", 1.25);

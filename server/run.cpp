@@ -85,7 +85,10 @@ std::vector<Finding> validate_run(const Scenario& sc) {
             for (const auto& m : metric_catalog()) known += (known.empty() ? "" : ", ") + m.name;
             throw ConfigError(path + ".metric", "unknown metric '" + l.metric + "' (known: " + known + ", and harmonic_Nx_rad up to 64x)");
         }
-        if (l.estimator != "*") {
+        if (find_metric(l.metric)->run_level) {
+            if (l.estimator != "*" && l.estimator != "run")
+                throw ConfigError(path + ".estimator", "'" + l.metric + "' is measured once for the run (alignment): leave estimator out or give \"run\"");
+        } else if (l.estimator != "*") {
             bool found = false;
             for (const auto& e : sc.estimators) found |= e.label == l.estimator;
             found |= l.estimator == "dut";  // a DUT board's own position (step mode)
@@ -101,18 +104,34 @@ std::vector<Finding> validate_run(const Scenario& sc) {
             }
         }
     }
-    // The device URI's form and settings (the device itself is opened when the run starts).
-    const auto uri = dev::check_uri(sc.device);
-    if (uri.scheme == "loopback" && !uri.path.empty())
-        throw ConfigError("device", "loopback takes no path (got '" + uri.path + "'); use loopback:?key=value");
+    // The device URIs' form and settings (the devices themselves are opened when the run starts).
+    check_device_uris(sc);
     return preflight(sc);
+}
+
+void check_device_uris(const Scenario& sc) {
+    for (const auto& [field, uri] : sc.device_uris()) {
+        dev::UriParts parts;
+        try {
+            parts = dev::check_uri(uri);
+        } catch (const ConfigError& e) {
+            // check_uri names "device" or "device.<setting>": the same under this URI's field.
+            const std::string f = e.field();
+            throw ConfigError(f.rfind("device", 0) == 0 ? field + f.substr(6) : field, e.message());
+        }
+        if (parts.scheme == "loopback" && !parts.path.empty())
+            throw ConfigError(field, "loopback takes no path (got '" + parts.path + "'); use loopback:?key=value");
+    }
+    if (sc.instruments && !sc.instruments->dut.empty())
+        throw ConfigError("device.dut", "a separate DUT readout device is not supported yet (the URI is valid; runs with output and input instruments "
+                                        "score the estimators under test)");
 }
 
 json unstarted_report(const Scenario& sc, const std::string& id, const std::string& started_at, const std::string& status,
                       const std::string& verdict, const std::string& error, const json& provenance) {
     json r = json{{"schema", "fringe.report"}, {"schema_version", 2}, {"fringe_version", FRINGE_VERSION}, {"id", id},
                 {"started_at", started_at}, {"finished_at", iso_now()}, {"wall_s", 0.0}, {"scenario", sc}, {"seed", sc.seed},
-                {"device", nullptr}, {"status", status}, {"verdict", verdict}, {"error", error}, {"warnings", json::array()},
+                {"device", nullptr}, {"alignment", nullptr}, {"status", status}, {"verdict", verdict}, {"error", error}, {"warnings", json::array()},
                 {"samples", {{"planned", sc.samples()}, {"processed", 0}}}, {"estimators", json::array()},
                 {"measurements", json::array()}, {"traces", json::object()}};
     if (!provenance.is_null()) r["provenance"] = provenance;
@@ -226,6 +245,27 @@ json score_lanes(const Scenario& sc, const dev::DeviceInfo& dinfo, std::vector<s
     return out;
 }
 
+// One DeviceInfo for a generator and a digitizer: the digitizer's, with the generator's DAC
+// and the label of both (report "device"; each in full under "output" and "input").
+dev::DeviceInfo combined_info(const Scenario& sc, const dev::DeviceInfo& out, const dev::DeviceInfo& in) {
+    if (sc.instruments->output == sc.instruments->input) return in;
+    dev::DeviceInfo d = in;
+    d.driver = out.driver == in.driver ? in.driver : out.driver + "+" + in.driver;
+    d.uri = sc.device_label();
+    d.description = out.description + " -> " + in.description;
+    d.can_play = out.can_play;
+    d.max_play_samples = out.max_play_samples;
+    d.own_clock = out.own_clock || in.own_clock;
+    auto& c = d.converter;
+    c.known = out.converter.known && in.converter.known;
+    c.dac_bits = out.converter.dac_bits;
+    c.dac_range_v = out.converter.dac_range_v;
+    c.dac_step_v = out.converter.dac_step_v;
+    c.added_noise_v = c.independent_noise_v();
+    c.note = "generator's DAC and digitizer's ADC quantise independently";
+    return d;
+}
+
 }  // namespace
 
 json execute_run(const Scenario& sc, const RunOptions& o) {
@@ -252,9 +292,33 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
     static const EstimatorSpec dut_spec{"dut", "dut", nlohmann::json::object(), std::nullopt};
     const std::size_t segment = ErrorSpectrum::choose_segment(
         sc.sample_rate_hz, planned_electrical_hz(sc), static_cast<std::uint64_t>(std::max(0.0, (sc.duration_s - sc.settle_s) * sc.sample_rate_hz)));
+    json alignment = nullptr;
     try {
-        auto device = dev::open(sc.device);
-        dinfo = device->info();
+        // Separate instruments: the generator (output) and the digitizer (input); the same URI
+        // twice is one device. Faults name the scenario field.
+        std::unique_ptr<dev::Device> device, input_device;
+        dev::DeviceInfo out_info, in_info;
+        auto open_named = [](const std::string& field, const std::string& uri) {
+            try {
+                return dev::open(uri);
+            } catch (const std::exception& e) {
+                throw std::runtime_error(field + ": " + e.what());
+            }
+        };
+        if (sc.instruments) {
+            device = open_named("device.output", sc.instruments->output);
+            if (sc.instruments->input != sc.instruments->output) input_device = open_named("device.input", sc.instruments->input);
+            out_info = device->info();
+            in_info = input_device ? input_device->info() : out_info;
+            if (!out_info.can_play)
+                throw std::runtime_error("device.output: " + out_info.uri + " cannot play a waveform from memory (not a generator; a loopback needs own_clock=1)");
+            if (!in_info.can_record)
+                throw std::runtime_error("device.input: " + in_info.uri + " cannot record a block (not a digitizer; a loopback needs own_clock=1)");
+            dinfo = combined_info(sc, out_info, in_info);
+        } else {
+            device = dev::open(sc.device);
+            dinfo = device->info();
+        }
         for (const auto& f : preflight_device(sc, dinfo)) warnings.push_back(f);
         for (const auto& spec : sc.estimators) {
             auto lane = std::make_unique<Lane>(&spec, sc, segment);
@@ -269,9 +333,14 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             // Angle folds from the settle time on, so a lock transient does not swamp them.
             traces.emplace(total, o.trace_points, labels, sc.t0_s + sc.settle_s);
         }
-        auto source = make_frame_source(sc, *device, dinfo, o.block);
-        dinfo = device->info();  // started: converter figures at the run's rate
+        auto source = sc.instruments ? make_instrument_source(sc, *device, input_device ? *input_device : *device, out_info)
+                                     : make_frame_source(sc, *device, dinfo, o.block);
+        if (!sc.instruments) dinfo = device->info();  // started: converter figures at the run's rate
         report["device"] = dinfo;
+        if (input_device) {
+            report["device"]["output"] = out_info;
+            report["device"]["input"] = in_info;
+        }
         if (report.contains("provenance") && report["provenance"]["dut"]["serial"] == "") report["provenance"]["dut"]["serial"] = dinfo.board_id;
         std::optional<Recorder> recorder;
         if (!o.record_path.empty()) recorder.emplace(o.record_path, sc, dinfo, report["id"]);
@@ -279,6 +348,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
         while (processed < total) {
             if (o.cancel && o.cancel->load()) { status = RunStatus::Aborted; error = "cancelled"; break; }
             const SourceStatus st = source->next(o.block, f);
+            alignment = source->alignment();
             // Frames delivered before a fault are scored and recorded: a partial capture survives.
             if (f.size()) {
                 if (recorder) recorder->add(f);
@@ -311,7 +381,8 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
         if (error.empty()) error = std::string("scoring failed: ") + e.what();
     }
     Verdict verdict;
-    report["measurements"] = evaluate_limits(sc, estimators, status, verdict);
+    report["alignment"] = alignment;
+    report["measurements"] = evaluate_limits(sc, estimators, status, verdict, alignment);
     report["status"] = to_string(status);
     report["verdict"] = to_string(verdict);
     report["error"] = error.empty() ? json() : json(error);

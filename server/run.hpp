@@ -34,6 +34,9 @@ struct RunOptions {
 // name known metrics and estimators, preflight finds no error). Throws ConfigError naming the
 // key; returns the preflight warnings.
 std::vector<Finding> validate_run(const Scenario& sc);
+// The form and settings of every device URI the scenario names (without opening anything);
+// errors name "device", "device.output", "device.input" or "device.dut".
+void check_device_uris(const Scenario& sc);
 
 // Never throws once the scenario is valid: device faults, sample loss, estimator failure,
 // cancellation and any unexpected exception end the run with status "error" or "aborted" and

@@ -4,6 +4,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <chrono>
 #include <stdexcept>
 
@@ -46,15 +47,16 @@ std::string RunManager::submit(Scenario sc) {
     job->snap.id = new_run_id();
     job->snap.scenario = sc.name;
     job->snap.dut = sc.dut;
-    job->snap.device = sc.device;
+    job->snap.device = sc.device_label();
     job->snap.created_at = iso_now();
     job->snap.status = "queued";
     job->snap.total = sc.samples();
     job->snap.seq = 1;
     job->snap.updated_unix_ms = unix_ms();
-    job->key = device_key(sc.device);
+    for (const auto& [field, uri] : sc.device_uris())
+        if (const std::string k = device_key(uri); !k.empty() && std::find(job->keys.begin(), job->keys.end(), k) == job->keys.end()) job->keys.push_back(k);
     job->provenance = make_provenance(provenance, sc);
-    if (job->snap.dut.empty()) job->snap.dut = job->provenance["dut"]["serial"];
+    if (job->snap.dut.empty()) job->snap.dut = job->provenance["dut"]["serial"].get<std::string>();
     job->sc = std::move(sc);
     {
         std::lock_guard<std::mutex> sl(store_mu_);
@@ -126,7 +128,9 @@ std::optional<RunSnapshot> RunManager::wait_change(const std::string& id, std::u
 std::shared_ptr<RunManager::Job> RunManager::next_job_locked() {
     for (auto q = queue_.begin(); q != queue_.end(); ++q) {
         const auto& job = *q;
-        if (!job->key.empty() && busy_keys_[job->key] > 0) continue;  // its board is in use: keep its place
+        bool busy = false;
+        for (const auto& k : job->keys) busy |= busy_keys_[k] > 0;
+        if (busy) continue;  // a board of it is in use: keep its place
         auto picked = job;
         queue_.erase(q);
         return picked;
@@ -141,7 +145,7 @@ void RunManager::worker() {
             std::unique_lock<std::mutex> l(mu_);
             cv_.wait(l, [&] { return stopping_ || (job = next_job_locked()) != nullptr; });
             if (!job) return;  // stopping
-            if (!job->key.empty()) ++busy_keys_[job->key];
+            for (const auto& k : job->keys) ++busy_keys_[k];
             job->snap.status = "running";
             ++job->snap.seq;
         job->snap.updated_unix_ms = unix_ms();
@@ -208,7 +212,7 @@ void RunManager::worker() {
         }
         {
             std::lock_guard<std::mutex> l(mu_);
-            if (!job->key.empty()) --busy_keys_[job->key];
+            for (const auto& k : job->keys) --busy_keys_[k];
             job->snap.status = report.value("status", "error");
             job->snap.verdict = report.value("verdict", "ERROR");
             job->snap.error = report["error"].is_string() ? report["error"].get<std::string>() : "";

@@ -74,7 +74,7 @@ private:
     struct Job {
         RunSnapshot snap;
         Scenario sc;
-        std::string key;
+        std::vector<std::string> keys;  // its devices' keys (output and input instruments: both)
         std::atomic<bool> cancel{false};
         bool interrupted = false;  // cancelled by shutdown
         nlohmann::json provenance;

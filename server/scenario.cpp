@@ -15,6 +15,18 @@ std::uint64_t Scenario::samples() const {
     return static_cast<std::uint64_t>(std::llround(duration_s * sample_rate_hz));
 }
 
+std::string Scenario::device_label() const {
+    if (!instruments) return device;
+    return instruments->output == instruments->input ? instruments->output : instruments->output + " -> " + instruments->input;
+}
+
+std::vector<std::pair<std::string, std::string>> Scenario::device_uris() const {
+    if (!instruments) return {{"device", device}};
+    std::vector<std::pair<std::string, std::string>> v{{"device.output", instruments->output}, {"device.input", instruments->input}};
+    if (!instruments->dut.empty()) v.push_back({"device.dut", instruments->dut});
+    return v;
+}
+
 json load_json_file(const std::string& path) {
     std::ifstream in(path);
     if (!in) throw ConfigError("", "cannot open '" + path + "'");
@@ -56,7 +68,20 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
     s.seed = static_cast<std::uint64_t>(r.integer("seed", 1, 0, (1LL << 53)));
     s.motion = motion_from_json(r.raw("motion"), base_dir, s.encoder.lines_per_rev, "motion");
     if (s.samples() < 1) throw ConfigError("duration_s", "gives no samples at this sample rate");
-    s.device = r.string("device", s.device);
+    if (r.has("device") && r.raw("device").is_object()) {
+        JsonReader dr = r.object("device");
+        Scenario::Instruments ins;
+        ins.output = dr.string("output");
+        ins.input = dr.string("input");
+        ins.dut = dr.string("dut", "");
+        dr.finish();
+        s.instruments = ins;
+        s.device.clear();
+    } else if (r.has("device") && !r.raw("device").is_string()) {
+        throw ConfigError("device", "expected a device URI or {\"output\": URI, \"input\": URI}");
+    } else {
+        s.device = r.string("device", s.device);
+    }
     s.settle_s = r.number("settle_s", s.settle_s, 0.0, 1e7);
     s.dut = r.string("dut", "");
     s.dut_part = r.string("dut_part", "");
@@ -122,7 +147,12 @@ void to_json(json& j, const Scenario& s) {
              {"sample_rate_hz", s.sample_rate_hz}, {"duration_s", s.duration_s},
              {"t0_s", s.t0_s}, {"seed", s.seed}};
     if (!s.description.empty()) j["description"] = s.description;
-    j["device"] = s.device;
+    if (s.instruments) {
+        j["device"] = {{"output", s.instruments->output}, {"input", s.instruments->input}};
+        if (!s.instruments->dut.empty()) j["device"]["dut"] = s.instruments->dut;
+    } else {
+        j["device"] = s.device;
+    }
     j["settle_s"] = s.settle_s;
     if (!s.dut.empty()) j["dut"] = s.dut;
     if (!s.dut_part.empty()) j["dut_part"] = s.dut_part;

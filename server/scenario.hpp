@@ -50,7 +50,13 @@ struct Scenario {
     double t0_s = 0.0;
     std::uint64_t seed = 1;
     // Runs (ignored by `fringe gen`):
-    std::string device = "loopback:";
+    std::string device = "loopback:";  // one device for output and input ("" when instruments is set)
+    // Separate instruments (issue 14): "device": {"output": URI, "input": URI, "dut": URI}. The
+    // same URI twice is one instrument (a generator with its own digitizer, or a loopback).
+    struct Instruments {
+        std::string output, input, dut;
+    };
+    std::optional<Instruments> instruments;
     std::vector<EstimatorSpec> estimators;
     std::vector<Limit> limits;
     double settle_s = 0.1;
@@ -59,6 +65,10 @@ struct Scenario {
     ScoringRules scoring;
 
     std::uint64_t samples() const;
+    // The device(s) in one line: the URI, or "OUTPUT -> INPUT" (run lists, history).
+    std::string device_label() const;
+    // Every URI the run opens, with the scenario field that names it ("device", "device.output", ...).
+    std::vector<std::pair<std::string, std::string>> device_uris() const;
 };
 
 // base_dir resolves relative paths (an "encoder" given as a file name, a motion table).

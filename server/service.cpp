@@ -346,7 +346,7 @@ HttpResponse Service::create_run(const HttpRequest& req) {
     }
     if (auto too_big = check_run_size(sc, body.contains("fixture") ? "fixture" : "scenario")) return *too_big;
     try {
-        dev::check_uri(sc.device);
+        check_device_uris(sc);
         validate_run(sc);
     } catch (const ConfigError& e) {
         throw e.prefixed("scenario");
@@ -491,7 +491,7 @@ HttpResponse Service::fixtures() {
         try {
             const Scenario sc = load_scenario(p.string());
             f["description"] = sc.description;
-            f["device"] = sc.device;
+            f["device"] = json(sc)["device"];
             f["duration_s"] = sc.duration_s;
             f["sample_rate_hz"] = sc.sample_rate_hz;
             f["samples"] = sc.samples();
@@ -538,7 +538,14 @@ HttpResponse Service::devices() {
                         {"available", true}});
     std::map<std::string, bool> busy;
     for (const auto& s : runs_->live())
-        if (s.status == "running" && !device_key(s.device).empty()) busy[device_key(s.device)] = true;
+        if (s.status == "running") {
+            // A run's device label is one URI or "OUTPUT -> INPUT".
+            for (std::size_t a = 0, b; a <= s.device.size(); a = b + 4) {
+                b = s.device.find(" -> ", a);
+                if (b == std::string::npos) b = s.device.size();
+                if (const std::string k = device_key(s.device.substr(a, b - a)); !k.empty()) busy[k] = true;
+            }
+        }
     for (auto& d : list) d["busy"] = busy.count(device_key(d["uri"].get<std::string>())) > 0;
     // Configured board profiles: the URI to use once the board's address is known.
     json boards = json::array();

@@ -112,7 +112,7 @@ private:
     std::optional<HttpResponse> check_host(const HttpRequest& req) const;
     // Makes a client's device URI safe to open here (capture:ID -> the uploaded file, board
     // profiles by name, other devices from allow_devices); throws naming scenario.device.
-    std::string sandbox_device(const std::string& uri) const;
+    std::string sandbox_device(const std::string& uri, const std::string& field = "scenario.device") const;
     // Text for a client: the service's absolute folders replaced by short names.
     std::string public_text(std::string s) const;
     HttpResponse route(const HttpRequest& req, const std::string& path, const std::map<std::string, std::string>& query);

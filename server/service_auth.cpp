@@ -129,11 +129,15 @@ json Service::sandbox_scenario(json j) const {
                 throw ConfigError(f + ".name", "the external estimator runs a command on this host; start the service with --allow-external to permit it");
         }
     if (j.contains("device") && j["device"].is_string()) j["device"] = sandbox_device(j["device"].get<std::string>());
+    // Output and input instruments: each on its own is held to the same policy.
+    if (j.contains("device") && j["device"].is_object())
+        for (const char* k : {"output", "input", "dut"})
+            if (j["device"].contains(k) && j["device"][k].is_string())
+                j["device"][k] = sandbox_device(j["device"][k].get<std::string>(), std::string("scenario.device.") + k);
     return j;
 }
 
-std::string Service::sandbox_device(const std::string& uri) const {
-    const std::string field = "scenario.device";
+std::string Service::sandbox_device(const std::string& uri, const std::string& field) const {
     const auto q = uri.find('?');
     const std::string query = q == std::string::npos ? "" : uri.substr(q);
     if (uri.rfind("capture:", 0) == 0) {
@@ -146,7 +150,8 @@ std::string Service::sandbox_device(const std::string& uri) const {
     try {
         parts = dev::check_uri(uri);
     } catch (const ConfigError& e) {
-        throw e.prefixed("scenario");
+        const std::string f = e.field();  // "device" or "device.<setting>": under this URI's field
+        throw ConfigError(f.rfind("device", 0) == 0 ? field + f.substr(6) : field, e.message());
     }
     if (parts.scheme == "loopback") return uri;
     // A board profile is a file: over HTTP only the configured profiles, by name.

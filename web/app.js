@@ -149,7 +149,10 @@ async function newRun() {
   const out = h('div');
   let scenario = null;
 
-  const fillDevice = (uri) => {
+  const fillDevice = (device) => {
+    // Output and input instruments ({output, input}): the form edits the generator's URI; a run
+    // keeps both halves when they are one instrument (the same URI).
+    const uri = typeof device === 'string' ? device : device.output;
     const [scheme, rest = ''] = [uri.slice(0, uri.indexOf(':')), uri.slice(uri.indexOf(':') + 1)];
     const [path, query = ''] = rest.split('?');
     driverSel.value = scheme;
@@ -192,7 +195,10 @@ async function newRun() {
     const dq = new URLSearchParams();
     for (const [k, v] of Object.entries(readParams(devParams))) dq.set(k, String(v));
     const qs = dq.toString();
-    sc.device = `${driverSel.value}:${devPath.value}${qs ? `?${qs}` : ''}`;
+    const uri = `${driverSel.value}:${devPath.value}${qs ? `?${qs}` : ''}`;
+    const two = typeof scenario.device === 'object' && scenario.device !== null;
+    if (!two) sc.device = uri;
+    else if (scenario.device.output === scenario.device.input) sc.device = { ...scenario.device, output: uri, input: uri };
     const before = Object.fromEntries((scenario.estimators || []).map((e) => [e.name, e]));
     sc.estimators = [];
     for (const div of estBox.querySelectorAll('.estimator')) {

@@ -72,7 +72,10 @@ int run_run_remote(const RunCliOptions& o, const Scenario& sc) {
 int run_run(const RunCliOptions& o) {
     Scenario sc = load_scenario(o.scenario);
     if (o.seed >= 0) sc.seed = static_cast<std::uint64_t>(o.seed);
-    if (!o.device.empty()) sc.device = o.device;
+    if (!o.device.empty()) {
+        sc.device = o.device;
+        sc.instruments.reset();
+    }
     if (!o.dut.empty()) sc.dut = o.dut;
     if (!o.dut_part.empty()) sc.dut_part = o.dut_part;
     validate_run(sc);  // preflight errors stop here (exit 2); warnings come back in the report

@@ -1,0 +1,451 @@
+// Truth alignment across clocks (issue 14): the estimator against analytic truth, the own-clock
+// loopback, runs through output and input instruments, and the alignment measurements.
+#include "helpers.hpp"
+
+#include "drivers/device.hpp"
+#include "server/align.hpp"
+#include "server/limits.hpp"
+#include "server/run.hpp"
+#include "server/scenario.hpp"
+#include "server/service.hpp"
+#include "signal_gen/config.hpp"
+#include "signal_gen/fastmath.hpp"
+
+#include <catch2/catch.hpp>
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <functional>
+#include <random>
+#include <thread>
+#include <unistd.h>
+
+using namespace fringe;
+using nlohmann::json;
+
+namespace {
+
+std::string fixture(const std::string& name) { return std::string(FRINGE_SOURCE_DIR) + "/fixtures/scenarios/" + name; }
+
+// A played pair and its record computed from the same closed form x(t): the record at the
+// warped, delayed times directly (no interpolator on the truth side).
+struct Link {
+    double delay_s = 0, ppm = 0, gs = 1, os = 0, gc = 1, oc = 0, noise_v = 0;
+    bool cyclic = false;
+};
+struct Pair {
+    std::vector<double> ps, pc, rs, rc;
+};
+
+Pair make_pair(const std::function<double(double)>& phase_rad, double fs, std::size_t n_play, std::size_t n_rec, const Link& l, std::uint64_t seed = 7) {
+    Pair p;
+    p.ps.resize(n_play);
+    p.pc.resize(n_play);
+    for (std::size_t i = 0; i < n_play; ++i) {
+        const double th = phase_rad(static_cast<double>(i) / fs);
+        p.ps[i] = 0.5 * std::sin(th);
+        p.pc[i] = 0.5 * std::cos(th);
+    }
+    const double T = static_cast<double>(n_play) / fs;  // block period (cyclic)
+    Xoshiro256pp rng(seed);
+    p.rs.resize(n_rec);
+    p.rc.resize(n_rec);
+    for (std::size_t m = 0; m < n_rec; ++m) {
+        double t = (static_cast<double>(m) / fs - l.delay_s) * (1 + l.ppm * 1e-6);  // generator time
+        double s = 0, c = 0;
+        const bool on = t >= 0 && (l.cyclic || t <= (static_cast<double>(n_play) - 1) / fs);
+        if (on) {
+            if (l.cyclic) t = std::fmod(t, T);
+            const double th = phase_rad(t);
+            s = 0.5 * std::sin(th);
+            c = 0.5 * std::cos(th);
+        }
+        p.rs[m] = l.gs * s + l.os + l.noise_v * standard_normal(rng);
+        p.rc[m] = l.gc * c + l.oc + l.noise_v * standard_normal(rng);
+    }
+    return p;
+}
+
+AlignResult run_align(const Pair& p, double fs, bool cyclic) {
+    AlignInput in;
+    in.played_sin_v = p.ps;
+    in.played_cos_v = p.pc;
+    in.play_rate_hz = fs;
+    in.cyclic = cyclic;
+    in.recorded_sin_v = p.rs;
+    in.recorded_cos_v = p.rc;
+    in.record_rate_hz = fs;
+    return align(in);
+}
+
+Scenario small_run(const std::string& device) {
+    Scenario sc;
+    sc.name = "align-test";
+    sc.encoder = test::clean_ideal(1024);
+    sc.encoder.noise.sigma_add_v = 2e-4;
+    sc.motion = test::constant_electrical(1234.5, 1024);
+    sc.sample_rate_hz = 100000;
+    sc.duration_s = 0.2;
+    sc.settle_s = 0.02;
+    sc.device = device;
+    sc.estimators = {{"atan2", "atan2", json::object(), std::nullopt}};
+    return sc;
+}
+
+}  // namespace
+
+TEST_CASE("align: the interpolator reproduces band-limited signals", "[align]") {
+    const double fs = 1000;
+    for (double spc : {4.0, 8.0, 20.0, 100.0}) {
+        std::vector<double> x(4000);
+        const double w = kTwoPi * fs / spc;
+        for (std::size_t i = 0; i < x.size(); ++i) x[i] = std::sin(w * static_cast<double>(i) / fs + 0.3);
+        double worst = 0;
+        for (double t = 1.0; t < 3.0; t += 0.0137) worst = std::max(worst, std::fabs(played_value(x, fs, false, t) - std::sin(w * t + 0.3)));
+        INFO("samples per cycle " << spc);
+        CHECK(worst < (spc < 5 ? 2e-3 : 2e-5));
+    }
+}
+
+TEST_CASE("align: delay, clock offset, gain and offset against analytic truth", "[align]") {
+    const double fs = 100000;
+    Link l;
+    l.delay_s = 1.23456e-3;  // 123.456 samples
+    l.ppm = 37.5;
+    l.gs = 0.91; l.os = 0.012; l.gc = 0.94; l.oc = -0.021;
+    l.noise_v = 1e-4;
+    SECTION("constant speed: a periodic signal, resolved by the onset") {
+        const double f = 1234.5;
+        const auto p = make_pair([&](double t) { return kTwoPi * f * t + 0.4; }, fs, 20000, 21000, l);
+        const auto r = run_align(p, fs, false);
+        INFO(r.error);
+        REQUIRE(r.ok);
+        CHECK(std::fabs(r.delay_s - l.delay_s) * fs < 2e-3);  // samples
+        CHECK(std::fabs(r.clock_offset_ppm - l.ppm) < 0.05);
+        CHECK(std::fabs(r.sin.gain / l.gs - 1) < 1e-4);
+        CHECK(std::fabs(r.cos.gain / l.gc - 1) < 1e-4);
+        CHECK(std::fabs(r.sin.offset_v - l.os) < 1e-5);
+        CHECK(std::fabs(r.cos.offset_v - l.oc) < 1e-5);
+        CHECK(r.residual_rms_v == Approx(1e-4).epsilon(0.05));  // the added noise, nothing else
+        CHECK(r.ambiguity_z > 10);
+        CHECK(r.candidates > 1);  // neighbouring periods were considered and rejected
+    }
+    SECTION("a chirp (no period), the record starting after the output") {
+        l.delay_s = -0.8e-3;
+        l.ppm = -120;
+        const auto p = make_pair([&](double t) { return kTwoPi * (300 * t + 6000 * t * t); }, fs, 20000, 20000, l);
+        const auto r = run_align(p, fs, false);
+        INFO(r.error);
+        REQUIRE(r.ok);
+        CHECK(std::fabs(r.delay_s - l.delay_s) * fs < 2e-3);
+        CHECK(std::fabs(r.clock_offset_ppm - l.ppm) < 0.05);
+        CHECK(std::fabs(r.sin.gain / l.gs - 1) < 1e-4);
+    }
+    SECTION("cyclic playback of whole cycles, the record starting first") {
+        l.cyclic = true;
+        const double f = 1000.0;  // 100 samples a cycle: 20 cycles in the 2000-sample block
+        const auto p = make_pair([&](double t) { return kTwoPi * f * t; }, fs, 2000, 30000, l);
+        const auto r = run_align(p, fs, true);
+        INFO(r.error);
+        REQUIRE(r.ok);
+        CHECK(std::fabs(r.delay_s - l.delay_s) * fs < 2e-3);
+        CHECK(std::fabs(r.clock_offset_ppm - l.ppm) < 0.05);
+    }
+}
+
+TEST_CASE("align: what cannot be aligned is refused, naming why", "[align]") {
+    const double fs = 100000;
+    Link l;
+    l.delay_s = 0.5e-3;
+    l.noise_v = 1e-4;
+    auto sine = [](double t) { return kTwoPi * 1234.5 * t; };
+    SECTION("a periodic signal whose onset is not in the record") {
+        l.cyclic = true;
+        l.delay_s = -3e-3;  // the record starts 3 ms after the output: every period looks alike
+        const auto p = make_pair([](double t) { return kTwoPi * 1000.0 * t; }, fs, 2000, 30000, l);
+        const auto r = run_align(p, fs, true);
+        CHECK_FALSE(r.ok);
+        CHECK_THAT(r.error, Catch::Contains("ambiguous delay") && Catch::Contains("record must start before the output"));
+    }
+    SECTION("noise only") {
+        l.gs = l.gc = 0;
+        const auto p = make_pair(sine, fs, 20000, 21000, l);
+        const auto r = run_align(p, fs, false);
+        CHECK_FALSE(r.ok);
+        CHECK_THAT(r.error, Catch::Contains("no correlation"));
+    }
+    SECTION("sin and cos swapped") {
+        auto p = make_pair(sine, fs, 20000, 21000, l);
+        std::swap(p.rs, p.rc);
+        const auto r = run_align(p, fs, false);
+        CHECK_FALSE(r.ok);
+        CHECK_THAT(r.error, Catch::Contains("no correlation") && Catch::Contains("in that order"));
+    }
+    SECTION("an inverted channel") {
+        l.gc = -1;
+        const auto p = make_pair(sine, fs, 20000, 21000, l);
+        const auto r = run_align(p, fs, false);
+        CHECK_FALSE(r.ok);
+    }
+    SECTION("a distorted record") {
+        auto p = make_pair(sine, fs, 20000, 21000, l);
+        for (auto* v : {&p.rs, &p.rc})
+            for (auto& x : *v) x = std::clamp(x, -0.2, 0.2);  // clipped hard
+        const auto r = run_align(p, fs, false);
+        CHECK_FALSE(r.ok);
+        CHECK_THAT(r.error, Catch::Contains("residual"));
+    }
+    SECTION("a played signal at rest") {
+        auto p = make_pair([](double) { return 0.3; }, fs, 20000, 21000, l);
+        const auto r = run_align(p, fs, false);
+        CHECK_FALSE(r.ok);
+        CHECK_THAT(r.error, Catch::Contains("constant"));
+    }
+}
+
+TEST_CASE("own-clock loopback: plays, records delayed and warped, refuses what it does not simulate", "[align][device]") {
+    auto d = dev::open("loopback:?own_clock=1&dac_bits=0&adc_bits=0&delay_s=1e-3&clock_ppm=50&gain=0.5&offset_v=0.1");
+    const auto info = d->info();
+    CHECK(info.can_play);
+    CHECK(info.can_record);
+    CHECK(info.own_clock);
+    CHECK_FALSE(info.streaming);
+    const double fs = 10000, f = 100;
+    std::vector<double> s(5000), c(5000), rs(8000), rc(8000);
+    for (std::size_t i = 0; i < s.size(); ++i) {
+        s[i] = std::sin(kTwoPi * f * static_cast<double>(i) / fs);
+        c[i] = std::cos(kTwoPi * f * static_cast<double>(i) / fs);
+    }
+    CHECK_THROWS_WITH(d->record(rs, rc, fs, 1), Catch::Contains("nothing was played"));
+    d->play(s, c, fs, false);
+    const auto r = d->record(rs, rc, fs, 1);
+    CHECK(r.status == dev::StreamStatus::Ok);
+    CHECK(r.frames == 8000);
+    CHECK(rs[5] == Approx(0.1));  // before the output arrives: the offset only
+    for (std::size_t m : {100u, 2000u, 4321u}) {
+        const double t = (static_cast<double>(m) / fs - 1e-3) * (1 + 50e-6);
+        CHECK(rs[m] == Approx(0.1 + 0.5 * std::sin(kTwoPi * f * t)).margin(1e-6));
+        CHECK(rc[m] == Approx(0.1 + 0.5 * std::cos(kTwoPi * f * t)).margin(1e-6));
+    }
+    CHECK_THROWS_WITH(d->start(fs), Catch::Contains("does not stream"));
+    CHECK_THROWS_WITH(dev::open("loopback:?own_clock=1&latency_samples=3"), Catch::Contains("device.latency_samples"));
+    CHECK_THROWS_WITH(dev::open("loopback:?delay_s=1e-3"), Catch::Contains("device.delay_s") && Catch::Contains("own_clock=1"));
+    auto small = dev::open("loopback:?own_clock=1&max_play_samples=100");
+    CHECK_THROWS_WITH(small->play(s, c, fs, false), Catch::Contains("max_play_samples 100"));
+    // The plain loopback is not an instrument.
+    auto plain = dev::open("loopback:");
+    CHECK_FALSE(plain->info().can_play);
+    CHECK_THROWS_WITH(plain->play(s, c, fs, false), Catch::Contains("not supported"));
+}
+
+TEST_CASE("run: output and input instruments on their own clocks score like the plain loopback", "[align][run]") {
+    const Scenario plain = small_run("loopback:");
+    // No offset here: atan2 has no offset correction, so 4 mV would add ~4e-3 rad to its error
+    // (offsets are checked against analytic truth above).
+    const std::string uri = "loopback:?own_clock=1&delay_s=2.345e-4&clock_ppm=-42&gain=0.97&noise_v=5e-5";
+    Scenario two = plain;
+    two.device.clear();
+    two.instruments = Scenario::Instruments{uri, uri, ""};
+    two.limits = {{"*", "alignment_delay_s", 2.3451e-4, 2.3449e-4, 0.0}, {"run", "clock_offset_ppm", -41.99, -42.01, 0.0},
+                  {"*", "alignment_residual", 1e-3, std::nullopt, 0.0}};
+    const json a = execute_run(plain), b = execute_run(two);
+    REQUIRE(a["status"] == "done");
+    INFO(b["error"].dump());
+    REQUIRE(b["status"] == "done");
+    const json& al = b["alignment"];
+    CHECK(al["ok"] == true);
+    CHECK(al["delay_s"].get<double>() == Approx(2.345e-4).margin(1e-9));
+    CHECK(al["clock_offset_ppm"].get<double>() == Approx(-42).margin(0.01));
+    CHECK(al["channels"]["sin"]["gain"].get<double>() == Approx(0.97).epsilon(1e-4));
+    CHECK(al["channels"]["cos"]["offset_v"].get<double>() == Approx(0.0).margin(1e-5));
+    CHECK(al["playback"]["mode"] == "once");
+    CHECK(b["verdict"] == "PASS");
+    int run_level = 0;
+    for (const auto& m : b["measurements"])
+        if (m["estimator"] == "run") {
+            ++run_level;
+            CHECK(m["outcome"] == "PASS");
+        }
+    CHECK(run_level == 3);
+    CHECK(b["samples"]["processed"] == a["samples"]["processed"]);
+    // Same estimator, same signal: the scores agree within what the link adds (gain, a little noise).
+    const double ra = a["estimators"][0]["metrics"]["rms"]["rad"].get<double>(), rb = b["estimators"][0]["metrics"]["rms"]["rad"].get<double>();
+    CHECK(rb == Approx(ra).epsilon(0.1));
+    // No ringing from the output's start or end inside the scored frames (the playback runs
+    // beyond them): the worst error stays that of the noise.
+    CHECK(b["estimators"][0]["metrics"]["max_abs"]["rad"].get<double>() < 1.5 * a["estimators"][0]["metrics"]["max_abs"]["rad"].get<double>());
+    CHECK(std::fabs(b["estimators"][0]["metrics"]["mean"]["rad"].get<double>()) < 2e-5);  // no phase bias from the delay
+    CHECK(b["estimators"][0]["metrics"]["slipped_samples"] == 0);
+    // The single-URI form of the same device is the same run.
+    Scenario one = plain;
+    one.device = uri;
+    const json c = execute_run(one);
+    CHECK(c["alignment"]["delay_s"] == al["delay_s"]);
+    // A plain loopback run has no alignment: a limit on it fails as not measured.
+    Scenario p2 = plain;
+    p2.limits = {{"*", "clock_offset_ppm", 100.0, std::nullopt, 0.0}};
+    const json d = execute_run(p2);
+    CHECK(d["alignment"].is_null());
+    CHECK(d["verdict"] == "FAIL");
+    CHECK_THAT(d["measurements"].back()["reason"].get<std::string>(), Catch::Contains("not measured") && Catch::Contains("no alignment"));
+}
+
+TEST_CASE("run: a generator memory too small plays whole cycles cyclically, or fails naming the limit", "[align][run]") {
+    Scenario sc = small_run("");
+    const std::string uri = "loopback:?own_clock=1&delay_s=1e-4&clock_ppm=20&noise_v=5e-5&max_play_samples=5000";
+    sc.device = uri;
+    json r = execute_run(sc);
+    INFO(r["error"].dump());
+    REQUIRE(r["status"] == "done");
+    CHECK(r["alignment"]["playback"]["mode"] == "cyclic");
+    CHECK(r["alignment"]["playback"]["samples"].get<int>() <= 5000);
+    CHECK(r["alignment"]["delay_s"].get<double>() == Approx(1e-4).margin(1e-9));
+    CHECK(r["estimators"][0]["metrics"]["rms"]["rad"].get<double>() < 1e-3);
+    sc.motion.kind = MotionKind::Ramp;
+    sc.motion.accel_rad_s2 = 1.0;
+    r = execute_run(sc);
+    CHECK(r["verdict"] == "ERROR");
+    CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("max_play_samples") && Catch::Contains("constant-speed"));
+}
+
+TEST_CASE("run: unalignable instruments end the run as ERROR naming why", "[align][run]") {
+    Scenario sc = small_run("loopback:?own_clock=1&gain=0&noise_v=1e-3");  // the input sees noise only
+    json r = execute_run(sc);
+    CHECK(r["verdict"] == "ERROR");
+    CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("alignment not confident") && Catch::Contains("no correlation"));
+    CHECK(r["alignment"]["ok"] == false);
+    CHECK(r["samples"]["processed"] == 0);
+    sc.device = "loopback:?own_clock=1&swap_channels=1&noise_v=1e-4";
+    r = execute_run(sc);
+    CHECK(r["verdict"] == "ERROR");
+    CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("no correlation"));
+    // Two distinct loopbacks are two instances: the input never saw the output.
+    sc.device.clear();
+    sc.instruments = Scenario::Instruments{"loopback:?own_clock=1", "loopback:?own_clock=1&seed=2", ""};
+    r = execute_run(sc);
+    CHECK(r["verdict"] == "ERROR");
+    CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("device.input") || Catch::Contains("nothing was played"));
+    // A streaming device is not a generator.
+    sc.instruments = Scenario::Instruments{"loopback:", "loopback:?own_clock=1", ""};
+    r = execute_run(sc);
+    CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("device.output") && Catch::Contains("cannot play"));
+}
+
+TEST_CASE("scenario: device as output and input instruments, errors name the field", "[align][config]") {
+    json j = load_json_file(fixture("loopback-two-clocks.json"));
+    const std::string base = std::string(FRINGE_SOURCE_DIR) + "/fixtures/scenarios";
+    Scenario sc = scenario_from_json(j, base);
+    REQUIRE(sc.instruments);
+    CHECK(sc.device.empty());
+    CHECK(json(sc)["device"]["output"] == j["device"]["output"]);
+    CHECK(scenario_from_json(json(sc), base).instruments->input == sc.instruments->input);  // round trip
+    CHECK_NOTHROW(validate_run(sc));
+    json bad = j;
+    bad["device"]["input"] = "loopback:?adc_bitz=3";
+    CHECK_THROWS_WITH(validate_run(scenario_from_json(bad, base)), Catch::Contains("device.input.adc_bitz"));
+    try {
+        validate_run(scenario_from_json(bad, base));
+    } catch (const ConfigError& e) {
+        CHECK(e.field() == "device.input.adc_bitz");
+    }
+    bad = j;
+    bad["device"]["input"] = "warp:";
+    try {
+        validate_run(scenario_from_json(bad, base));
+        FAIL("no error");
+    } catch (const ConfigError& e) {
+        CHECK(e.field() == "device.input");
+        CHECK_THAT(e.message(), Catch::Contains("unknown driver 'warp'"));
+    }
+    bad = j;
+    bad["device"].erase("input");
+    CHECK_THROWS_WITH(scenario_from_json(bad, base), Catch::Contains("device.input"));
+    bad = j;
+    bad["device"]["inputs"] = "loopback:";
+    CHECK_THROWS_WITH(scenario_from_json(bad, base), Catch::Contains("device.inputs"));
+    bad = j;
+    bad["device"] = 5;
+    CHECK_THROWS_WITH(scenario_from_json(bad, base), Catch::Contains("device URI or"));
+    bad = j;
+    bad["device"]["dut"] = "modbus+tcp://127.0.0.1:1502";
+    try {
+        validate_run(scenario_from_json(bad, base));
+        FAIL("no error");
+    } catch (const ConfigError& e) {
+        CHECK(e.field() == "device.dut");
+        CHECK_THAT(e.message(), Catch::Contains("not supported yet"));
+    }
+    bad["device"]["dut"] = "modbus+tcp://127.0.0.1:1502?bogus=1";
+    CHECK_THROWS_WITH(validate_run(scenario_from_json(bad, base)), Catch::Contains("device.dut.bogus"));
+    // Run-level metrics are measured once: an estimator label on them is refused.
+    Scenario s2 = sc;
+    s2.limits = {{"atan2", "clock_offset_ppm", 1.0, std::nullopt, 0.0}};
+    CHECK_THROWS_WITH(validate_run(s2), Catch::Contains("limits[0].estimator") && Catch::Contains("once for the run"));
+    CHECK(find_metric("alignment_delay_s")->run_level);
+}
+
+TEST_CASE("service: the --allow-device policy holds for output and input instruments alike", "[align][service]") {
+    const auto dir = std::filesystem::temp_directory_path() / ("fringe-align-" + std::to_string(getpid()) + "-" + std::to_string(std::random_device{}()));
+    std::filesystem::create_directories(dir);
+    {
+        ServiceConfig c;
+        c.data_dir = dir.string();
+        c.fixtures_dir = FRINGE_SOURCE_DIR "/fixtures";
+        c.web_dir = FRINGE_SOURCE_DIR "/web";
+        c.token = "0123456789abcdef0123456789abcdef";
+        c.allow_devices = {"modbus+tcp://127.0.0.1:*"};
+        Service s(c);
+        auto post = [&](const json& sc) {
+            HttpRequest r;
+            r.method = "POST";
+            r.target = "/api/v1/runs";
+            r.body = json{{"scenario", sc}}.dump();
+            r.headers["authorization"] = "Bearer " + c.token;
+            return s.handle(r);
+        };
+        json sc = load_json_file(fixture("loopback-two-clocks.json"));
+        sc["duration_s"] = 0.1;
+        sc["settle_s"] = 0.01;
+        sc["limits"] = json::array();
+        const std::string own = sc["device"]["output"];
+        for (const char* side : {"output", "input"}) {
+            json bad = sc;
+            bad["device"][side] = "modbus+tcp://10.0.0.9:502?board=generic-aio";
+            const auto r = post(bad);
+            CHECK(r.status == 403);
+            const json e = json::parse(r.body)["error"];
+            CHECK(e["code"] == "device_not_allowed");
+            CHECK(e["field"] == std::string("scenario.device.") + side);
+            bad["device"][side] = "loopback:?adc_bitz=3";
+            const auto r2 = post(bad);
+            CHECK(r2.status == 400);
+            CHECK(json::parse(r2.body)["error"]["field"] == std::string("scenario.device.") + side + ".adc_bitz");
+        }
+        // An allowed board as the input passes the policy (the run then finds it is no digitizer).
+        json ok = sc;
+        ok["device"]["input"] = "modbus+tcp://127.0.0.1:1?board=generic-aio";
+        CHECK(post(ok).status == 201);
+        // The fixture's instruments run and are aligned.
+        const auto r = post(sc);
+        REQUIRE(r.status == 201);
+        const std::string id = json::parse(r.body)["id"];
+        std::uint64_t seq = 0;
+        for (int i = 0; i < 600; ++i) {
+            const auto snap = s.runs().wait_change(id, seq, 200);
+            REQUIRE(snap);
+            if (snap->finished()) break;
+            seq = snap->seq;
+        }
+        CHECK(s.runs().snapshot(id)->device == own);  // one instrument: its URI
+        HttpRequest g;
+        g.method = "GET";
+        g.target = "/api/v1/runs/" + id + "/report.json";
+        const json rep = json::parse(s.handle(g).body);
+        CHECK(rep["status"] == "done");
+        CHECK(rep["alignment"]["ok"] == true);
+        CHECK(rep["alignment"]["delay_s"].get<double>() == Approx(3.21e-4).margin(1e-8));
+        s.shutdown();
+    }
+    std::filesystem::remove_all(dir);
+}
