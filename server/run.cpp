@@ -17,6 +17,8 @@
 #include <limits>
 #include <random>
 
+#include "provenance.hpp"
+
 #ifndef FRINGE_VERSION
 #define FRINGE_VERSION "dev"
 #endif
@@ -34,17 +36,7 @@ std::string iso_now() {
     return buf;
 }
 
-std::string new_run_id() {
-    const auto t = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
-    std::tm tm{};
-    gmtime_r(&t, &tm);
-    char buf[32];
-    std::strftime(buf, sizeof buf, "%Y%m%dT%H%M%SZ", &tm);
-    std::random_device rd;
-    char tail[12];
-    std::snprintf(tail, sizeof tail, "%08x", static_cast<unsigned>(rd()));
-    return std::string(buf) + "-" + tail;
-}
+std::string new_run_id() { return new_uuid7(); }
 
 namespace {
 
@@ -136,12 +128,14 @@ void check_device_uris(const Scenario& sc) {
 }
 
 json unstarted_report(const Scenario& sc, const std::string& id, const std::string& started_at, const std::string& status,
-                      const std::string& verdict, const std::string& error) {
-    return json{{"schema", "fringe.report"}, {"schema_version", 2}, {"fringe_version", FRINGE_VERSION}, {"id", id},
+                      const std::string& verdict, const std::string& error, const json& provenance) {
+    json r = json{{"schema", "fringe.report"}, {"schema_version", 2}, {"fringe_version", FRINGE_VERSION}, {"id", id},
                 {"started_at", started_at}, {"finished_at", iso_now()}, {"wall_s", 0.0}, {"scenario", sc}, {"seed", sc.seed},
                 {"device", nullptr}, {"alignment", nullptr}, {"status", status}, {"verdict", verdict}, {"error", error}, {"warnings", json::array()},
                 {"samples", {{"planned", sc.samples()}, {"processed", 0}}}, {"estimators", json::array()},
                 {"measurements", json::array()}, {"traces", json::object()}};
+    if (!provenance.is_null()) r["provenance"] = provenance;
+    return r;
 }
 
 namespace {
@@ -302,6 +296,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
     report["scenario"] = sc;
     report["seed"] = sc.seed;
     report["device"] = nullptr;
+    if (!o.provenance.is_null()) report["provenance"] = o.provenance;
     RunStatus status = RunStatus::Done;
     std::string error;
     const auto wall0 = std::chrono::steady_clock::now();
@@ -364,6 +359,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             report["device"]["output"] = out_info;
             report["device"]["input"] = in_info;
         }
+        if (report.contains("provenance") && report["provenance"]["dut"]["serial"] == "") report["provenance"]["dut"]["serial"] = dinfo.board_id;
         std::optional<Recorder> recorder;
         if (!o.record_path.empty()) recorder.emplace(o.record_path, sc, dinfo, report["id"]);
         Frames f;

@@ -25,6 +25,9 @@ struct RunOptions {
     std::string run_id;
     // Record the device input (with the aligned truth) to this capture (.csv or .fcap).
     std::string record_path;
+    // Where the run came from (provenance.hpp): copied into report["provenance"]; its DUT
+    // serial is filled from the device's board id when neither scenario nor bench set one.
+    nlohmann::json provenance;
 };
 
 // Validates a scenario for running (estimators exist and accept their parameters, limits
@@ -43,12 +46,12 @@ nlohmann::json execute_run(const Scenario& sc, const RunOptions& o = {});
 // The report of a run that ended before it produced a sample (cancelled while queued, or the
 // engine could not start): the same keys as execute_run's, so every rendering works.
 nlohmann::json unstarted_report(const Scenario& sc, const std::string& id, const std::string& started_at, const std::string& status,
-                                const std::string& verdict, const std::string& error);
+                                const std::string& verdict, const std::string& error, const nlohmann::json& provenance = nullptr);
 
 // Exit code for a report: 0 PASS/MARGINAL, 1 FAIL, 2 ERROR/ABORTED.
 int exit_code(const nlohmann::json& report);
 
-// "20261121T150745Z-1a2b3c4d": UTC time plus 32 random bits.
+// A UUIDv7 ("0193a4f2-6c1e-7b3d-9f00-1a2b3c4d5e6f"): unique across hosts, sorts by time.
 std::string new_run_id();
 std::string iso_now();  // "2026-11-21T15:07:45Z"
 

@@ -55,10 +55,12 @@ std::string RunManager::submit(Scenario sc) {
     job->snap.updated_unix_ms = unix_ms();
     for (const auto& [field, uri] : sc.device_uris())
         if (const std::string k = device_key(uri); !k.empty() && std::find(job->keys.begin(), job->keys.end(), k) == job->keys.end()) job->keys.push_back(k);
+    job->provenance = make_provenance(provenance, sc);
+    if (job->snap.dut.empty()) job->snap.dut = job->provenance["dut"]["serial"].get<std::string>();
     job->sc = std::move(sc);
     {
         std::lock_guard<std::mutex> sl(store_mu_);
-        store_.begin(job->snap.id, job->snap.created_at, job->snap.scenario, job->snap.dut, "queued");
+        store_.begin(job->snap.id, job->snap.created_at, job->snap.scenario, job->snap.dut, "queued", job->provenance);
     }
     {
         std::lock_guard<std::mutex> l(mu_);
@@ -86,7 +88,7 @@ RunManager::CancelResult RunManager::cancel(const std::string& id) {
         job->snap.error = "cancelled while queued";
         ++job->snap.seq;
         job->snap.updated_unix_ms = unix_ms();
-        const json report = unstarted_report(job->sc, id, job->snap.created_at, "aborted", "ABORTED", "cancelled while queued");
+        const json report = unstarted_report(job->sc, id, job->snap.created_at, "aborted", "ABORTED", "cancelled while queued", job->provenance);
         finished_order_.push_back(id);
         l.unlock();
         {
@@ -156,6 +158,7 @@ void RunManager::worker() {
         RunOptions ro;
         ro.run_id = job->snap.id;
         ro.cancel = &job->cancel;
+        ro.provenance = job->provenance;
         ro.progress = [this, job](std::uint64_t done, std::uint64_t total) {
             {
                 std::lock_guard<std::mutex> l(mu_);
@@ -170,7 +173,7 @@ void RunManager::worker() {
         try {
             report = execute_run(job->sc, ro);
         } catch (const std::exception& e) {  // validation passed at submit; anything here is a bug or the environment
-            report = unstarted_report(job->sc, job->snap.id, job->snap.created_at, "error", "ERROR", e.what());
+            report = unstarted_report(job->sc, job->snap.id, job->snap.created_at, "error", "ERROR", e.what(), job->provenance);
         }
         bool interrupted;
         {
@@ -187,7 +190,7 @@ void RunManager::worker() {
                 const auto processed = report["samples"].value("processed", std::uint64_t{0});
                 report = unstarted_report(job->sc, job->snap.id, job->snap.created_at, "error", "ERROR",
                                           "the report is " + std::to_string(bytes) + " bytes; this service stores at most " +
-                                              std::to_string(max_report_bytes) + " (--max-report-mb)");
+                                              std::to_string(max_report_bytes) + " (--max-report-mb)", job->provenance);
                 report["samples"]["processed"] = processed;
             }
         }

@@ -5,6 +5,7 @@
 // is written there in one transaction when it ends. Live progress is kept in memory.
 #pragma once
 
+#include "provenance.hpp"
 #include "scenario.hpp"
 #include "store.hpp"
 
@@ -65,6 +66,9 @@ public:
     // A report larger than this (serialised, bytes; 0: no bound) is not stored: the run ends
     // as an error whose report says how large it was.
     std::size_t max_report_bytes = 0;
+    // The service's bench, host, DUT and operator (a scenario's dut / dut_part win): each
+    // run's report["provenance"] and row.
+    ProvenanceDefaults provenance = provenance_defaults();
 
 private:
     struct Job {
@@ -73,6 +77,7 @@ private:
         std::vector<std::string> keys;  // its devices' keys (output and input instruments: both)
         std::atomic<bool> cancel{false};
         bool interrupted = false;  // cancelled by shutdown
+        nlohmann::json provenance;
     };
     void worker();
     std::shared_ptr<Job> next_job_locked();

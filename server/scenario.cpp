@@ -84,6 +84,7 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
     }
     s.settle_s = r.number("settle_s", s.settle_s, 0.0, 1e7);
     s.dut = r.string("dut", "");
+    s.dut_part = r.string("dut_part", "");
     if (r.has("scoring")) {
         JsonReader sr = r.object("scoring");
         s.scoring.max_harmonic = static_cast<int>(sr.integer("max_harmonic", s.scoring.max_harmonic, 1, 64));
@@ -154,6 +155,7 @@ void to_json(json& j, const Scenario& s) {
     }
     j["settle_s"] = s.settle_s;
     if (!s.dut.empty()) j["dut"] = s.dut;
+    if (!s.dut_part.empty()) j["dut_part"] = s.dut_part;
     j["scoring"] = {{"max_harmonic", s.scoring.max_harmonic}, {"min_scored_samples", s.scoring.min_scored_samples},
                     {"min_scored_cycles", s.scoring.min_scored_cycles}, {"min_valid_fraction", s.scoring.min_valid_fraction}};
     auto est = json::array();

@@ -60,7 +60,8 @@ struct Scenario {
     std::vector<EstimatorSpec> estimators;
     std::vector<Limit> limits;
     double settle_s = 0.1;
-    std::string dut;  // DUT / board id for the history; default: the device's
+    std::string dut;  // DUT / board id (serial) for the history; default: the device's
+    std::string dut_part;  // DUT part number (provenance); default: the bench's
     ScoringRules scoring;
 
     std::uint64_t samples() const;

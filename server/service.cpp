@@ -71,11 +71,14 @@ Service::Service(ServiceConfig cfg) : cfg_(std::move(cfg)) {
     name_folder(cfg_.web_dir, "web");
     std::stable_sort(public_names_.begin(), public_names_.end(), [](const auto& a, const auto& b) { return a.first.size() > b.first.size(); });
     ::chmod((fs::path(cfg_.data_dir) / "captures").c_str(), 0700);
-    store_ = std::make_unique<RunStore>((fs::path(cfg_.data_dir) / "runs.db").string(), lock_.id());
+    // --store: DATA/runs.db, sqlite:PATH, or a shared PostgreSQL store fed through DATA/runs.db (forward.hpp).
+    store_ = open_store(parse_store_uri(cfg_.store_uri, cfg_.data_dir), lock_.id());
     if (const int n = store_->mark_dead_interrupted(); n > 0) spdlog::warn("{} run(s) of a process that stopped without finishing are marked interrupted", n);
     remove_stale_instance_locks(cfg_.data_dir);
     runs_ = std::make_unique<RunManager>(*store_, store_mu_, cfg_.workers);
     runs_->max_report_bytes = cfg_.max_report_bytes;
+    runs_->provenance = cfg_.provenance;
+    if (auto* fwd = dynamic_cast<ForwardingStore*>(store_.get())) fwd->start();  // forwards what earlier runs left pending, too
     if (!cfg_.web_dir.empty() && fs::is_directory(cfg_.web_dir)) {
         // The UI is read once: requests look files up by exact name, never build paths.
         for (const auto& e : fs::recursive_directory_iterator(cfg_.web_dir)) {
@@ -411,6 +414,10 @@ HttpResponse Service::list_runs(const std::map<std::string, std::string>& query)
             f.scenario = v;
         } else if (k == "since") {
             f.since = v;
+        } else if (k == "bench") {
+            f.bench = v;
+        } else if (k == "dut") {
+            f.dut = v;
         } else if (k == "limit") {
             try {
                 std::size_t used = 0;
@@ -420,7 +427,7 @@ HttpResponse Service::list_runs(const std::map<std::string, std::string>& query)
                 throw ConfigError("limit", "expected an integer from 1 to 1000");
             }
         } else {
-            throw ConfigError(k, "unknown query parameter (known: outcome, scenario, since, limit)");
+            throw ConfigError(k, "unknown query parameter (known: outcome, scenario, since, bench, dut, limit)");
         }
     }
     std::vector<RunRow> rows;
@@ -430,7 +437,8 @@ HttpResponse Service::list_runs(const std::map<std::string, std::string>& query)
     }
     json out = json::array();
     for (const auto& row : rows) {
-        json j{{"id", row.id}, {"created_at", row.created_at}, {"scenario", row.scenario}, {"dut", row.dut}, {"status", row.status}};
+        json j{{"id", row.id}, {"created_at", row.created_at}, {"scenario", row.scenario}, {"dut", row.dut}, {"status", row.status},
+               {"bench", row.bench}, {"host", row.host}, {"dut_part", row.dut_part}};
         j["verdict"] = row.verdict.empty() ? json(nullptr) : json(row.verdict);
         if (auto s = runs_->snapshot(row.id)) {
             j["status"] = s->status;

@@ -7,7 +7,9 @@
 // (upload, list, evaluate). Errors are {"error":{"code","message","field"}}.
 #pragma once
 
+#include "forward.hpp"
 #include "instance_lock.hpp"
+#include "provenance.hpp"
 #include "run_manager.hpp"
 #include "store.hpp"
 
@@ -27,6 +29,8 @@ namespace fringe {
 
 struct ServiceConfig {
     std::string data_dir;      // runs.db, captures/
+    std::string store_uri;     // "" (DATA/runs.db), sqlite:PATH or postgresql://... (forward.hpp: parse_store_uri)
+    ProvenanceDefaults provenance = provenance_defaults();  // bench, host, DUT, operator of this service's runs
     std::string fixtures_dir;  // scenarios/, encoders/ (what {"fixture": NAME} and file references may name)
     std::string web_dir;       // static UI; web/vendor/ holds uPlot
     std::string token;         // bearer token for state changes (and for everything when not loopback-only)

@@ -1,6 +1,7 @@
 #include "store.hpp"
 
 #include "instance_lock.hpp"
+#include "provenance.hpp"
 
 #include <sqlite3.h>
 #include <fcntl.h>
@@ -43,7 +44,7 @@ std::string default_data_dir() {
     return "fringe-data";
 }
 
-RunStore::RunStore(const std::string& path, std::string instance) : path_(path), instance_(std::move(instance)) {
+SqliteStore::SqliteStore(const std::string& path, std::string instance) : path_(path), instance_(std::move(instance)) {
     const auto dir = std::filesystem::path(path).parent_path();
     dir_ = dir.empty() ? "." : dir.string();
     if (!dir.empty()) std::filesystem::create_directories(dir);
@@ -74,7 +75,9 @@ RunStore::RunStore(const std::string& path, std::string instance) : path_(path),
         while (sqlite3_step(st.s) == SQLITE_ROW) have.push_back(st.text(1));
     }
     bool backfill = false;
-    for (const char* col : {"instance TEXT", "error TEXT", "samples_done INTEGER", "samples_total INTEGER", "device TEXT"}) {
+    for (const char* col : {"instance TEXT", "error TEXT", "samples_done INTEGER", "samples_total INTEGER", "device TEXT", "bench TEXT", "host TEXT",
+                            "dut_part TEXT", "operator TEXT", "fringe_version TEXT", "scenario_sha256 TEXT", "report_sha256 TEXT",
+                            "forward TEXT", "forward_error TEXT"}) {
         const std::string name = std::string(col).substr(0, std::string(col).find(' '));
         if (std::find(have.begin(), have.end(), name) != have.end()) continue;
         exec(std::string("ALTER TABLE runs ADD COLUMN ") + col);
@@ -86,9 +89,9 @@ RunStore::RunStore(const std::string& path, std::string instance) : path_(path),
              "WHERE report IS NOT NULL AND json_valid(report)");
 }
 
-RunStore::~RunStore() { sqlite3_close(db_); }
+SqliteStore::~SqliteStore() { sqlite3_close(db_); }
 
-void RunStore::exec(const std::string& sql) const {
+void SqliteStore::exec(const std::string& sql) const {
     char* err = nullptr;
     if (sqlite3_exec(db_, sql.c_str(), nullptr, nullptr, &err) != SQLITE_OK) {
         const std::string msg = err ? err : "?";
@@ -97,7 +100,7 @@ void RunStore::exec(const std::string& sql) const {
     }
 }
 
-void RunStore::fail() const {
+void SqliteStore::fail() const {
     const std::string msg = std::string("run store ") + path_ + ": " + sqlite3_errmsg(db_);
     const int code = sqlite3_errcode(db_);
     const int sys = sqlite3_system_errno(db_);
@@ -109,22 +112,33 @@ namespace {
 bool process_gone(long long pid) { return pid > 0 && kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH; }
 }  // namespace
 
-bool RunStore::row_alive(const std::string& instance, long long pid) const {
+bool SqliteStore::row_alive(const std::string& instance, long long pid) const {
     if (instance.empty()) return !process_gone(pid);  // a row of an older fringe: only its PID to go by
     if (instance == instance_) return true;
     return instance_alive(dir_, instance);
 }
 
-void RunStore::begin(const std::string& id, const std::string& created_at, const std::string& scenario, const std::string& dut,
-                     const std::string& status) {
-    Stmt st(db_, "INSERT INTO runs (id, created_at, scenario, dut, status, pid, instance) VALUES (?, ?, ?, ?, ?, ?, ?)");
+void SqliteStore::begin(const std::string& id, const std::string& created_at, const std::string& scenario, const std::string& dut,
+                        const std::string& status, const nlohmann::json& prov) {
+    // A row without a report (an interrupted run of a deterministic sweep id) is taken over.
+    if (auto old = row(id); old && old->dead) mark_interrupted(id);
+    Stmt st(db_, "INSERT INTO runs (id, created_at, scenario, dut, status, pid, instance, bench, host, dut_part, operator) "
+                 "VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11) ON CONFLICT(id) DO UPDATE SET created_at = ?2, scenario = ?3, dut = ?4, "
+                 "status = ?5, pid = ?6, instance = ?7, bench = ?8, host = ?9, dut_part = ?10, operator = ?11, verdict = NULL, error = NULL "
+                 "WHERE runs.report IS NULL AND runs.status NOT IN ('queued', 'running')");
     st.bind(1, id); st.bind(2, created_at); st.bind(3, scenario); st.bind(4, dut); st.bind(5, status);
     st.bind(6, static_cast<long long>(getpid()));
     st.bind(7, instance_);
+    const bool has = prov.is_object();
+    st.bind(8, has ? prov.value("bench", std::string()) : std::string());
+    st.bind(9, has ? prov.value("host", std::string()) : std::string());
+    st.bind(10, has && prov["dut"].is_object() ? prov["dut"].value("part", std::string()) : std::string());
+    st.bind(11, has ? prov.value("operator", std::string()) : std::string());
     if (sqlite3_step(st.s) != SQLITE_DONE) fail();
+    if (sqlite3_changes(db_) == 0) throw StoreError("run store " + path_ + ": run " + id + " is already stored (or running)");
 }
 
-void RunStore::set_status(const std::string& id, const std::string& status) {
+void SqliteStore::set_status(const std::string& id, const std::string& status) {
     Stmt st(db_, "UPDATE runs SET status = ?2 WHERE id = ?1");
     st.bind(1, id); st.bind(2, status);
     if (sqlite3_step(st.s) != SQLITE_DONE) fail();
@@ -132,7 +146,8 @@ void RunStore::set_status(const std::string& id, const std::string& status) {
 
 namespace {
 constexpr const char* kRowColumns = "id, created_at, scenario, dut, status, COALESCE(verdict, ''), COALESCE(pid, 0), COALESCE(instance, ''), "
-                                    "COALESCE(error, ''), COALESCE(samples_done, 0), COALESCE(samples_total, 0), COALESCE(device, '')";
+                                    "COALESCE(error, ''), COALESCE(samples_done, 0), COALESCE(samples_total, 0), COALESCE(device, ''), "
+                                    "COALESCE(bench, ''), COALESCE(host, ''), COALESCE(dut_part, ''), COALESCE(operator, ''), COALESCE(forward, '')";
 RunRow read_row(const Stmt& st) {
     RunRow r;
     r.id = st.text(0);
@@ -145,12 +160,17 @@ RunRow read_row(const Stmt& st) {
     r.done = static_cast<std::uint64_t>(sqlite3_column_int64(st.s, 9));
     r.total = static_cast<std::uint64_t>(sqlite3_column_int64(st.s, 10));
     r.device = st.text(11);
+    r.bench = st.text(12);
+    r.host = st.text(13);
+    r.dut_part = st.text(14);
+    r.operator_name = st.text(15);
+    r.forward = st.text(16);
     return r;
 }
 const char* kInterruptedError = "interrupted: the process that ran it stopped without finishing (killed, or the machine went down)";
 }  // namespace
 
-std::optional<RunRow> RunStore::row(const std::string& id) const {
+std::optional<RunRow> SqliteStore::row(const std::string& id) const {
     Stmt st(db_, std::string("SELECT ") + kRowColumns + " FROM runs WHERE id = ?1");
     st.bind(1, id);
     if (sqlite3_step(st.s) != SQLITE_ROW) return std::nullopt;
@@ -164,7 +184,7 @@ std::optional<RunRow> RunStore::row(const std::string& id) const {
     return r;
 }
 
-int RunStore::mark_dead_interrupted() {
+int SqliteStore::mark_dead_interrupted() {
     std::vector<std::string> dead;
     {
         Stmt st(db_, "SELECT id, COALESCE(instance, '') FROM runs WHERE status IN ('queued', 'running')");
@@ -178,24 +198,28 @@ int RunStore::mark_dead_interrupted() {
     return static_cast<int>(dead.size());
 }
 
-void RunStore::mark_interrupted(const std::string& id) {
+void SqliteStore::mark_interrupted(const std::string& id) {
     Stmt st(db_, "UPDATE runs SET status = 'interrupted', verdict = 'ABORTED', pid = NULL, error = ?2 WHERE id = ?1 AND status IN ('queued', 'running')");
     st.bind(1, id);
     st.bind(2, std::string(kInterruptedError));
     if (sqlite3_step(st.s) != SQLITE_DONE) fail();
 }
 
-void RunStore::finish(const nlohmann::json& r) {
+void SqliteStore::finish(const nlohmann::json& r) {
     const std::string dut = r["device"].is_object() ? r["device"].value("board_id", std::string()) : std::string();
     const std::string scen_dut = r["scenario"].value("dut", std::string());
-    Stmt st(db_, "INSERT INTO runs (id, created_at, scenario, dut, status, verdict, pid, report, error, samples_done, samples_total, device) "
-                 "VALUES (?1, ?2, ?3, ?4, ?5, ?6, NULL, ?7, ?8, ?9, ?10, ?11) "
+    const json& prov = r.contains("provenance") && r["provenance"].is_object() ? r["provenance"] : json::object();
+    const std::string prov_dut = prov.contains("dut") && prov["dut"].is_object() ? prov["dut"].value("serial", std::string()) : std::string();
+    Stmt st(db_, "INSERT INTO runs (id, created_at, scenario, dut, status, verdict, pid, report, error, samples_done, samples_total, device, "
+                 "bench, host, dut_part, operator, fringe_version, scenario_sha256, report_sha256, forward) "
+                 "VALUES (?1, ?2, ?3, ?4, ?5, ?6, NULL, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18, ?19) "
                  "ON CONFLICT(id) DO UPDATE SET status = ?5, verdict = ?6, pid = NULL, report = ?7, dut = ?4, error = ?8, "
-                 "samples_done = ?9, samples_total = ?10, device = ?11");
+                 "samples_done = ?9, samples_total = ?10, device = ?11, bench = ?12, host = ?13, dut_part = ?14, operator = ?15, "
+                 "fringe_version = ?16, scenario_sha256 = ?17, report_sha256 = ?18, forward = ?19, forward_error = NULL");
     st.bind(1, r["id"].get<std::string>());
     st.bind(2, r.value("started_at", std::string()));
     st.bind(3, r["scenario"].value("name", std::string()));
-    st.bind(4, scen_dut.empty() ? dut : scen_dut);
+    st.bind(4, !scen_dut.empty() ? scen_dut : !prov_dut.empty() ? prov_dut : dut);
     st.bind(5, r.value("status", std::string()));
     st.bind(6, r.value("verdict", std::string()));
     // A device's message may quote bytes that are not UTF-8: stored as U+FFFD, the report is kept.
@@ -206,19 +230,50 @@ void RunStore::finish(const nlohmann::json& r) {
     st.bind_u64(9, samples.value("processed", std::uint64_t{0}));
     st.bind_u64(10, samples.value("planned", std::uint64_t{0}));
     st.bind(11, r.contains("device") && r["device"].is_object() ? r["device"].value("uri", std::string()) : std::string());
+    st.bind(12, prov.value("bench", std::string()));
+    st.bind(13, prov.value("host", std::string()));
+    st.bind(14, prov.contains("dut") && prov["dut"].is_object() ? prov["dut"].value("part", std::string()) : std::string());
+    st.bind(15, prov.value("operator", std::string()));
+    st.bind(16, r.value("fringe_version", std::string()));
+    st.bind(17, prov.value("scenario_sha256", std::string()));
+    st.bind(18, report_checksum(r));
+    if (spool_) st.bind(19, std::string("pending"));
     if (sqlite3_step(st.s) != SQLITE_DONE) fail();
 }
 
-std::vector<RunRow> RunStore::list(const RunFilter& f) const {
+std::vector<SqliteStore::Pending> SqliteStore::pending_forward(int limit) const {
+    Stmt st(db_, "SELECT id, report FROM runs WHERE forward = 'pending' AND report IS NOT NULL ORDER BY created_at, id LIMIT ?1");
+    st.bind(1, static_cast<long long>(limit));
+    std::vector<Pending> out;
+    while (sqlite3_step(st.s) == SQLITE_ROW) out.push_back({st.text(0), st.text(1)});
+    return out;
+}
+
+int SqliteStore::pending_count() const {
+    Stmt st(db_, "SELECT COUNT(*) FROM runs WHERE forward = 'pending'");
+    return sqlite3_step(st.s) == SQLITE_ROW ? static_cast<int>(sqlite3_column_int64(st.s, 0)) : 0;
+}
+
+void SqliteStore::set_forwarded(const std::string& id, const std::string& state, const std::string& error) {
+    Stmt st(db_, "UPDATE runs SET forward = ?2, forward_error = ?3 WHERE id = ?1");
+    st.bind(1, id); st.bind(2, state); st.bind(3, error);
+    if (sqlite3_step(st.s) != SQLITE_DONE) fail();
+}
+
+std::vector<RunRow> SqliteStore::list(const RunFilter& f) const {
     std::string sql = std::string("SELECT ") + kRowColumns + " FROM runs WHERE 1";
     if (!f.verdict.empty()) sql += " AND verdict = ?1";
     if (!f.scenario.empty()) sql += " AND scenario = ?2";
     if (!f.since.empty()) sql += " AND created_at >= ?3";
+    if (!f.bench.empty()) sql += " AND bench = ?5";
+    if (!f.dut.empty()) sql += " AND dut = ?6";
     sql += " ORDER BY created_at DESC, id DESC LIMIT ?4";
     Stmt st(db_, sql);
     if (!f.verdict.empty()) st.bind(1, f.verdict);
     if (!f.scenario.empty()) st.bind(2, f.scenario);
     if (!f.since.empty()) st.bind(3, f.since);
+    if (!f.bench.empty()) st.bind(5, f.bench);
+    if (!f.dut.empty()) st.bind(6, f.dut);
     st.bind(4, static_cast<long long>(f.limit));
     std::vector<RunRow> out;
     while (sqlite3_step(st.s) == SQLITE_ROW) {
@@ -233,7 +288,7 @@ std::vector<RunRow> RunStore::list(const RunFilter& f) const {
     return out;
 }
 
-std::optional<std::string> RunStore::report_text(const std::string& id) const {
+std::optional<std::string> SqliteStore::report_text(const std::string& id) const {
     Stmt st(db_, "SELECT report FROM runs WHERE id = ?1");
     st.bind(1, id);
     if (sqlite3_step(st.s) != SQLITE_ROW || sqlite3_column_type(st.s, 0) == SQLITE_NULL) return std::nullopt;

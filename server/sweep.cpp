@@ -1,10 +1,13 @@
 #include "sweep.hpp"
 
+#include "limits.hpp"
+#include "provenance.hpp"
 #include "run.hpp"
 #include "scenario.hpp"
 #include "signal_gen/config.hpp"
 
 #include <atomic>
+#include <cstdlib>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
@@ -121,28 +124,44 @@ Sweep load_sweep(const std::string& path) {
     return s;
 }
 
-std::vector<SweepResult> run_sweep(const Sweep& s, int jobs, const std::function<void(std::size_t, std::size_t)>& progress) {
-    std::vector<SweepResult> out(s.rows.size());
+SweepResult sweep_result(const Sweep& s, const SweepRow& row, const json& rep) {
+    SweepResult res;
+    res.row = row;
+    res.status = rep.value("status", std::string("error"));
+    res.verdict = rep.value("verdict", std::string("ERROR"));
+    if (rep.contains("error") && rep["error"].is_string()) res.error = rep["error"];
+    for (const auto& c : s.columns) {
+        std::optional<double> v;
+        for (const auto& e : rep.value("estimators", json::array()))
+            if (e["label"] == c.estimator) v = metric_value(c.metric, e["metrics"], e["bounds"]);
+        res.values.push_back(v);
+    }
+    res.wall_s = rep.value("wall_s", 0.0);
+    return res;
+}
+
+std::vector<SweepResult> run_sweep(const Sweep& s, int jobs, const std::function<void(std::size_t, std::size_t)>& progress,
+                                   const std::vector<std::size_t>* rows, const SweepExecute& execute) {
+    std::vector<std::size_t> all;
+    if (!rows) {
+        for (std::size_t k = 0; k < s.rows.size(); ++k) all.push_back(k);
+        rows = &all;
+    }
+    std::vector<SweepResult> out(rows->size());
     std::atomic<std::size_t> next{0}, done{0};
     std::mutex mu;
     auto worker = [&] {
-        for (std::size_t i; (i = next++) < s.rows.size();) {
+        for (std::size_t j; (j = next++) < rows->size();) {
+            const std::size_t i = (*rows)[j];
             SweepResult res;
             res.row = s.rows[i];
             const auto t0 = std::chrono::steady_clock::now();
             try {
                 json sc = s.base;
                 for (const auto& [k, v] : s.rows[i].set.items()) set_by_path(sc, k, v);
-                const json rep = execute_run(scenario_from_json(sc, s.base_dir));
-                res.status = rep["status"];
-                res.verdict = rep["verdict"];
-                if (rep["error"].is_string()) res.error = rep["error"];
-                for (const auto& c : s.columns) {
-                    std::optional<double> v;
-                    for (const auto& e : rep["estimators"])
-                        if (e["label"] == c.estimator) v = metric_value(c.metric, e["metrics"], e["bounds"]);
-                    res.values.push_back(v);
-                }
+                const Scenario scenario = scenario_from_json(sc, s.base_dir);
+                const json rep = execute ? execute(i, scenario) : execute_run(scenario);
+                res = sweep_result(s, s.rows[i], rep);
             } catch (const std::exception& e) {
                 res.status = "error";
                 res.verdict = "ERROR";
@@ -150,20 +169,65 @@ std::vector<SweepResult> run_sweep(const Sweep& s, int jobs, const std::function
                 res.values.assign(s.columns.size(), std::nullopt);
             }
             res.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-            out[i] = std::move(res);
+            out[j] = std::move(res);
             const std::size_t d = ++done;
             if (progress) {
                 std::lock_guard<std::mutex> lock(mu);
-                progress(d, s.rows.size());
+                progress(d, rows->size());
             }
         }
     };
     int n = jobs > 0 ? jobs : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-    n = std::min<int>(n, static_cast<int>(s.rows.size()));
+    n = std::min<int>(n, static_cast<int>(rows->size()));
     std::vector<std::thread> pool;
     for (int k = 0; k < n; ++k) pool.emplace_back(worker);
     for (auto& t : pool) t.join();
     return out;
+}
+
+std::string sweep_digest(const Sweep& s) {
+    json rows = json::array();
+    for (const auto& r : s.rows) rows.push_back(r.set);
+    return sha256_hex(canonical_json(json{{"base", s.base}, {"rows", rows}}));
+}
+
+std::string sweep_run_id(const Sweep& s, std::size_t k) {
+    char n[32];
+    std::snprintf(n, sizeof n, "%04zu", k);
+    return "sweep-" + sweep_digest(s).substr(0, 16) + "-" + n;
+}
+
+Shard parse_shard(const std::string& text) {
+    const auto slash = text.find('/');
+    auto num = [&](const std::string& t) -> std::size_t {
+        if (t.empty() || t.size() > 9 || t.find_first_not_of("0123456789") != std::string::npos)
+            throw ConfigError("shard", "expected I/N with whole numbers, 0 <= I < N (e.g. 0/3); got '" + text + "'");
+        return static_cast<std::size_t>(std::stoul(t));
+    };
+    if (slash == std::string::npos) throw ConfigError("shard", "expected I/N with whole numbers, 0 <= I < N (e.g. 0/3); got '" + text + "'");
+    Shard sh{num(text.substr(0, slash)), num(text.substr(slash + 1))};
+    if (sh.count == 0 || sh.index >= sh.count) throw ConfigError("shard", "expected 0 <= I < N; got '" + text + "'");
+    return sh;
+}
+
+std::optional<Shard> shard_from_env(std::size_t count_hint) {
+    auto env = [](const char* n) -> std::string {
+        const char* v = std::getenv(n);
+        return v ? v : "";
+    };
+    if (const std::string id = env("SLURM_ARRAY_TASK_ID"); !id.empty()) {
+        const std::string count = env("SLURM_ARRAY_TASK_COUNT"), min = env("SLURM_ARRAY_TASK_MIN");
+        if (count.empty()) throw ConfigError("shard", "SLURM_ARRAY_TASK_ID is set but SLURM_ARRAY_TASK_COUNT is not: give --shard I/N");
+        const Shard raw = parse_shard("0/" + count);
+        const std::size_t i = parse_shard(id + "/999999999").index - (min.empty() ? 0 : parse_shard(min + "/999999999").index);
+        return parse_shard(std::to_string(i) + "/" + std::to_string(raw.count));
+    }
+    if (const std::string idx = env("JOB_COMPLETION_INDEX"); !idx.empty()) {
+        std::string count = count_hint ? std::to_string(count_hint) : env("FRINGE_SHARD_COUNT");
+        if (count.empty()) throw ConfigError("shard", "JOB_COMPLETION_INDEX is set but not the number of shards: give --shard-count N (the Job's completions) or FRINGE_SHARD_COUNT");
+        return parse_shard(idx + "/" + count);
+    }
+    return std::nullopt;
 }
 
 namespace {

@@ -6,12 +6,15 @@
 
 #include <nlohmann/json.hpp>
 
+#include <cstddef>
 #include <functional>
 #include <optional>
 #include <string>
 #include <vector>
 
 namespace fringe {
+
+struct Scenario;
 
 struct SweepColumn {
     std::string estimator;  // label
@@ -45,7 +48,30 @@ struct SweepResult {
     double wall_s = 0;
 };
 
-std::vector<SweepResult> run_sweep(const Sweep& s, int jobs, const std::function<void(std::size_t done, std::size_t total)>& progress = {});
+// Runs one row's scenario and returns its report (default: execute_run). fringe sweep --store
+// gives each run its deterministic id and provenance and stores it.
+using SweepExecute = std::function<nlohmann::json(std::size_t row, const Scenario& sc)>;
+// rows: which rows, in this order (null: all); the results come back in that order.
+std::vector<SweepResult> run_sweep(const Sweep& s, int jobs, const std::function<void(std::size_t done, std::size_t total)>& progress = {},
+                                   const std::vector<std::size_t>* rows = nullptr, const SweepExecute& execute = {});
+// What a row's table cells are, from its run's report (a stored one, for --collect).
+SweepResult sweep_result(const Sweep& s, const SweepRow& row, const nlohmann::json& report);
+
+// SHA-256 of what decides the runs (the base scenario and every row's settings), hex.
+std::string sweep_digest(const Sweep& s);
+// Row k's run id: "sweep-" + 16 hex digits of the digest + "-" + k (4 digits or more). The
+// same sweep file gives the same ids on every host, so a retried shard finds its rows stored.
+std::string sweep_run_id(const Sweep& s, std::size_t k);
+
+// --shard I/N: I in [0, N). Parses "I/N"; throws ConfigError("shard", ...).
+struct Shard {
+    std::size_t index = 0, count = 1;
+};
+Shard parse_shard(const std::string& text);
+// The batch scheduler's: SLURM_ARRAY_TASK_ID (less SLURM_ARRAY_TASK_MIN) of
+// SLURM_ARRAY_TASK_COUNT, or Kubernetes' JOB_COMPLETION_INDEX of count_hint (or
+// $FRINGE_SHARD_COUNT). nullopt when none is set.
+std::optional<Shard> shard_from_env(std::size_t count_hint = 0);
 std::string sweep_csv(const Sweep& s, const std::vector<SweepResult>& r);
 std::string sweep_markdown(const Sweep& s, const std::vector<SweepResult>& r);
 

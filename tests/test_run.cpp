@@ -4,10 +4,14 @@
 
 #include "drivers/capture_file.hpp"
 #include "drivers/device.hpp"
+#include "server/forward.hpp"
+#include "server/pg_store.hpp"
+#include "server/provenance.hpp"
 #include "server/report_formats.hpp"
 #include "server/run.hpp"
 #include "server/scenario.hpp"
 #include "server/store.hpp"
+#include "server/sweep.hpp"
 #include "signal_gen/config.hpp"
 #include "signal_gen/fastmath.hpp"
 
@@ -328,7 +332,7 @@ TEST_CASE("run history: begin, finish, list, interrupted runs", "[store]") {
     const std::string dir = std::filesystem::temp_directory_path() / ("fringe-store-" + std::to_string(getpid()));
     std::filesystem::remove_all(dir);
     {
-        RunStore st(dir + "/runs.db");
+        SqliteStore st(dir + "/runs.db");
         Scenario sc = short_run(0.2);
         RunOptions o;
         o.run_id = "run-a";
@@ -338,13 +342,119 @@ TEST_CASE("run history: begin, finish, list, interrupted runs", "[store]") {
         // a run whose process died: pid that cannot exist
         st.begin("run-b", "2026-01-01T00:00:01Z", "dead", "");
     }
-    RunStore st(dir + "/runs.db");
+    SqliteStore st(dir + "/runs.db");
     auto rows = st.list();
     REQUIRE(rows.size() == 2);
     const auto a = st.report("run-a");
     REQUIRE(a);
     CHECK((*a)["verdict"] == "PASS");
-    CHECK(st.list({"PASS", "", "", 10}).size() == 1);
+    CHECK(st.list({"PASS", "", "", 10, "", ""}).size() == 1);
     CHECK_FALSE(st.report("run-b"));
+    std::filesystem::remove_all(dir);
+}
+
+TEST_CASE("provenance helpers: SHA-256, UUIDv7, checksums, store URIs, shards", "[store]") {
+    // FIPS 180-4 examples, including a message whose padding needs a second block.
+    CHECK(sha256_hex("") == "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855");
+    CHECK(sha256_hex("abc") == "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
+    CHECK(sha256_hex("abcdbcdecdefdefgefghfghighijhijkijkljklmklmnlmnomnopnopq") == "248d6a61d20638b8e5c026930c3e6039a33ce45964ff2167f6ecedd419db06c1");
+    CHECK(sha256_hex(std::string(1000000, 'a')) == "cdc76e5c9914fb9281a1c7e284d73e67f1809a48a497200e046d39ccc7112cd0");
+
+    std::string prev;
+    for (int i = 0; i < 50; ++i) {
+        const std::string id = new_run_id();
+        REQUIRE(id.size() == 36);
+        CHECK(id[14] == '7');                                    // version
+        CHECK(std::string("89ab").find(id[19]) != std::string::npos);  // variant
+        CHECK(id.substr(0, 13) >= prev.substr(0, std::min<std::size_t>(13, prev.size())));  // the millisecond prefix never goes back
+        CHECK(id != prev);
+        prev = id;
+    }
+
+    // The same results at another time, on another bench: the same checksum; other results: not.
+    json r{{"id", "x"}, {"started_at", "2026-01-01T00:00:00Z"}, {"wall_s", 1.5}, {"verdict", "PASS"}, {"provenance", {{"bench", "a"}}}};
+    json r2 = r;
+    r2["started_at"] = "2027-01-01T00:00:00Z";
+    r2["wall_s"] = 9.0;
+    r2["provenance"]["bench"] = "b";
+    CHECK(report_checksum(r) == report_checksum(r2));
+    r2["verdict"] = "FAIL";
+    CHECK(report_checksum(r) != report_checksum(r2));
+
+    CHECK(redact_store_uri("postgresql://fringe:s3cret@db:5432/runs") == "postgresql://fringe:***@db:5432/runs");
+    CHECK(redact_store_uri("postgresql://db/runs?user=f&password=s3cret&sslmode=require") == "postgresql://db/runs?user=f&password=***&sslmode=require");
+    CHECK(redact_store_uri("postgresql:///runs?host=/tmp/x") == "postgresql:///runs?host=/tmp/x");
+    CHECK(parse_store_uri("", "/d").sqlite_path == "/d/runs.db");
+    CHECK(parse_store_uri("sqlite:/x/h.db", "/d").sqlite_path == "/x/h.db");
+    const auto pg = parse_store_uri("postgres://db/r", "/d");
+    CHECK((pg.kind == StoreUri::Kind::Postgres && pg.sqlite_path == "/d/runs.db"));
+    CHECK_THROWS_AS(parse_store_uri("mysql://db", "/d"), ConfigError);
+
+    CHECK(parse_shard("2/3").index == 2);
+    for (const char* bad : {"3/3", "1/0", "-1/3", "a/b", "1", "1/3/4", ""}) CHECK_THROWS_AS(parse_shard(bad), ConfigError);
+    ::setenv("SLURM_ARRAY_TASK_ID", "5", 1);
+    ::setenv("SLURM_ARRAY_TASK_COUNT", "4", 1);
+    ::setenv("SLURM_ARRAY_TASK_MIN", "3", 1);  // --array=3-6
+    const auto sh = shard_from_env();
+    REQUIRE(sh);
+    CHECK((sh->index == 2 && sh->count == 4));
+    for (const char* v : {"SLURM_ARRAY_TASK_ID", "SLURM_ARRAY_TASK_COUNT", "SLURM_ARRAY_TASK_MIN"}) ::unsetenv(v);
+    ::setenv("JOB_COMPLETION_INDEX", "1", 1);
+    CHECK_THROWS_AS(shard_from_env(), ConfigError);  // no count
+    CHECK(shard_from_env(3)->index == 1);
+    ::unsetenv("JOB_COMPLETION_INDEX");
+    CHECK(!shard_from_env());
+
+    // Deterministic sweep ids: the same file gives the same ids; another setting, other ids.
+    const Sweep s = load_sweep(std::string(FRINGE_SOURCE_DIR) + "/fixtures/sweeps/table1.json");
+    CHECK(sweep_run_id(s, 7) == sweep_run_id(load_sweep(std::string(FRINGE_SOURCE_DIR) + "/fixtures/sweeps/table1.json"), 7));
+    CHECK(sweep_run_id(s, 7).size() == std::string("sweep-0123456789abcdef-0007").size());
+    Sweep s2 = s;
+    s2.base["seed"] = 2;
+    CHECK(sweep_digest(s2) != sweep_digest(s));
+}
+
+TEST_CASE("run history: provenance columns, filters, the forward state, an interrupted row taken over", "[store]") {
+    const std::string dir = std::filesystem::temp_directory_path() / ("fringe-prov-" + std::to_string(getpid()));
+    std::filesystem::remove_all(dir);
+    Scenario sc = short_run(0.2);
+    sc.dut = "SN-1";
+    sc.dut_part = "P-9";
+    ProvenanceDefaults pd;
+    pd.bench = "bench-x";
+    pd.host = "h";
+    pd.operator_name = "op";
+    RunOptions o;
+    o.run_id = "sweep-0000000000000000-0001";
+    o.provenance = make_provenance(pd, sc);
+    {
+        SqliteStore st(dir + "/runs.db", "0123456789abcdef");
+        st.set_spool(true);
+        // A row left running by a process that is gone (no instance lock held): taken over.
+        {
+            SqliteStore gone(dir + "/runs.db", "fedcba9876543210");
+            gone.begin(o.run_id, "2026-01-01T00:00:00Z", sc.name, sc.dut, "running");
+        }
+        st.begin(o.run_id, "2026-01-01T00:00:01Z", sc.name, sc.dut, "running", o.provenance);
+        const auto rep = execute_run(sc, o);
+        CHECK(rep["provenance"]["dut"] == json({{"serial", "SN-1"}, {"part", "P-9"}}));
+        CHECK(rep["provenance"]["scenario_sha256"] == sha256_hex(canonical_json(json(sc))));
+        st.finish(rep);
+        CHECK_THROWS_AS(st.begin(o.run_id, "2026-01-01T00:00:02Z", sc.name, sc.dut), StoreError);  // a reported row is never taken over
+        RunFilter f;
+        f.bench = "bench-x";
+        REQUIRE(st.list(f).size() == 1);
+        const RunRow row = st.list(f)[0];
+        CHECK((row.dut == "SN-1" && row.dut_part == "P-9" && row.operator_name == "op" && row.host == "h" && row.forward == "pending"));
+        f.bench = "other";
+        CHECK(st.list(f).empty());
+        f = {};
+        f.dut = "SN-1";
+        CHECK(st.list(f).size() == 1);
+        REQUIRE(st.pending_forward(10).size() == 1);
+        st.set_forwarded(o.run_id, "done");
+        CHECK(st.pending_count() == 0);
+        CHECK(st.row(o.run_id)->forward == "done");
+    }
     std::filesystem::remove_all(dir);
 }

@@ -919,7 +919,7 @@ TEST_CASE("service: one service per data folder, runs of a gone instance are int
     // A row left "running" by an instance whose lock is free, with this very PID (a service
     // restarted as PID 1 in a container, or a reused PID): interrupted at the next start.
     {
-        RunStore st((d.path / "runs.db").string(), "0123456789abcdef");
+        SqliteStore st((d.path / "runs.db").string(), "0123456789abcdef");
         st.begin("20000101T000000Z-00000001", "2000-01-01T00:00:00Z", "x", "", "running");
     }
     Service s(config(d));
@@ -932,7 +932,7 @@ TEST_CASE("service: one service per data folder, runs of a gone instance are int
     auto cli = std::make_unique<InstanceLock>();
     cli->acquire_instance(d.path.string(), "cli-00000000000000ab");
     {
-        RunStore st((d.path / "runs.db").string(), cli->id());
+        SqliteStore st((d.path / "runs.db").string(), cli->id());
         st.begin("20000101T000000Z-00000002", "2000-01-01T00:00:01Z", "y", "", "running");
     }
     CHECK(body_of(s.handle(req("GET", "/api/v1/runs/20000101T000000Z-00000002", "", false)))["status"] == "running");

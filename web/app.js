@@ -49,23 +49,29 @@ async function runList(params) {
   verdict.value = q.get('outcome') || '';
   const scenario = h('input', { name: 'scenario', value: q.get('scenario') || '', placeholder: 'scenario name' });
   const since = h('input', { name: 'since', type: 'date', value: (q.get('since') || '').slice(0, 10) });
+  // With a shared store (fringe serve --store postgresql://...) the list holds every bench's runs.
+  const bench = h('input', { name: 'bench', value: q.get('bench') || '', placeholder: 'bench name' });
+  const dut = h('input', { name: 'dut', value: q.get('dut') || '', placeholder: 'DUT serial' });
   const apply = (ev) => {
     ev.preventDefault();
     const p = new URLSearchParams();
     if (verdict.value) p.set('outcome', verdict.value);
     if (scenario.value) p.set('scenario', scenario.value);
     if (since.value) p.set('since', `${since.value}T00:00:00Z`);
+    if (bench.value) p.set('bench', bench.value);
+    if (dut.value) p.set('dut', dut.value);
     location.hash = `#/runs?${p}`;
   };
   const tbody = h('tbody');
-  const table = h('table', { id: 'runs' }, h('thead', {}, h('tr', {}, ['', 'run', 'scenario', 'started (UTC)', 'status', 'verdict', 'progress'].map((c) => h('th', {}, c)))), tbody);
+  const table = h('table', { id: 'runs' }, h('thead', {}, h('tr', {}, ['', 'run', 'bench', 'scenario', 'DUT', 'started (UTC)', 'status', 'verdict', 'progress'].map((c) => h('th', {}, c)))), tbody);
   const pick = new Set();
   const compareBtn = h('button', { type: 'button', disabled: true, onclick: () => { const [a, b] = [...pick]; location.hash = `#/compare/${a}/${b}`; } }, 'compare selected');
   view.replaceChildren(
     h('h1', {}, 'Runs'),
     h('form', { class: 'filters', onsubmit: apply },
       h('label', { class: 'field' }, 'verdict', verdict), h('label', { class: 'field' }, 'scenario', scenario),
-      h('label', { class: 'field' }, 'since', since), h('button', { type: 'submit' }, 'filter'), compareBtn,
+      h('label', { class: 'field' }, 'since', since), h('label', { class: 'field' }, 'bench', bench),
+      h('label', { class: 'field' }, 'DUT', dut), h('button', { type: 'submit' }, 'filter'), compareBtn,
       h('a', { class: 'button', href: '#/new' }, 'New run')),
     scroller(table));
   const refresh = async () => {
@@ -79,7 +85,8 @@ async function runList(params) {
       box.checked = pick.has(r.id);
       const frac = r.progress && r.progress.total ? r.progress.done / r.progress.total : null;
       return h('tr', { 'data-id': r.id, 'data-status': r.status },
-        h('td', {}, box), h('td', {}, h('a', { href: `#/run/${r.id}` }, r.id)), h('td', {}, r.scenario), h('td', {}, r.created_at),
+        h('td', {}, box), h('td', {}, h('a', { href: `#/run/${r.id}` }, r.id)), h('td', {}, r.bench || ''), h('td', {}, r.scenario),
+        h('td', {}, r.dut || ''), h('td', {}, r.created_at),
         h('td', {}, r.status), h('td', {}, verdictBadge(r.verdict)),
         h('td', {}, frac == null || r.status !== 'running' ? '' : `${(100 * frac).toFixed(0)} %`));
     }));

@@ -1,7 +1,9 @@
 // fringe run: one scenario, here or on a fringe serve (--server); exit 0 PASS/MARGINAL, 1 FAIL, 2 ERROR.
 #include "server/cli/commands.hpp"
 #include "signal_gen/config.hpp"
+#include "server/forward.hpp"
 #include "server/instance_lock.hpp"
+#include "server/provenance.hpp"
 #include "server/remote.hpp"
 #include "server/report_formats.hpp"
 #include "server/run.hpp"
@@ -22,7 +24,9 @@ namespace {
 using nlohmann::json;
 
 struct RunCliOptions {
-    std::string scenario, report, junit, html, data, record, device, server, token_file;
+    std::string scenario, report, junit, html, data, record, device, server, token_file, store;
+    std::string bench, dut, dut_part, operator_name;
+    double forward_wait_s = 10;
     std::int64_t seed = -1;
     bool no_db = false, quiet = false;
 };
@@ -32,6 +36,7 @@ struct RunCliOptions {
 int run_run_remote(const RunCliOptions& o, const Scenario& sc) {
     if (!o.record.empty()) throw ConfigError("record", "--record needs the device on this host; not with --server");
     if (!o.data.empty()) throw ConfigError("data", "the service keeps the history; --data does not apply with --server");
+    if (!o.store.empty()) throw ConfigError("store", "the service keeps the history; --store does not apply with --server");
     if (sc.motion.kind == MotionKind::Table)
         throw ConfigError("motion.file", "a table motion is read from a file on the service's host; with --server, put the table in the service's fixtures and run a scenario there");
     const ServiceUrl url = parse_service_url(o.server);
@@ -71,6 +76,8 @@ int run_run(const RunCliOptions& o) {
         sc.device = o.device;
         sc.instruments.reset();
     }
+    if (!o.dut.empty()) sc.dut = o.dut;
+    if (!o.dut_part.empty()) sc.dut_part = o.dut_part;
     validate_run(sc);  // preflight errors stop here (exit 2); warnings come back in the report
     if (!o.server.empty()) return run_run_remote(o, sc);
     // The run's row names this process's instance, whose lock we hold until the report is
@@ -80,14 +87,27 @@ int run_run(const RunCliOptions& o) {
     RunOptions ro;
     ro.run_id = new_run_id();
     ro.record_path = o.record;
+    ProvenanceDefaults pd = provenance_defaults();
+    if (!o.bench.empty()) pd.bench = o.bench;
+    if (!o.operator_name.empty()) pd.operator_name = o.operator_name;
+    ro.provenance = make_provenance(pd, sc);
     // Ctrl-C / SIGTERM: finish the block, end the run as ABORTED and keep its report.
     ro.cancel = &cancel_flag();
     install_cancel_handlers();
+    ForwardingStore* forwarder = nullptr;
     if (!o.no_db) {
-        const std::string dir = o.data.empty() ? default_data_dir() : o.data;
-        instance.acquire_instance(dir, "cli-" + new_instance_id());
-        store = std::make_unique<RunStore>(dir + "/runs.db", instance.id());
-        store->begin(ro.run_id, iso_now(), sc.name, sc.dut);
+        const StoreUri su = parse_store_uri(o.store, o.data.empty() ? default_data_dir() : o.data);
+        const std::string dir = std::filesystem::path(su.sqlite_path).parent_path().string();
+        instance.acquire_instance(dir.empty() ? "." : dir, "cli-" + new_instance_id());
+        store = open_store(su, instance.id());
+        forwarder = dynamic_cast<ForwardingStore*>(store.get());
+        if (forwarder) {
+            // Reports an earlier run on this folder could not forward go first; a database
+            // that is down costs one connect timeout here, and the run goes on.
+            const auto p = forwarder->forward_pending();
+            if (p.forwarded) spdlog::info("forwarded {} earlier run(s) to {}", p.forwarded, redact_store_uri(su.pg_uri));
+        }
+        store->begin(ro.run_id, iso_now(), sc.name, sc.dut, "running", ro.provenance);
     }
     Progress progress("run", "samples", o.quiet);
     if (progress.active()) ro.progress = [&](std::uint64_t done, std::uint64_t total) { progress.update(done, total); };
@@ -95,7 +115,7 @@ int run_run(const RunCliOptions& o) {
     try {
         r = execute_run(sc, ro);
     } catch (const std::exception& e) {  // the history must not keep it "running"
-        r = unstarted_report(sc, ro.run_id, iso_now(), "error", "ERROR", e.what());
+        r = unstarted_report(sc, ro.run_id, iso_now(), "error", "ERROR", e.what(), ro.provenance);
     }
     progress.clear();
     // The report survives first: files, then the history.
@@ -110,8 +130,18 @@ int run_run(const RunCliOptions& o) {
             store_error = e.what();
         }
     }
+    // Stored here; now to the shared store, for a bounded time. What is still pending stays
+    // marked in DATA/runs.db and goes with the next fringe run / serve / sweep on this folder.
+    std::string forward_note;
+    if (forwarder && store_error.empty()) {
+        const auto p = forwarder->forward_until(o.forward_wait_s);
+        if (p.conflicts) forward_note = "the shared store holds a different report under run id " + ro.run_id + " (flagged in its run_conflicts; neither overwritten)";
+        else if (p.pending) forward_note = "forwarding pending: " + std::to_string(p.pending) + " run(s) kept in " + forwarder->describe() +
+                                           " are not in the shared store yet (" + p.error + "); the next fringe run, serve or sweep with this --data and --store forwards them";
+    }
     if (!o.quiet) print_run_summary(r, sc.name);
     if (r["status"] == "error") spdlog::error("{}", r["error"].get<std::string>());
+    if (!forward_note.empty()) spdlog::warn("{}", forward_note);
     if (!store_error.empty()) {
         // A verdict that is not in the history is not a finished run: say so and fail.
         spdlog::error("the run's report could not be stored in the history: {}{}", store_error,
@@ -131,6 +161,14 @@ Command add_run(CLI::App& app) {
     rn->add_option("--junit", o->junit, "Write JUnit XML here (one testcase per measurement)");
     rn->add_option("--html", o->html, "Write a self-contained HTML report here");
     rn->add_option("--data", o->data, "Data directory for the run history (default $FRINGE_DATA or ~/.local/share/fringe)");
+    rn->add_option("--store", o->store, "Run store: sqlite:PATH, or a shared PostgreSQL (postgresql://USER@HOST/DB, postgresql:///DB?host=/socket/dir) "
+                                        "written through DATA/runs.db and forwarded (default DATA/runs.db)");
+    rn->add_option("--forward-wait", o->forward_wait_s, "With a PostgreSQL --store: seconds to keep retrying the forward before leaving it pending")
+        ->check(CLI::NonNegativeNumber)->capture_default_str();
+    rn->add_option("--bench", o->bench, "Bench name in the run's provenance (default $FRINGE_BENCH, else the host name)");
+    rn->add_option("--dut", o->dut, "DUT serial (overrides the scenario's \"dut\"; default the device's board id)");
+    rn->add_option("--dut-part", o->dut_part, "DUT part number (overrides the scenario's \"dut_part\")");
+    rn->add_option("--operator", o->operator_name, "Operator in the run's provenance (default $USER)");
     rn->add_option("--seed", o->seed, "Override the scenario's seed (0 to 2^53)")->check(kSeedRange);
     rn->add_flag("--no-db", o->no_db, "Do not record the run in the history");
     rn->add_option("--device", o->device, "Override the scenario's device URI (e.g. modbus+tcp://127.0.0.1:1502?board=dut-interpolator)");

@@ -1,6 +1,7 @@
 // fringe runs: the run history, filtered, or one run's summary.
 #include "server/cli/commands.hpp"
 #include "signal_gen/config.hpp"
+#include "server/forward.hpp"
 #include "server/run.hpp"
 #include "server/scenario.hpp"
 #include "server/service.hpp"
@@ -18,7 +19,7 @@ namespace {
 using nlohmann::json;
 
 struct RunsOptions {
-    std::string data, verdict, scenario, since, show;
+    std::string data, store, verdict, scenario, since, show, bench, dut;
     int limit = 20;
     bool as_json = false;
 };
@@ -54,7 +55,9 @@ std::string parse_since(const std::string& v) {
 }
 
 int run_runs(const RunsOptions& o) {
-    RunStore store((o.data.empty() ? default_data_dir() : o.data) + "/runs.db");
+    // A PostgreSQL --store is read directly: every bench's forwarded runs.
+    const auto store_ptr = open_store_reader(parse_store_uri(o.store, o.data.empty() ? default_data_dir() : o.data));
+    RunStore& store = *store_ptr;
     if (!o.show.empty()) {
         auto r = store.report(o.show);
         if (!r) {
@@ -65,7 +68,12 @@ int run_runs(const RunsOptions& o) {
         else print_run_summary(*r, (*r)["scenario"].value("name", std::string("run")));
         return kExitOk;
     }
-    RunFilter f{o.verdict, o.scenario, o.since, o.limit};
+    RunFilter f;
+    f.verdict = o.verdict;
+    f.scenario = o.scenario;
+    f.bench = o.bench;
+    f.dut = o.dut;
+    f.limit = o.limit;
     if (!o.verdict.empty()) {
         const auto v = verdict_from(o.verdict);
         if (!v) throw ConfigError("verdict", "expected PASS, MARGINAL, FAIL, ERROR or ABORTED (any case); got '" + o.verdict + "'");
@@ -76,19 +84,21 @@ int run_runs(const RunsOptions& o) {
     if (o.as_json) {
         json a = json::array();
         for (const auto& r : rows)
-            a.push_back({{"id", r.id}, {"created_at", r.created_at}, {"scenario", r.scenario}, {"dut", r.dut}, {"status", r.status}, {"verdict", r.verdict}});
+            a.push_back({{"id", r.id}, {"created_at", r.created_at}, {"scenario", r.scenario}, {"dut", r.dut}, {"status", r.status}, {"verdict", r.verdict},
+                         {"bench", r.bench}, {"host", r.host}, {"dut_part", r.dut_part}, {"operator", r.operator_name}, {"forward", r.forward}});
         std::printf("%s\n", a.dump(2, ' ', false, json::error_handler_t::replace).c_str());
         return kExitOk;
     }
     // Columns as wide as their widest cell.
-    std::vector<std::array<std::string, 6>> cells{{"id", "started", "scenario", "dut", "status", "verdict"}};
-    for (const auto& r : rows) cells.push_back({r.id, r.created_at, r.scenario, r.dut, r.status, r.verdict});
-    std::array<std::size_t, 6> w{};
+    constexpr std::size_t kCols = 7;
+    std::vector<std::array<std::string, kCols>> cells{{"id", "started", "bench", "scenario", "dut", "status", "verdict"}};
+    for (const auto& r : rows) cells.push_back({r.id, r.created_at, r.bench, r.scenario, r.dut, r.status, r.verdict});
+    std::array<std::size_t, kCols> w{};
     for (const auto& c : cells)
-        for (std::size_t k = 0; k < 6; ++k) w[k] = std::max(w[k], c[k].size());
+        for (std::size_t k = 0; k < kCols; ++k) w[k] = std::max(w[k], c[k].size());
     for (const auto& c : cells) {
         std::string line;
-        for (std::size_t k = 0; k < 6; ++k) line += c[k] + (k + 1 < 6 ? std::string(w[k] - c[k].size() + 2, ' ') : "");
+        for (std::size_t k = 0; k < kCols; ++k) line += c[k] + (k + 1 < kCols ? std::string(w[k] - c[k].size() + 2, ' ') : "");
         std::printf("%s\n", line.c_str());
     }
     if (rows.empty()) std::fprintf(stderr, "no runs match\n");
@@ -101,6 +111,9 @@ Command add_runs(CLI::App& app) {
     auto o = std::make_shared<RunsOptions>();
     auto* rs = app.add_subcommand("runs", "List the run history (newest first), or print one run's report");
     rs->add_option("--data", o->data, "Data directory (default $FRINGE_DATA or ~/.local/share/fringe)");
+    rs->add_option("--store", o->store, "Run store: sqlite:PATH or postgresql://... (read directly: every bench's runs); default DATA/runs.db");
+    rs->add_option("--bench", o->bench, "Only runs of this bench");
+    rs->add_option("--dut", o->dut, "Only runs of this DUT serial");
     rs->add_option("--verdict", o->verdict, "Only runs with this verdict (PASS, MARGINAL, FAIL, ERROR, ABORTED; any case)");
     rs->add_option("--scenario", o->scenario, "Only runs of this scenario name");
     rs->add_option("--since", o->since, "Only runs started at or after this UTC date or time (2026-11-21, 2026-11-21T15:00:00Z), today, yesterday or Nd");

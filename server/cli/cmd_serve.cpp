@@ -19,7 +19,7 @@ namespace {
 using nlohmann::json;
 
 struct ServeOptions {
-    std::string bind = "127.0.0.1:8080", data, token_file, fixtures = FRINGE_SOURCE_DIR "/fixtures", web = FRINGE_SOURCE_DIR "/web";
+    std::string bind = "127.0.0.1:8080", data, store, bench, dut, dut_part, operator_name, token_file, fixtures = FRINGE_SOURCE_DIR "/fixtures", web = FRINGE_SOURCE_DIR "/web";
     unsigned workers = 0, threads = 2;
     double max_upload_mb = 256, upload_quota_mb = 4096, max_report_mb = 64;
     double max_samples = 1e9;
@@ -50,6 +50,11 @@ int run_serve(const ServeOptions& o) {
     ::umask(077);
     ServiceConfig cfg;
     cfg.data_dir = o.data.empty() ? default_data_dir() : o.data;
+    cfg.store_uri = o.store;
+    if (!o.bench.empty()) cfg.provenance.bench = o.bench;
+    if (!o.dut.empty()) cfg.provenance.dut = o.dut;
+    if (!o.dut_part.empty()) cfg.provenance.dut_part = o.dut_part;
+    if (!o.operator_name.empty()) cfg.provenance.operator_name = o.operator_name;
     cfg.fixtures_dir = o.fixtures;
     cfg.web_dir = o.web;
     cfg.workers = o.workers ? o.workers : std::max(1u, std::thread::hardware_concurrency());
@@ -75,6 +80,10 @@ int run_serve(const ServeOptions& o) {
     ho.upload_min_bytes_per_s = o.upload_min_kib_s * 1024;
     HttpServer server(svc, ho);
     std::printf("fringe %s serving %s (data %s, %u run workers)\n", FRINGE_VERSION, server.url().c_str(), cfg.data_dir.c_str(), cfg.workers);
+    if (!cfg.store_uri.empty())
+        std::printf("run store %s; bench %s\n", parse_store_uri(cfg.store_uri, cfg.data_dir).kind == StoreUri::Kind::Postgres
+                                                   ? (redact_store_uri(cfg.store_uri) + " (through DATA/runs.db, forwarded)").c_str() : cfg.store_uri.c_str(),
+                    cfg.provenance.bench.c_str());
     if (created)
         std::printf("API token (printed this once; stored in %s, mode 0600): %s\nopen %s#token=%s\n", token_file.c_str(), cfg.token.c_str(),
                     server.url().c_str(), cfg.token.c_str());
@@ -97,6 +106,12 @@ Command add_serve(CLI::App& app) {
     auto* sv = app.add_subcommand("serve", "Serve the JSON/HTTP API and the browser UI; run scenarios from a queue");
     sv->add_option("--bind", o->bind, "host:port to listen on; beyond loopback every request needs the token")->capture_default_str();
     sv->add_option("--data", o->data, "Data directory: run history, uploads, token (default $FRINGE_DATA or ~/.local/share/fringe)");
+    sv->add_option("--store", o->store, "Run store: sqlite:PATH, or a PostgreSQL shared by benches (postgresql://...): runs are written to DATA/runs.db "
+                                        "first and forwarded; the UI and API list every bench's runs");
+    sv->add_option("--bench", o->bench, "This bench's name in run provenance (default $FRINGE_BENCH, else the host name)");
+    sv->add_option("--dut", o->dut, "DUT serial for runs whose scenario names none (default the device's board id)");
+    sv->add_option("--dut-part", o->dut_part, "DUT part number for runs whose scenario names none");
+    sv->add_option("--operator", o->operator_name, "Operator in run provenance (default $USER)");
     sv->add_option("--token-file", o->token_file, "Bearer token file (default DATA/token; created with mode 0600 when absent)");
     sv->add_option("--fixtures", o->fixtures, "Fixtures folder ({\"fixture\": NAME} and file references resolve here)")->capture_default_str();
     sv->add_option("--web", o->web, "Browser UI folder")->capture_default_str();

@@ -165,7 +165,7 @@ try {
   // 1 s at 100 kHz, 106.7 Hz electrical: a stride of 50 samples is 1/19 of a cycle, which a
   // polyline through stride samples turned into a star.
   const a = await runFromForm(page, url, 3, 1.0);
-  check(/^\d{8}T\d{6}Z-[0-9a-f]{8}$/.test(a.id), `run ${a.id} created from the form and finished in ${a.ms} ms`);
+  check(/^[0-9a-f]{8}-[0-9a-f]{4}-7[0-9a-f]{3}-[89ab][0-9a-f]{3}-[0-9a-f]{12}$/.test(a.id), `run ${a.id} created from the form and finished in ${a.ms} ms`);
   check(a.warned.includes('model_mismatch'), `preflight warnings shown before Start (${a.warned.join(', ')})`);
   const verdict = await page.getAttribute('.banner', 'data-verdict');
   check(verdict === 'PASS', `report verdict ${verdict}`);
