@@ -149,14 +149,24 @@ public:
                 error_field.append(f.key);
             }
         }
+        // What a client sent comes back bounded: 500 000 '[' must not answer with a 1.5 MB path,
+        // nor an unterminated megabyte string with itself.
+        error_field = shorten(std::move(error_field), 240);
         error_id = e.id;
-        error = e.what();
+        error = shorten(e.what(), 400);
         return false;
     }
     std::string error, error_field;
     int error_id = 0;
 
 private:
+    static std::string shorten(std::string s, std::size_t max) {
+        if (s.size() <= max) return s;
+        std::size_t head = max / 2, tail = max / 2;
+        while (head > 0 && (static_cast<unsigned char>(s[head]) & 0xC0) == 0x80) --head;  // whole UTF-8 characters
+        while (tail > 0 && (static_cast<unsigned char>(s[s.size() - tail]) & 0xC0) == 0x80) --tail;
+        return s.substr(0, head) + "..." + s.substr(s.size() - tail);
+    }
     bool value() {
         if (!frames_.empty() && frames_.back().array) ++frames_.back().count;
         return true;

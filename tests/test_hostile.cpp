@@ -222,6 +222,20 @@ TEST_CASE("hostile: bytes that are not UTF-8 answer 400 bad_encoding, the servic
         const auto r = s.post("/api/v1/runs", R"({"fixture":"\ud800"})");
         check_error(r, 400, "invalid");
     }
+    SECTION("the error for a deeply nested or huge malformed body stays small") {
+        // 500 000 '[' made a 1.5 MB field path; an unterminated string came back whole.
+        for (const std::string& body : {std::string(60000, '['), [] {
+                                           std::string b;
+                                           for (int k = 0; k < 10000; ++k) b += "{\"a\":";
+                                           return b;
+                                       }(),
+                                       "{\"fixture\":\"" + std::string(60000, 'x')}) {
+            const auto r = s.post("/api/v1/runs", body);
+            check_error(r, 400, "invalid");
+            CHECK(r.body.size() < 2000);
+            CHECK(r.error()["field"].get<std::string>().size() <= 243);
+        }
+    }
     CHECK(s.healthy());
 }
 
