@@ -413,7 +413,7 @@ HttpResponse Service::list_runs(const std::map<std::string, std::string>& query)
         } else if (k == "scenario") {
             f.scenario = v;
         } else if (k == "since") {
-            f.since = v;
+            f.since = parse_since(v);
         } else if (k == "bench") {
             f.bench = v;
         } else if (k == "dut") {

@@ -2,6 +2,7 @@
 
 #include "instance_lock.hpp"
 #include "provenance.hpp"
+#include "signal_gen/config.hpp"
 
 #include <sqlite3.h>
 #include <fcntl.h>
@@ -11,6 +12,7 @@
 #include <cerrno>
 #include <csignal>
 #include <cstdlib>
+#include <ctime>
 #include <filesystem>
 #include <unistd.h>
 
@@ -299,6 +301,36 @@ std::optional<nlohmann::json> RunStore::report(const std::string& id) const {
     auto t = report_text(id);
     if (!t) return std::nullopt;
     return nlohmann::json::parse(*t);
+}
+
+// --since: an ISO date or time (2026-11-21, 2026-11-21T15:00:00Z), "today", "yesterday" or
+// "Nd" (N days ago), as the store's ISO UTC text; anything else is an error, not an empty list.
+std::string parse_since(const std::string& v) {
+    auto day_start = [](std::time_t t) {
+        std::tm tm{};
+        gmtime_r(&t, &tm);
+        char b[32];
+        std::strftime(b, sizeof b, "%Y-%m-%dT00:00:00Z", &tm);
+        return std::string(b);
+    };
+    const std::time_t now = std::time(nullptr);
+    if (v == "today") return day_start(now);
+    if (v == "yesterday") return day_start(now - 86400);
+    if (v.size() >= 2 && v.back() == 'd' && v.find_first_not_of("0123456789") == v.size() - 1)
+        return day_start(now - 86400 * static_cast<std::time_t>(std::stoll(v.substr(0, v.size() - 1))));
+    std::tm tm{};
+    const char* end = strptime(v.c_str(), "%Y-%m-%d", &tm);
+    if (end && *end == 0) return v + "T00:00:00Z";
+    if (end && (*end == 'T' || *end == ' ')) {
+        const char* e2 = strptime(end + 1, "%H:%M", &tm);
+        if (e2 && *e2 == ':') e2 = strptime(e2 + 1, "%S", &tm);
+        if (e2 && (*e2 == 0 || (e2[0] == 'Z' && e2[1] == 0))) {
+            char b[32];
+            std::strftime(b, sizeof b, "%Y-%m-%dT%H:%M:%SZ", &tm);
+            return b;
+        }
+    }
+    throw ConfigError("since", "expected a date or time in UTC (2026-11-21, 2026-11-21T15:00:00Z), today, yesterday or Nd (N days ago); got '" + v + "'");
 }
 
 }  // namespace fringe

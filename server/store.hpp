@@ -121,4 +121,9 @@ private:
 // $FRINGE_DATA, else $XDG_DATA_HOME/fringe, else ~/.local/share/fringe.
 std::string default_data_dir();
 
+// A --since / ?since= value as the store's ISO UTC text: an ISO date or time (2026-11-21,
+// 2026-11-21T15:00:00Z), "today", "yesterday" or "Nd" (N days ago); throws ConfigError naming
+// "since" for anything else, so a typo is an error, not an empty list.
+std::string parse_since(const std::string& v);
+
 }  // namespace fringe

@@ -320,6 +320,11 @@ TEST_CASE("service: errors are JSON with the right status", "[service]") {
         CHECK(err(s.handle(req("GET", "/api/v1/runs?limit=0")))["field"] == "limit");
         CHECK(err(s.handle(req("GET", "/api/v1/runs?outcome=GREAT")))["field"] == "outcome");
         CHECK(err(s.handle(req("GET", "/api/v1/runs?colour=red")))["field"] == "colour");
+        // ?since= is parsed like the CLI's --since: a typo is a 400, not an empty list.
+        CHECK(err(s.handle(req("GET", "/api/v1/runs?since=garbage")))["field"] == "since");
+        CHECK(err(s.handle(req("GET", "/api/v1/runs?since=9999-99-99")))["field"] == "since");
+        CHECK(s.handle(req("GET", "/api/v1/runs?since=yesterday")).status == 200);
+        CHECK(s.handle(req("GET", "/api/v1/runs?since=2026-11-21T15:00:00Z")).status == 200);
     }
     SECTION("a client's scenario cannot reach files or commands outside the bench") {
         json sc = body_of(s.handle(req("GET", "/api/v1/fixtures/fig10c-loopback")))["scenario"];
