@@ -101,10 +101,12 @@ std::vector<SweepResult> run_rows_stored(const SweepOptions& o, const Sweep& s, 
 int run_sweep_cli(SweepOptions o) {
     const Sweep s = load_sweep(o.sweep);
     const auto t0 = std::chrono::steady_clock::now();
-    const bool with_store = !o.store.empty() || !o.data.empty();
+    // --shard, --collect and --only-missing keep the rows in a store: without --store or --data,
+    // the default one (DATA/runs.db, $FRINGE_DATA or ~/.local/share/fringe) as docs/scale.md says.
+    // Inside a Slurm array or an Indexed Job the shard comes from the environment: a store too.
+    const bool with_store = !o.store.empty() || !o.data.empty() || o.collect || !o.shard.empty() || o.only_missing ||
+                            shard_from_env(o.shard_count).has_value();
     if (!with_store) {
-        if (o.collect || !o.shard.empty() || o.only_missing)
-            throw ConfigError("store", "--shard, --collect and --only-missing keep the rows in a store: give --store URI (or --data DIR)");
         Progress progress("sweep", "runs", o.quiet);
         const auto res = run_sweep(s, o.jobs > 0 ? o.jobs : s.jobs, [&](std::size_t done, std::size_t total) { progress.update(done, total); });
         progress.clear();
