@@ -76,10 +76,17 @@ std::vector<Finding> preflight(const Scenario& sc) {
         throw ConfigError("settle_s", "the settle time (" + fmt(sc.settle_s) + " s) is not shorter than the run (duration_s " +
                                           fmt(sc.duration_s) + " s): nothing would be scored");
     const double spc = min_samples_per_cycle(sc);
-    if (spc < 2.0)
-        throw ConfigError("sample_rate_hz", "undersampled: " + fmt(spc) + " samples per electrical cycle at the peak speed (" +
+    if (spc < 2.0) {
+        // Enough digits that a rate just below the limit does not print as the limit itself.
+        auto fine = [](double v) {
+            char b[32];
+            std::snprintf(b, sizeof b, "%.10g", v);
+            return std::string(b);
+        };
+        throw ConfigError("sample_rate_hz", "undersampled: " + fine(spc) + " (< 2) samples per electrical cycle at the peak speed (" +
                                                 std::to_string(sc.encoder.lines_per_rev) + " lines); at least 2 are needed, and 4 or more to track. "
-                                                "Raise sample_rate_hz above " + fmt(2 * sc.sample_rate_hz / spc) + " Hz or lower the speed");
+                                                "Raise sample_rate_hz above " + fine(2 * sc.sample_rate_hz / spc) + " Hz or lower the speed");
+    }
     if (spc < 4.0)
         w.push_back({false, "few_samples_per_cycle", "sample_rate_hz",
                      fmt(spc) + " samples per electrical cycle at the peak speed: trackers lose lock and harmonics alias below about 4"});
