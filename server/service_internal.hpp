@@ -271,7 +271,10 @@ inline std::string host_name(std::string v) {
             }))
             return "";
     }
-    if (!rest.empty() && (rest[0] != ':' || rest.size() > 6 || !std::all_of(rest.begin() + 1, rest.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); })))
+    // A port is 1 to 5 digits up to 65535 ("host:" and "host:99999" are not a host[:port]).
+    if (!rest.empty() && (rest[0] != ':' || rest.size() < 2 || rest.size() > 6 ||
+                          !std::all_of(rest.begin() + 1, rest.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)); }) ||
+                          std::stoul(rest.substr(1)) > 65535))
         return "";
     name = lower(name);
     if (name.size() > 1 && name.back() == '.') name.pop_back();  // "localhost." is localhost

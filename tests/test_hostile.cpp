@@ -396,6 +396,11 @@ TEST_CASE("hostile: the Host header must name this service", "[service][hostile]
         INFO(h);
         CHECK(with_host("/api/v1/health", h).status == 200);
     }
+    for (const std::string& h : std::vector<std::string>{"127.0.0.1:99999", "localhost:", "127.0.0.1:65536", "[::1]:"}) {
+        INFO(h);  // not a host[:port]: a port is 1 to 65535
+        check_error(with_host("/api/v1/health", h), 400, "bad_host");
+    }
+    CHECK(with_host("/api/v1/health", "127.0.0.1:65535").status == 200);
     check_error(s.raw("GET /api/v1/health HTTP/1.1\r\nConnection: close\r\n\r\n"), 400, "missing_host");
     check_error(s.raw("GET /api/v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\nHost: evil.example\r\nConnection: close\r\n\r\n"), 400, "bad_host");
     CHECK(s.raw("GET /api/v1/health HTTP/1.0\r\n\r\n").status == 200);  // HTTP/1.0 has no Host
