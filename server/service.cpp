@@ -20,9 +20,6 @@
 
 #include <spdlog/spdlog.h>
 
-#include <arpa/inet.h>
-#include <fcntl.h>
-#include <fnmatch.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -30,9 +27,6 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
-#include <fstream>
-#include <random>
-#include <sstream>
 
 namespace fringe {
 
