@@ -1,35 +1,53 @@
 // ekf-auto (issue 13): an estimator told nothing. A phase tracker whose measurement model is a
-// Fourier shape table per channel, learnt by a slower, phase-gated least-squares identifier.
+// Fourier shape table per channel, learnt by a slower least-squares identifier against a
+// fixed-lag smoothed phase. docs/estimators.md ("ekf-auto: design") gives the reasons.
 //
-//   shape:   h_ch(theta) = c_ch . phi(theta),  phi = [1, cos theta, sin theta, ..., cos M theta, sin M theta]
-//   tracker: CA kinematics [theta, omega, alpha] (white jerk, q = wn^6 r T; covers constant
-//            speed, acceleration, reversals and standstill without a CV/CA choice); each
-//            sample's two channels become one Gauss-Newton phase measurement
-//            nu = h' R^-1 (z - h) / J with variance 1/J, J = h' R^-1 h' (the same update as
-//            a two-channel EKF with H = [h', 0, 0]), R the residual covariance it measures.
-//   identifier: normal equations of z_ch on phi(theta_hat) with exponential forgetting per
-//            accepted point; a point is accepted only when the phase moved 2*pi/points_per_cycle
-//            since the last one (a standstill adds nothing, so the shape holds still and
-//            cannot drift); solved every refit_points points.
-//   convention (MODEL.md 2.2): theta is defined by the fundamental of the sin channel
-//            (proportional to sin theta). After each solve, the phase phi1 of that fundamental is
-//            moved into the tracker (theta += phi1) and the coefficients and normal equations
-//            are rotated to match, so the shape cannot rotate the phase.
-//   order:   the highest harmonic whose amplitude stands above 4 standard errors in either
-//            channel (max_order at most), at least 1.
-//   stages:  acquisition (atan2 line fit, output invalid) -> bootstrap (order 1, until the
-//            identifier has seen bootstrap_cycles electrical cycles; output valid) -> full order.
-//   guard:   the LockMonitor of common.hpp; on loss of lock the shape is discarded and the
-//            tracker re-acquires (safe mode), output invalid meanwhile.
+//   shape:    z_ch = h0_ch(theta) + u * h1_ch(theta) + noise,
+//             h_ch(theta) = c_ch . phi(theta), phi = [1, cos theta, sin theta, ..., cos M theta, sin M theta]
+//             h0 is the shape (offsets, gains, quadrature, harmonics); h1 (order <= 4) is the
+//             direction in which the shape varies and u (dimensionless, |h1| = |h0|) how far:
+//             a light source that drifts (h1 = the raw signal with its DC pedestal) or a gap
+//             that swings once per revolution (the diffraction shape is affine in 1/kappa) is
+//             exactly one such direction. h1 starts as h0 (a common gain) and is learnt.
+//   tracker:  EKF on [theta, omega, alpha, u]: CA kinematics (white jerk, q = wn^6 r T with r
+//             from the learnt shape and the measured noise; constant speed, acceleration,
+//             reversals and standstill without a CV/CA choice), u a random walk (q_variation_per_s)
+//             with a slow pull to 0; a two-channel update with R the residual covariance it measures.
+//   learning phase: the tracker follows any shape error that varies slower than fn, so a warped
+//             shape and a warped phase could agree. The identifier therefore learns against
+//             the tracker's phase averaged over one electrical cycle centred on the sample
+//             (a fixed lag of half a cycle): the average of a periodic warp over its period is
+//             zero, the average of the motion is its centre value (exact for constant speed,
+//             corrected by alpha T^2 H(H+1)/6 for acceleration, odd terms cancel).
+//   identifier: weighted least squares of z_ch on [phi(theta), u phi_1(theta)], each point
+//             weighted by the phase it advanced (every part of the cycle weighs the same at any
+//             speed; a standstill adds nothing, so the shape holds still and cannot drift),
+//             forgetting over memory_cycles of phase. The Gram matrix is kept as trig sums
+//             sum w u^p e^{ik theta}, so a point costs O(M). h1 has a ridge prior on its
+//             previous value, so it moves only when u varies measurably.
+//   convention (MODEL.md 2.2): theta is defined by the fundamental of the sin channel of h0. After
+//             each solve its phase phi1 is moved into the tracker and all sums are rotated.
+//   order:    the highest harmonic of h0 above 4 standard errors (max_order at most), at least 1.
+//   stages:   acquisition (atan2 line fit, output invalid) -> bootstrap (order 1, until the
+//             identifier has seen bootstrap_cycles electrical cycles; output valid) -> full order.
+//   guard:    the LockMonitor of common.hpp; on loss of lock the shape is discarded and the
+//             tracker re-acquires (safe mode), output invalid meanwhile.
 #include "common.hpp"
 #include "registry_parts.hpp"
+
+#include "signal_gen/generator.hpp"
 
 #include <Eigen/Dense>
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cmath>
+#include <complex>
 #include <cstring>
+#include <cstdlib>
+#include <cstdio>
+#include <vector>
 
 namespace fringe::est {
 
@@ -37,6 +55,17 @@ namespace {
 
 constexpr int kMaxOrder = 12;
 constexpr int kMaxBasis = 2 * kMaxOrder + 1;
+constexpr int kVarOrder = 4;                  // order of the variation direction h1
+constexpr int kVarBasis = 2 * kVarOrder + 1;
+constexpr int kTrig = 2 * kMaxOrder + 1;      // trig sums k = 0 .. 2 max_order
+constexpr double kLearnMinHz = 4.0;           // no learning below this electrical rate
+constexpr double kUPullS = 5.0;               // time constant of u's pull to 0 (s)
+constexpr double kURidge = 3e-4;              // ridge on h1: as if u had this rms
+constexpr double kSettled = 1e-3;             // shape changes below this (relative) for 8 solves: settled
+constexpr double kWarpChange = 1e-2;          // a shape change above this (relative) pauses learning
+
+using Coeffs = std::array<double, kMaxBasis>;
+using Cx = std::complex<double>;
 
 class EkfAuto final : public Estimator {
 public:
@@ -47,14 +76,18 @@ public:
             {"max_order", "", ParamType::Integer, 8, 6, kMaxOrder, {},
              "highest harmonic of the shape table the identifier fits; the tracker uses those that stand above the noise"},
             {"memory_cycles", "cycles", ParamType::Number, 16.0, 1.0, 1e6, {},
-             "identifier forgetting horizon, in electrical cycles of motion (shorter follows gap run-out and light drift faster, longer averages more noise)"},
-            {"points_per_cycle", "points", ParamType::Integer, 64, 8, 4096, {},
-             "phase gate: a sample enters the identifier after the phase moved 2*pi/points_per_cycle since the last one"},
+             "identifier forgetting horizon, in electrical cycles of motion (slow changes of the shape are followed by the variation state)"},
+            {"points_per_cycle", "points", ParamType::Integer, 256, 8, 4096, {},
+             "at most this many samples per electrical cycle enter the identifier (each weighted by the phase it advanced)"},
             {"refit_points", "points", ParamType::Integer, 32, 1, 1e6, {}, "identifier solve every this many accepted points"},
             {"bootstrap_cycles", "cycles", ParamType::Number, 2.0, 1.0, 1e4, {},
              "electrical cycles seen with a fundamental-only shape before the full order is fitted"},
             {"noise_memory_samples", "samples", ParamType::Number, 2000.0, 10, 1e9, {},
              "time constant of the residual covariance estimate R"},
+            {"q_variation_per_s", "1/s", ParamType::Number, 0.01, 0, 10, {},
+             "random-walk intensity of the shape-variation state u (u is relative to the shape's amplitude)"},
+            {"learn", "", ParamType::Boolean, true, -kInf, kInf, {},
+             "learn the shape from the samples; false needs an encoder profile and tracks with its exact shape (an oracle for tests)"},
             acquisition_param(),
             LockMonitor::threshold_param(),
         };
@@ -71,11 +104,24 @@ public:
         max_order_ = static_cast<int>(p.integer("max_order"));
         ppc_ = static_cast<int>(p.integer("points_per_cycle"));
         gate_ = kTwoPi / ppc_;
-        keep_ = 1.0 - 1.0 / (p.number("memory_cycles") * ppc_);
+        memory_rad_ = kTwoPi * p.number("memory_cycles");
         refit_ = static_cast<long long>(p.integer("refit_points"));
-        bootstrap_points_ = static_cast<long long>(p.number("bootstrap_cycles") * ppc_);
+        bootstrap_rad_ = kTwoPi * p.number("bootstrap_cycles");
         noise_a_ = 1.0 / p.number("noise_memory_samples");
+        q_u_ = p.number("q_variation_per_s");
+        learn_ = p.boolean("learn");
         acq_n_ = static_cast<std::size_t>(p.integer("acquisition_samples"));
+        told_ = false;
+        if (cfg.encoder) {
+            profile_shape(*cfg.encoder);
+            told_ = true;
+        } else if (!learn_) {
+            throw ConfigError("params.learn", "false needs an encoder profile to take the shape from");
+        }
+        // delay line for the cycle-centred average: a cycle at kLearnMinHz must fit
+        const double need = fs_ / kLearnMinHz + 4;
+        cap_ = std::bit_ceil(static_cast<std::size_t>(std::min(need, double(1 << 20))));
+        ring_.assign(cap_, Slot{});
         Calibration none;
         none.prepare();
         cal_ = none;
@@ -88,6 +134,7 @@ public:
     void process(InputSpan in, OutputSpan out) override {
         const std::size_t n = in.size();
         for (std::size_t i = 0; i < n; ++i) {
+            ++total_;
             const double zs = in.sin_v[i], zc = in.cos_v[i];
             if (!(std::isfinite(zs) && std::isfinite(zc))) {
                 ++nonfinite_;
@@ -95,6 +142,7 @@ public:
                 out.theta_rad[i] = theta_out();
                 out.omega_rad_s[i] = x_[1];
                 out.valid[i] = 0;
+                seg0_ = k_;  // the delay line restarts after a gap
                 continue;
             }
             lock_.reference(zs, zc);
@@ -120,7 +168,10 @@ public:
                 reacquiring_ = true;
                 continue;
             }
-            learn(zs, zc);
+            if (learn_) {
+                push(zs, zc);
+                learn();
+            }
         }
     }
 
@@ -130,67 +181,146 @@ public:
     nlohmann::json state() const override {
         nlohmann::json j{{"stage", !acq_.done() ? "acquisition" : (full_ ? "tracking" : "bootstrap")},
                          {"order", order_}, {"refits", refits_}, {"accepted_points", accepted_},
+                         {"learn", learn_}, {"told_profile", told_},
                          {"nonfinite_samples", nonfinite_}, {"loss_of_lock", lock_.to_json()}};
-        auto coeffs = [&](const std::array<double, kMaxBasis>& c) {
+        auto coeffs = [&](const Coeffs& c, int order) {
             nlohmann::json h = nlohmann::json::array();
-            for (int m = 1; m <= order_; ++m) h.push_back({{"order", m}, {"cos_v", c[2 * m - 1]}, {"sin_v", c[2 * m]}});
+            for (int m = 1; m <= order; ++m) h.push_back({{"order", m}, {"cos_v", c[2 * m - 1]}, {"sin_v", c[2 * m]}});
             return nlohmann::json{{"dc_v", c[0]}, {"harmonics", h}};
         };
-        j["shape_sin"] = coeffs(cs_);
-        j["shape_cos"] = coeffs(cc_);
+        j["shape_sin"] = coeffs(c0s_, order_);
+        j["shape_cos"] = coeffs(c0c_, order_);
+        j["variation"] = {{"u", x_[3]}, {"learnt", vary_}, {"sin", coeffs(c1s_, var_order())}, {"cos", coeffs(c1c_, var_order())}};
         j["noise_cov_v2"] = {R_[0], R_[1], R_[2]};
         j["r_model_rad2"] = r_bar_;
         return j;
     }
 
 private:
-    using MatB = Eigen::Matrix<double, kMaxBasis, kMaxBasis>;
-    using VecB = Eigen::Matrix<double, kMaxBasis, 1>;
+    struct Slot {
+        double zs = 0, zc = 0;
+        double th = 0;   // tracker phase in the fixed frame (minus rot_ at push), rad
+        double al = 0;   // tracker alpha, rad/s^2
+        double om = 0;   // tracker omega, rad/s
+        double u = 0;    // tracker u divided by ugain_ at push
+        double pre = 0;  // prefix sum of (th - base_)
+        double apre = 0; // prefix sum of al
+        double upre = 0; // prefix sum of u
+        double wbar = 0; // mean speed over the one-cycle window ending here (rad/s), 0: none
+        std::size_t wj = 0;  // that window is (wj, here]
+    };
 
     double theta_out() const { return x_[0] + kTwoPi * static_cast<double>(turns_); }
+    int var_order() const { return std::min(order_, kVarOrder); }
+
+    // The told profile's noise-free shape (front end and Lissajous errors included, no noise,
+    // drift or ADC): a DFT over one cycle of Generator::clean_channels at the nominal kappa.
+    void profile_shape(const EncoderProfile& enc) {
+        MotionProfile m;
+        m.kind = MotionKind::Constant;
+        Generator g(enc, m, 1000.0, 0);
+        constexpr int kN = 512;
+        const double kappa = enc.kappa_nominal();
+        std::array<std::vector<Cx>, 2> X;
+        X[0].assign(max_order_ + 1, 0.0);
+        X[1].assign(max_order_ + 1, 0.0);
+        for (int k = 0; k < kN; ++k) {
+            const double th = kTwoPi * k / kN;
+            double s, c;
+            g.clean_channels(th, kappa, s, c);
+            for (int mm = 0; mm <= max_order_; ++mm) {
+                const Cx e = std::polar(1.0, -mm * th);
+                X[0][mm] += s * e;
+                X[1][mm] += c * e;
+            }
+        }
+        told_s_.fill(0.0);
+        told_c_.fill(0.0);
+        for (int ch = 0; ch < 2; ++ch) {
+            Coeffs& c = ch == 0 ? told_s_ : told_c_;
+            c[0] = X[ch][0].real() / kN;
+            for (int mm = 1; mm <= max_order_; ++mm) {
+                c[2 * mm - 1] = 2 * X[ch][mm].real() / kN;   // cos
+                c[2 * mm] = -2 * X[ch][mm].imag() / kN;      // sin
+            }
+        }
+        told_order_ = 1;
+        for (int mm = 2; mm <= max_order_; ++mm)
+            if (std::hypot(told_s_[2 * mm - 1], told_s_[2 * mm]) > 1e-9 || std::hypot(told_c_[2 * mm - 1], told_c_[2 * mm]) > 1e-9)
+                told_order_ = mm;
+    }
 
     // Back to acquisition with a fundamental-only shape: the safe mode.
     void restart() {
         acq_.reset(acq_n_, fs_, cal_);
         acq_sum_ = 0;
-        A_.setZero();
-        bs_.setZero();
-        bc_.setZero();
-        cs_.fill(0.0);
-        cc_.fill(0.0);
+        clear_sums();
+        c0s_.fill(0.0);
+        c0c_.fill(0.0);
+        c1s_.fill(0.0);
+        c1c_.fill(0.0);
         order_ = 1;
         full_ = false;
+        vary_ = false;
+        settled_solves_ = 0;
         accepted_ = 0;
+        seen_rad_ = 0;
         have_last_ = false;
         reacquiring_ = false;
+        seg0_ = k_;
+        clean_after_ = 0;
+        bin_.fill(0.0);
+        bin_n_ = 0;
+        rot_ = 0;
+        ugain_ = 1;
+    }
+
+    void clear_sums() {
+        for (auto& t : trig_) t.fill(Cx(0.0));
+        for (auto& ch : data_)
+            for (auto& d : ch) d.fill(Cx(0.0));
+        scale_ = 1;
+        npts_ = 0;
     }
 
     void start() {
-        // fundamental-only shape of the Lissajous radius over the acquisition window
-        const double amp = std::sqrt(acq_sum_ / static_cast<double>(acq_.samples()));
-        cs_.fill(0.0);
-        cc_.fill(0.0);
-        cs_[2] = amp;  // sin theta
-        cc_[1] = amp;  // cos theta
+        if (told_) {
+            c0s_ = told_s_;
+            c0c_ = told_c_;
+            order_ = told_order_;
+            full_ = true;
+        } else {
+            // fundamental-only shape of the Lissajous radius over the acquisition window
+            const double amp = std::sqrt(acq_sum_ / static_cast<double>(acq_.samples()));
+            c0s_.fill(0.0);
+            c0c_.fill(0.0);
+            c0s_[2] = amp;  // sin theta
+            c0c_[1] = amp;  // cos theta
+        }
+        // the variation direction starts as a common gain
+        c1s_.fill(0.0);
+        c1c_.fill(0.0);
+        for (int i = 0; i < kVarBasis; ++i) { c1s_[i] = c0s_[i]; c1c_[i] = c0c_[i]; }
+        const double amp = std::sqrt(0.5 * (sq(c0s_[1]) + sq(c0s_[2]) + sq(c0c_[1]) + sq(c0c_[2])));
         // conservative noise until residuals are measured: 1 % of the amplitude
-        const double v = std::pow(0.01 * std::max(amp, 1e-9), 2);
+        const double v = sq(0.01 * std::max(amp, 1e-9));
         R_ = {v, 0.0, v};
         noise_inv();
         update_prior();
         const double th = lock_.anchor(acq_.theta_rad());
         const double fr = wrap_pi(th);
         turns_ = std::llround((th - fr) / kTwoPi);
-        x_ = {fr, acq_.omega_rad_s(), 0.0};
+        x_ = {fr, acq_.omega_rad_s(), 0.0, 0.0};
         std::memset(P_, 0, sizeof P_);
         P_[0][0] = 0.05 * 0.05;
-        P_[1][1] = std::pow(kTwoPi * 5, 2);
-        P_[2][2] = std::pow(kTwoPi * 1000, 2);
-        sl_ = {th, acq_.omega_rad_s(), 0.0};
-        settled_ = 0;
-        sl_ok_ = false;
+        P_[1][1] = sq(kTwoPi * 5);
+        P_[2][2] = sq(kTwoPi * 1000);
+        P_[3][3] = sq(0.01);
         lock_.rearm();
         reacquiring_ = false;
     }
+
+    static double sq(double v) { return v * v; }
 
     void noise_inv() {
         const double det = R_[0] * R_[2] - R_[1] * R_[1];
@@ -198,13 +328,13 @@ private:
         Ri_ = {R_[2] / d, -R_[1] / d, R_[0] / d};
     }
 
-    // Mean information J_bar over a cycle from the shape and R; q = wn^6 r T (CA), r = 1/J_bar.
+    // Mean phase information J_bar over a cycle from the shape and R; q = wn^6 r T (CA), r = 1/J_bar.
     void update_prior() {
         constexpr int kGrid = 64;
         double sum = 0;
         for (int k = 0; k < kGrid; ++k) {
-            double h[2], d[2];
-            eval(kTwoPi * k / kGrid, h, d);
+            double h[2], d[2], h1[2], d1[2];
+            eval(kTwoPi * k / kGrid, h, d, h1, d1);
             sum += d[0] * d[0] * Ri_[0] + 2 * d[0] * d[1] * Ri_[1] + d[1] * d[1] * Ri_[2];
         }
         const double jbar = sum / kGrid;
@@ -216,54 +346,72 @@ private:
         Q_[1][2] = Q_[2][1] = q * T * T / 2; Q_[2][2] = q * T;
     }
 
-    // Shape value and derivative in theta for both channels.
-    void eval(double theta, double h[2], double d[2]) const {
+    // h0 and h1 of both channels and their derivatives in theta (h0 at order_, h1 at var_order()).
+    void eval(double theta, double h[2], double d[2], double h1[2], double d1[2]) const {
         double s1, c1;
         sincos_small(wrap_pi(theta), s1, c1);
-        double hs = cs_[0], hc = cc_[0], ds = 0, dc = 0;
+        double hs = c0s_[0], hc = c0c_[0], ds = 0, dc = 0;
+        double gs = c1s_[0], gc = c1c_[0], es = 0, ec = 0;
         double cm = c1, sm = s1;
+        const int mv = var_order();
         for (int m = 1; m <= order_; ++m) {
-            const double as = cs_[2 * m - 1], bs = cs_[2 * m], ac = cc_[2 * m - 1], bc = cc_[2 * m];
+            const double as = c0s_[2 * m - 1], bs = c0s_[2 * m], ac = c0c_[2 * m - 1], bc = c0c_[2 * m];
             hs += as * cm + bs * sm;
             hc += ac * cm + bc * sm;
             ds += m * (bs * cm - as * sm);
             dc += m * (bc * cm - ac * sm);
+            if (m <= mv) {
+                const double as1 = c1s_[2 * m - 1], bs1 = c1s_[2 * m], ac1 = c1c_[2 * m - 1], bc1 = c1c_[2 * m];
+                gs += as1 * cm + bs1 * sm;
+                gc += ac1 * cm + bc1 * sm;
+                es += m * (bs1 * cm - as1 * sm);
+                ec += m * (bc1 * cm - ac1 * sm);
+            }
             const double cn = cm * c1 - sm * s1;
             sm = sm * c1 + cm * s1;
             cm = cn;
         }
         h[0] = hs; h[1] = hc; d[0] = ds; d[1] = dc;
+        h1[0] = gs; h1[1] = gc; d1[0] = es; d1[1] = ec;
     }
 
     void predict() {
         const double T = T_;
         x_[0] += T * x_[1] + 0.5 * T * T * x_[2];
         x_[1] += T * x_[2];
+        const double pull = 1.0 - T / kUPullS;
+        x_[3] *= pull;
         if (x_[0] > kPi || x_[0] < -kPi) {
             const double k = std::round(x_[0] / kTwoPi);
             x_[0] -= kTwoPi * k;
             turns_ += static_cast<long long>(k);
         }
-        // P = F P F' + Q, F = [[1, T, T^2/2], [0, 1, T], [0, 0, 1]]
+        // P = F P F' + Q, F = [[1, T, T^2/2, 0], [0, 1, T, 0], [0, 0, 1, 0], [0, 0, 0, pull]]
         const double h2 = 0.5 * T * T;
-        double FP[3][3];
-        for (int j = 0; j < 3; ++j) {
+        double FP[4][4];
+        for (int j = 0; j < 4; ++j) {
             FP[0][j] = P_[0][j] + T * P_[1][j] + h2 * P_[2][j];
             FP[1][j] = P_[1][j] + T * P_[2][j];
             FP[2][j] = P_[2][j];
+            FP[3][j] = pull * P_[3][j];
         }
-        for (int i = 0; i < 3; ++i) {
-            P_[i][0] = FP[i][0] + T * FP[i][1] + h2 * FP[i][2] + Q_[i][0];
-            P_[i][1] = FP[i][1] + T * FP[i][2] + Q_[i][1];
-            P_[i][2] = FP[i][2] + Q_[i][2];
+        for (int i = 0; i < 4; ++i) {
+            P_[i][0] = FP[i][0] + T * FP[i][1] + h2 * FP[i][2];
+            P_[i][1] = FP[i][1] + T * FP[i][2];
+            P_[i][2] = FP[i][2];
+            P_[i][3] = pull * FP[i][3];
         }
+        for (int i = 0; i < 3; ++i)
+            for (int j = 0; j < 3; ++j) P_[i][j] += Q_[i][j];
+        P_[3][3] += q_u_ * T;
     }
 
     void update(double zs, double zc) {
-        double h[2], d[2];
-        eval(x_[0], h, d);
-        const double rs = zs - h[0], rc = zc - h[1];
-        // residual covariance (a priori residuals; their phase part is negligible once locked)
+        double h[2], d[2], h1[2], d1[2];
+        eval(x_[0], h, d, h1, d1);
+        const double u = x_[3];
+        const double rs = zs - h[0] - u * h1[0], rc = zc - h[1] - u * h1[1];
+        // residual covariance (a priori residuals; their state part is negligible once locked)
         R_[0] += noise_a_ * (rs * rs - R_[0]);
         R_[1] += noise_a_ * (rs * rc - R_[1]);
         R_[2] += noise_a_ * (rc * rc - R_[2]);
@@ -272,151 +420,404 @@ private:
             noise_inv();
             update_prior();
         }
-        const double gs = d[0] * Ri_[0] + d[1] * Ri_[1], gc = d[0] * Ri_[1] + d[1] * Ri_[2];  // R^-1 h'
-        const double J = gs * d[0] + gc * d[1];
-        if (!(J > 0)) return;
-        const double nu = (gs * rs + gc * rc) / J, r = 1.0 / J;
-        const double S = P_[0][0] + r;
-        const double K[3] = {P_[0][0] / S, P_[1][0] / S, P_[2][0] / S};
-        for (int i = 0; i < 3; ++i) x_[i] += K[i] * nu;
-        const double p0[3] = {P_[0][0], P_[0][1], P_[0][2]};
-        for (int i = 0; i < 3; ++i)
-            for (int j = 0; j < 3; ++j) P_[i][j] -= K[i] * p0[j];
-        for (int i = 0; i < 3; ++i)
-            for (int j = 0; j < i; ++j) P_[i][j] = P_[j][i] = 0.5 * (P_[i][j] + P_[j][i]);
+        // H = [[a0, 0, 0, b0], [a1, 0, 0, b1]]: phase and u columns only
+        const double a0 = d[0] + u * d1[0], a1 = d[1] + u * d1[1], b0 = h1[0], b1 = h1[1];
+        double PH[4][2];
+        for (int i = 0; i < 4; ++i) {
+            PH[i][0] = P_[i][0] * a0 + P_[i][3] * b0;
+            PH[i][1] = P_[i][0] * a1 + P_[i][3] * b1;
+        }
+        const double S00 = a0 * PH[0][0] + b0 * PH[3][0] + R_[0];
+        const double S01 = a0 * PH[0][1] + b0 * PH[3][1] + R_[1];
+        const double S11 = a1 * PH[0][1] + b1 * PH[3][1] + R_[2];
+        const double det = S00 * S11 - S01 * S01;
+        if (!(det > 0)) return;
+        const double i00 = S11 / det, i01 = -S01 / det, i11 = S00 / det;
+        double K[4][2];
+        for (int i = 0; i < 4; ++i) {
+            K[i][0] = PH[i][0] * i00 + PH[i][1] * i01;
+            K[i][1] = PH[i][0] * i01 + PH[i][1] * i11;
+        }
+        for (int i = 0; i < 4; ++i) x_[i] += K[i][0] * rs + K[i][1] * rc;
+        // P -= K (H P) = K PH'
+        for (int i = 0; i < 4; ++i)
+            for (int j = i; j < 4; ++j) {
+                const double v = P_[i][j] - (K[i][0] * PH[j][0] + K[i][1] * PH[j][1]);
+                P_[i][j] = P_[j][i] = v;
+            }
+        // a variation larger than the shape itself is not a variation: hold it
+        if (std::fabs(x_[3]) > 0.5) x_[3] = std::copysign(0.5, x_[3]);
     }
 
-    // The identifier's phase: a type-3 loop (zero lag under constant acceleration, gains of
-    // the continuous CA filter 2wn, 2wn^2, wn^3) on the tracker's phase, with a bandwidth an
-    // eighth of the electrical frequency. The tracker follows any shape error that varies
-    // slower than fn, so learning from its phase would let a warped shape and a warped phase
-    // agree with each other; this loop does not follow the k-per-cycle wiggles of a wrong
-    // shape, so the shape is learnt against a phase that is smooth in time.
-    void slow_loop(double theta) {
-        const double T = T_;
-        sl_[0] += T * sl_[1] + 0.5 * T * T * sl_[2];
-        sl_[1] += T * sl_[2];
-        const double f_elec = std::fabs(x_[1]) / kTwoPi;
-        const double wl = kTwoPi * std::clamp(f_elec / 8.0, 0.5, fn_);
-        const double e = theta - sl_[0];
-        sl_[0] += 2 * wl * T * e;
-        sl_[1] += 2 * wl * wl * T * e;
-        sl_[2] += wl * wl * wl * T * e;
-        // settled: run for 4 time constants while the motion is fast against its band (at a
-        // reversal or standstill the shape cannot be told from the motion: no learning)
-        const bool ok = std::fabs(e) < 0.5 && f_elec > 4.0;
-        settled_ = ok ? settled_ + 1 : 0;
-        sl_ok_ = settled_ > static_cast<long long>(4.0 / (wl * T));
+    // --- the delay line and the cycle-centred phase ---
+
+    Slot& slot(std::size_t idx) { return ring_[idx & (cap_ - 1)]; }
+    std::size_t live_start() const { return std::max(seg0_, k_ > cap_ ? k_ - cap_ : std::size_t{0}); }
+
+    void push(double zs, double zc) {
+        Slot& s = slot(k_);
+        s.zs = zs;
+        s.zc = zc;
+        s.th = theta_out() - rot_;
+        s.al = x_[2];
+        s.om = x_[1];
+        s.u = x_[3] / ugain_;
+        s.wbar = 0;
+        if (k_ == seg0_) {
+            base_ = s.th;
+            s.pre = s.th - base_;
+            s.apre = s.al;
+            s.upre = s.u;
+        } else {
+            const Slot& prev = slot(k_ - 1);
+            s.pre = prev.pre + (s.th - base_);
+            s.apre = prev.apre + s.al;
+            s.upre = prev.upre + s.u;
+        }
+        ++k_;
+        if ((k_ - seg0_) % (cap_ / 4) == 0) rebase();
     }
 
-    void learn(double zs, double zc) {
-        slow_loop(theta_out());
-        if (!sl_ok_) return;
-        const double th = sl_[0];
-        if (have_last_ && std::fabs(th - last_) < gate_) return;
+    // Prefix sums relative to a nearer base, so they stay small (exact re-summation).
+    void rebase() {
+        base_ = slot(k_ - 1).th;
+        double acc = 0, aacc = 0, uacc = 0;
+        for (std::size_t j = live_start(); j < k_; ++j) {
+            Slot& s = slot(j);
+            acc += s.th - base_;
+            aacc += s.al;
+            uacc += s.u;
+            s.pre = acc;
+            s.apre = aacc;
+            s.upre = uacc;
+        }
+    }
+
+    // The point learnt at each sample: the sample half a cycle back, with the tracker's phase
+    // averaged over the samples (j, k] whose phase spans one cycle. The window is found in the
+    // tracker's own phase: theta_hat = theta + warp(theta) with a periodic warp spans 2 pi exactly
+    // when theta does, so the warp averages out whatever its size (a window sized from the
+    // tracker's speed would not: its speed carries the warp's derivative).
+    void learn() {
+        const std::size_t k = k_ - 1;
+        if (std::fabs(x_[1]) < kTwoPi * kLearnMinHz || (x_[1] > 0) != (slot(k - 1).om > 0)) {
+            moving_since_ = k;  // no window reaches back over a standstill or a reversal
+            return pause();
+        }
+        const std::size_t lo = std::max(live_start(), moving_since_);
+        if (k < lo + 2) return pause();
+        const double thk = slot(k).th;
+        if (wstart_ < lo) wstart_ = lo;
+        while (wstart_ + 1 < k && std::fabs(thk - slot(wstart_ + 1).th) >= kTwoPi) ++wstart_;
+        while (wstart_ > lo && std::fabs(thk - slot(wstart_).th) < kTwoPi) --wstart_;
+        const std::size_t j = wstart_;
+        if (std::fabs(thk - slot(j).th) < kTwoPi) return pause();  // not a cycle yet (or a reversal in it)
+        const std::size_t N = k - j;
+        last_window_ = N;
+        // the window's exact length: where the phase crossed 2 pi between samples j and j + 1
+        const double dj = std::fabs(thk - slot(j).th), dj1 = std::fabs(thk - slot(j + 1).th);
+        const double frac = dj > dj1 ? std::clamp((dj - kTwoPi) / (dj - dj1), 0.0, 1.0) : 0.0;
+        const double Nf = static_cast<double>(N) - frac;
+        // mean speed over exactly one cycle (the warp cancels: the phase advanced 2 pi) and the
+        // acceleration from the mean speeds of this window and the one a window earlier
+        const double om_k = std::copysign(kTwoPi, thk - slot(j).th) / (Nf * T_);
+        slot(k).wbar = om_k;
+        slot(k).wj = j;
+        // The point: the centre of the one-cycle window ending half a cycle back (at e, centre
+        // m = k - N). Its acceleration comes from the mean speeds of the windows centred half a
+        // cycle either side of m (ending at k and at k - N), so it is centred on m too.
+        const auto Nr = static_cast<std::size_t>(std::llround(Nf));
+        const std::size_t e = k - Nr / 2, kp = k - Nr;
+        if (kp < lo || slot(kp).wbar == 0 || (slot(kp).wbar > 0) != (om_k > 0) || slot(e).wbar == 0) return pause();
+        const std::size_t je = slot(e).wj;
+        if (je < lo || je >= e) return pause();
+        const double om = slot(e).wbar;
+        const double al = (om_k - slot(kp).wbar) / (Nf * T_);
+        // no reversal or standstill inside: the tracker's own speed at both ends and in the middle
+        // agrees with the window's mean speed to within a factor of 2
+        for (const std::size_t i : {kp, je, e, k})
+            if (!(slot(i).om / om > 0.5 && slot(i).om / om < 2.0)) return pause();
+        if (k_ < clean_after_) return pause();
+        const std::size_t Ne = e - je;
+        const double Nd = static_cast<double>(Ne);
+        // the speed must not change much across the window (near a reversal the average is no
+        // longer the centre's phase)
+        if (Nd * T_ * std::fabs(al) > 0.25 * std::fabs(om)) return pause();
+        const std::size_t c = je + 1 + (Ne - 1) / 2;                   // centre sample
+        const double tmid = 0.5 * static_cast<double>(je + 1 + e);     // centre of the window, samples
+        const double mean = (slot(e).pre - slot(je).pre) / Nd + base_;
+        const double th = mean - al * T_ * T_ * (Nd * Nd - 1) / 24 + om * T_ * (static_cast<double>(c) - tmid) + rot_;
+        const Slot& sc = slot(c);
+        if (static FILE* dbg = std::getenv("EA_DUMP") ? std::fopen(std::getenv("EA_DUMP"), "w") : nullptr; dbg)
+            std::fprintf(dbg, "%lld %.12g %.6g %zu\n", total_ - 1 - (long long)(k - c), th - rot_, al, N);
+        // the samples between two points are averaged into one (the shape is nearly linear
+        // over a gate of 2 pi/points_per_cycle: the average's bias is a relative
+        // m^2 gate^2/24 per harmonic), so at many samples per cycle every sample counts
+        // u averaged over the same cycle: the tracker's u follows each sample's noise (and, while
+        // the shape is still wrong, its warp); as a regressor it must not carry the noise of
+        // the sample it explains
+        const double u = (slot(e).upre - slot(je).upre) / Nd * ugain_;
+        bin_[0] += sc.zs; bin_[1] += sc.zc; bin_[2] += th; bin_[3] += u;
+        ++bin_n_;
+        double w = gate_;
+        if (have_last_) {
+            const double step = std::fabs(th - last_);
+            if (step < gate_) return;
+            if (step < 4 * gate_) w = step;
+        }
         last_ = th;
         have_last_ = true;
-        const int nb = 2 * max_order_ + 1;
-        VecB f = VecB::Zero();
+        const double n = static_cast<double>(bin_n_);
+        accumulate(bin_[0] / n, bin_[1] / n, bin_[2] / n, bin_[3] / n, w);
+        bin_.fill(0.0);
+        bin_n_ = 0;
+    }
+
+    // Learning paused: the next point starts afresh.
+    void pause() {
+        have_last_ = false;
+        bin_.fill(0.0);
+        bin_n_ = 0;
+    }
+
+    // --- the identifier ---
+
+    void accumulate(double zs, double zc, double th, double u, double w) {
+        // the horizon grows with what was seen (the first cycles, learnt while the shape and so
+        // the tracker's warp still changed, are forgotten sooner), up to memory_cycles
+        const double horizon = std::clamp(0.25 * seen_rad_, 2 * kTwoPi, memory_rad_);
+        scale_ *= std::exp(w / horizon);
+        if (scale_ > 1e100) {
+            for (auto& t : trig_)
+                for (auto& v : t) v /= scale_;
+            for (auto& ch : data_)
+                for (auto& dd : ch)
+                    for (auto& v : dd) v /= scale_;
+            npts_ /= scale_;
+            scale_ = 1;
+        }
+        const double ww = w * scale_;
+        const int M = max_order_;
         double s1, c1;
         sincos_small(wrap_pi(th), s1, c1);
-        f(0) = 1.0;
-        double cm = c1, sm = s1;
-        for (int m = 1; m <= max_order_; ++m) {
-            f(2 * m - 1) = cm;
-            f(2 * m) = sm;
-            const double cn = cm * c1 - sm * s1;
-            sm = sm * c1 + cm * s1;
-            cm = cn;
+        const Cx e1(c1, s1);
+        Cx e = 1.0;
+        const double wu = ww * u, wuu = wu * u;
+        for (int k = 0; k <= 2 * M; ++k) {
+            trig_[0][k] += ww * e;
+            trig_[1][k] += wu * e;
+            trig_[2][k] += wuu * e;
+            if (k <= M) {
+                data_[0][0][k] += ww * zs * e;
+                data_[1][0][k] += ww * zc * e;
+                data_[0][1][k] += wu * zs * e;
+                data_[1][1][k] += wu * zc * e;
+            }
+            e *= e1;
         }
-        A_.topLeftCorner(nb, nb) = keep_ * A_.topLeftCorner(nb, nb) + f.head(nb) * f.head(nb).transpose();
-        bs_.head(nb) = keep_ * bs_.head(nb) + zs * f.head(nb);
-        bc_.head(nb) = keep_ * bc_.head(nb) + zc * f.head(nb);
+        npts_ += scale_;
+        seen_rad_ += w;
         ++accepted_;
-        if (accepted_ % refit_ == 0 && accepted_ >= 2 * ppc_ / 4) solve();
+        if (accepted_ % refit_ == 0 && seen_rad_ >= kPi) solve();
+    }
+
+    // Gram entry <f_a, f_b> for basis indices a, b of [1, cos, sin, cos 2, sin 2, ...] from trig sums t.
+    static double gram(const std::array<Cx, kTrig>& t, int a, int b) {
+        auto C = [&](int k) { return t[std::abs(k)].real(); };
+        auto S = [&](int k) { return k >= 0 ? t[k].imag() : -t[-k].imag(); };
+        if (a == 0 && b == 0) return C(0);
+        if (a == 0 || b == 0) {
+            const int i = a == 0 ? b : a;
+            const int m = (i + 1) / 2;
+            return (i % 2 == 1) ? C(m) : S(m);
+        }
+        const int m = (a + 1) / 2, n = (b + 1) / 2;
+        const bool ca = a % 2 == 1, cb = b % 2 == 1;
+        if (ca && cb) return 0.5 * (C(m - n) + C(m + n));
+        if (!ca && !cb) return 0.5 * (C(m - n) - C(m + n));
+        if (ca) return 0.5 * (S(m + n) - S(m - n));   // cos m sin n
+        return 0.5 * (S(m + n) - S(n - m));            // sin m cos n
+    }
+
+    static double rhs(const std::array<Cx, kMaxOrder + 1>& d, int a) {
+        if (a == 0) return d[0].real();
+        const int m = (a + 1) / 2;
+        return a % 2 == 1 ? d[m].real() : d[m].imag();
     }
 
     void solve() {
-        if (!full_ && accepted_ >= bootstrap_points_) full_ = true;
+        if (!full_ && seen_rad_ >= bootstrap_rad_) full_ = true;
         const int fit_order = full_ ? max_order_ : 1;
-        const int nb = 2 * fit_order + 1;
-        Eigen::MatrixXd M = A_.topLeftCorner(nb, nb);
-        M.diagonal().array() += 1e-12 * M.diagonal().maxCoeff();
-        Eigen::LDLT<Eigen::MatrixXd> ldlt(M);
-        if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return;
-        const Eigen::VectorXd ss = ldlt.solve(bs_.head(nb)), sc = ldlt.solve(bc_.head(nb));
-        if (!ss.allFinite() || !sc.allFinite()) return;
-        // phase convention: the sin channel's fundamental a1 cos + b1 sin = R sin(theta + phi1)
-        const double phi1 = std::atan2(ss(1), ss(2));
-        if (!(std::hypot(ss(1), ss(2)) > 0)) return;
-        std::array<double, kMaxBasis> ns{}, nc{};
-        for (int i = 0; i < nb; ++i) { ns[i] = ss(i); nc[i] = sc(i); }
-        // rotate into theta' = theta + phi1: coefficients and the normal equations (all orders)
-        Eigen::Matrix<double, kMaxBasis, kMaxBasis> Tm = Eigen::Matrix<double, kMaxBasis, kMaxBasis>::Identity();
-        for (int m = 1; m <= max_order_; ++m) {
-            const double c = std::cos(m * phi1), s = std::sin(m * phi1);
-            Tm(2 * m - 1, 2 * m - 1) = c; Tm(2 * m - 1, 2 * m) = s;
-            Tm(2 * m, 2 * m - 1) = -s; Tm(2 * m, 2 * m) = c;
-            if (m <= fit_order) {
-                const double a = ns[2 * m - 1], b = ns[2 * m];
-                ns[2 * m - 1] = c * a - s * b; ns[2 * m] = s * a + c * b;
-                const double a2 = nc[2 * m - 1], b2 = nc[2 * m];
-                nc[2 * m - 1] = c * a2 - s * b2; nc[2 * m] = s * a2 + c * b2;
-            }
+        const int n0 = 2 * fit_order + 1;
+        // the variation direction is learnt once the shape has settled: before, u follows the
+        // shape's own errors and says nothing about how the shape varies
+        const int n1 = vary_ ? 2 * std::min(fit_order, kVarOrder) + 1 : 0;
+        const int nb = n0 + n1;
+        const double W = trig_[0][0].real();
+        if (!(W > 0)) return;
+        // centred on u's mean over the memory, so the two blocks are not collinear when u
+        // hardly varies: sum w (u - ubar)^p e^{ik theta}
+        const double ubar = trig_[1][0].real() / W;
+        std::array<Cx, kTrig> t1, t2;
+        for (int k = 0; k < kTrig; ++k) {
+            t1[k] = trig_[1][k] - ubar * trig_[0][k];
+            t2[k] = trig_[2][k] - 2 * ubar * trig_[1][k] + ubar * ubar * trig_[0][k];
         }
-        A_ = (Tm.transpose() * A_ * Tm).eval();
-        bs_ = (Tm.transpose() * bs_).eval();
-        bc_ = (Tm.transpose() * bc_).eval();
+        std::array<std::array<Cx, kMaxOrder + 1>, 2> d1;
+        for (int ch = 0; ch < 2; ++ch)
+            for (int k = 0; k <= kMaxOrder; ++k) d1[ch][k] = data_[ch][1][k] - ubar * data_[ch][0][k];
+        Eigen::MatrixXd G(nb, nb);
+        for (int a = 0; a < n0; ++a)
+            for (int b = 0; b <= a; ++b) G(a, b) = G(b, a) = gram(trig_[0], a, b);
+        for (int a = 0; a < n1; ++a) {
+            for (int b = 0; b < n0; ++b) G(n0 + a, b) = G(b, n0 + a) = gram(t1, a, b);
+            for (int b = 0; b <= a; ++b) G(n0 + a, n0 + b) = G(n0 + b, n0 + a) = gram(t2, a, b);
+        }
+        // ridge on h1 towards the common gain (h1 = h0): h1 moves away from it only when u
+        // varies by more than about kURidge over the memory
+        const double lambda = sq(kURidge) * W;
+        Eigen::VectorXd bs(nb), bc(nb);
+        for (int a = 0; a < n0; ++a) { bs(a) = rhs(data_[0][0], a); bc(a) = rhs(data_[1][0], a); }
+        for (int a = 0; a < n1; ++a) {
+            bs(n0 + a) = rhs(d1[0], a) + lambda * c0s_[a];
+            bc(n0 + a) = rhs(d1[1], a) + lambda * c0c_[a];
+            G(n0 + a, n0 + a) += lambda;
+        }
+        G.diagonal().array() += 1e-12 * G.diagonal().maxCoeff();
+        Eigen::LDLT<Eigen::MatrixXd> ldlt(G);
+        if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return;
+        const Eigen::VectorXd ss = ldlt.solve(bs), sc = ldlt.solve(bc);
+        if (!ss.allFinite() || !sc.allFinite()) return;
+        Coeffs ns{}, nc{}, vs{}, vc{};
+        for (int i = 0; i < n0; ++i) { ns[i] = ss(i); nc[i] = sc(i); }
+        for (int i = 0; i < n1; ++i) { vs[i] = ss(n0 + i); vc[i] = sc(n0 + i); }
+        if (n1 == 0) { vs = c1s_; vc = c1c_; }
+        // the fit is the shape at u = ubar: h0 = fit - ubar h1
+        for (int i = 0; i < n1; ++i) { ns[i] -= ubar * vs[i]; nc[i] -= ubar * vc[i]; }
+        // phase convention: the sin channel's fundamental a1 cos + b1 sin = R sin(theta + phi1)
+        if (!(std::hypot(ns[1], ns[2]) > 0)) return;
+        const double phi1 = std::atan2(ns[1], ns[2]);
+        rotate(ns, fit_order, phi1);
+        rotate(nc, fit_order, phi1);
+        rotate(vs, std::min(fit_order, kVarOrder), phi1);
+        rotate(vc, std::min(fit_order, kVarOrder), phi1);
+        // rotate the sums into theta' = theta + phi1: sum w u^p e^{ik theta} * e^{ik phi1}
+        for (int k = 0; k < kTrig; ++k) {
+            const Cx r = std::polar(1.0, k * phi1);
+            for (auto& t : trig_) t[k] *= r;
+            if (k <= kMaxOrder)
+                for (auto& ch : data_)
+                    for (auto& dd : ch) dd[k] *= r;
+        }
         x_[0] += phi1;
+        rot_ += phi1;
         last_ += phi1;
-        sl_[0] += phi1;
-        // order: the highest harmonic above 4 standard errors (noise from R, points from A)
+        bin_[2] += phi1 * static_cast<double>(bin_n_);
+        // order: the highest harmonic of h0 above 4 standard errors (noise from R, points counted)
         int order = 1;
         if (full_) {
-            const double n_eff = std::max(A_(0, 0), 1.0);
+            const double n_eff = std::max(npts_ / scale_, 1.0);
             const double se = std::sqrt(2.0 * std::max(R_[0], R_[2]) / n_eff);
             for (int m = 2; m <= fit_order; ++m)
                 if (std::hypot(ns[2 * m - 1], ns[2 * m]) > 4 * se || std::hypot(nc[2 * m - 1], nc[2 * m]) > 4 * se) order = m;
         }
-        cs_ = ns;
-        cc_ = nc;
+        // h1: no component along h0' (that is a phase change, not a shape change), |h1| = |h0|
+        const int mv = std::min(order, kVarOrder);
+        for (int i = 2 * mv + 1; i < kMaxBasis; ++i) { vs[i] = 0; vc[i] = 0; }
+        double dot = 0, dd = 0, n0sq = 0, n1sq = 0;
+        for (int m = 1; m <= mv; ++m) {
+            const double ds_c = m * ns[2 * m], ds_s = -m * ns[2 * m - 1], dc_c = m * nc[2 * m], dc_s = -m * nc[2 * m - 1];
+            dot += vs[2 * m - 1] * ds_c + vs[2 * m] * ds_s + vc[2 * m - 1] * dc_c + vc[2 * m] * dc_s;
+            dd += ds_c * ds_c + ds_s * ds_s + dc_c * dc_c + dc_s * dc_s;
+        }
+        if (dd > 0)
+            for (int m = 1; m <= mv; ++m) {
+                vs[2 * m - 1] -= dot / dd * m * ns[2 * m];
+                vs[2 * m] += dot / dd * m * ns[2 * m - 1];
+                vc[2 * m - 1] -= dot / dd * m * nc[2 * m];
+                vc[2 * m] += dot / dd * m * nc[2 * m - 1];
+            }
+        for (int i = 1; i < n0; ++i) n0sq += ns[i] * ns[i] + nc[i] * nc[i];
+        for (int i = 0; i < 2 * mv + 1; ++i) n1sq += vs[i] * vs[i] + vc[i] * vc[i];
+        if (!(n1sq > 0) || !(n0sq > 0)) return;
+        const double k = std::sqrt(n0sq / n1sq);  // h1 *= k, so u /= k
+        for (int i = 0; i < 2 * mv + 1; ++i) { vs[i] *= k; vc[i] *= k; }
+        x_[3] /= k;
+        for (int i = 0; i < 4; ++i) { P_[3][i] /= k; P_[i][3] /= k; }
+        ugain_ /= k;
+        for (auto& v : trig_[1]) v /= k;
+        for (auto& v : trig_[2]) v /= k * k;
+        for (auto& ch : data_)
+            for (auto& v : ch[1]) v /= k;
+        // a shape change that moves the tracker's warp: the windows that straddle it do not
+        // average a periodic warp, so learning pauses for one window
+        double dsq = 0;
+        for (int i = 0; i < kMaxBasis; ++i) dsq += sq(ns[i] - c0s_[i]) + sq(nc[i] - c0c_[i]);
+        if (dsq > sq(kWarpChange) * n0sq) clean_after_ = k_ + last_window_ + 2;
+        if (full_ && dsq < sq(kSettled) * n0sq && ++settled_solves_ >= 8) vary_ = true;
+        c0s_ = ns;
+        c0c_ = nc;
+        c1s_ = vs;
+        c1c_ = vc;
         order_ = order;
         noise_inv();
         update_prior();
         ++refits_;
+        if (std::getenv("EA_SOLVES") && refits_ < 400)
+            std::fprintf(stderr, "solve %lld t=%.4f full=%d order=%d phi1=%.3e h2s=%.4e,%.4e h3s=%.3e h2c=%.4e,%.4e dsq=%.3e pts=%lld W=%.3g\n", refits_, total_ / fs_, (int)full_, order_, phi1,
+                         c0s_[3], c0s_[4], std::hypot(c0s_[5], c0s_[6]), c0c_[3], c0c_[4], std::sqrt(dsq / n0sq), accepted_, trig_[0][0].real() / scale_);
+    }
+
+    static void rotate(Coeffs& c, int order, double phi) {
+        for (int m = 1; m <= order; ++m) {
+            const double co = std::cos(m * phi), si = std::sin(m * phi);
+            const double a = c[2 * m - 1], b = c[2 * m];
+            c[2 * m - 1] = co * a - si * b;
+            c[2 * m] = si * a + co * b;
+        }
     }
 
     double fs_ = 1, T_ = 1, fn_ = 100, wn_ = 0;
-    int max_order_ = 8, ppc_ = 64, order_ = 1;
-    double gate_ = 0.1, keep_ = 1, noise_a_ = 1e-3, r_bar_ = 0;
+    int max_order_ = 8, ppc_ = 256, order_ = 1, told_order_ = 1;
+    double gate_ = 0.1, memory_rad_ = 100, bootstrap_rad_ = 12, noise_a_ = 1e-3, r_bar_ = 0, q_u_ = 0.01;
     int since_noise_ = 0;
-    long long refit_ = 32, bootstrap_points_ = 128, accepted_ = 0, refits_ = 0, nonfinite_ = 0;
-    bool full_ = false, have_last_ = false, reacquiring_ = false;
-    double last_ = 0, acq_sum_ = 0;
+    long long refit_ = 32, accepted_ = 0, refits_ = 0, nonfinite_ = 0;
+    bool vary_ = false;
+    int settled_solves_ = 0;
+    bool full_ = false, have_last_ = false, reacquiring_ = false, learn_ = true, told_ = false;
+    double last_ = 0, acq_sum_ = 0, seen_rad_ = 0;
+    std::array<double, 4> bin_{};  // sums of zs, zc, theta, u since the last point
+    long long bin_n_ = 0, total_ = 0;
     std::size_t acq_n_ = 200;
     Calibration cal_;
     Acquisition acq_;
     LockMonitor lock_;
-    // tracker
-    std::array<double, 3> x_{}, sl_{};
-    long long settled_ = 0;
-    bool sl_ok_ = false;
+    // tracker [theta, omega, alpha, u]
+    std::array<double, 4> x_{};
     long long turns_ = 0;
-    double P_[3][3] = {}, Q_[3][3] = {};
+    double P_[4][4] = {}, Q_[3][3] = {};
     std::array<double, 3> R_{}, Ri_{};
-    // shape and identifier
-    std::array<double, kMaxBasis> cs_{}, cc_{};
-    MatB A_ = MatB::Zero();
-    VecB bs_ = VecB::Zero(), bc_ = VecB::Zero();
+    // shape h0, variation h1, the told profile's shape
+    Coeffs c0s_{}, c0c_{}, c1s_{}, c1c_{}, told_s_{}, told_c_{};
+    // delay line
+    std::vector<Slot> ring_;
+    std::size_t cap_ = 1, k_ = 0, seg0_ = 0, wstart_ = 0, clean_after_ = 0, last_window_ = 0, moving_since_ = 0;
+    double base_ = 0, rot_ = 0, ugain_ = 1;
+    // identifier sums, scaled by scale_: trig_[p][k] = sum w u^p e^{ik theta},
+    // data_[ch][p][k] = sum w u^p z_ch e^{ik theta}
+    std::array<std::array<Cx, kTrig>, 3> trig_{};
+    std::array<std::array<std::array<Cx, kMaxOrder + 1>, 2>, 2> data_{};
+    double scale_ = 1, npts_ = 0;
 };
 
 }  // namespace
 
 void register_ekf_auto(std::vector<EstimatorInfo>& r) {
     r.push_back({"ekf-auto",
-                 "Told nothing: a CA phase tracker whose measurement model is a Fourier shape table per channel (offsets, gains, "
-                 "quadrature, harmonics), learnt by a slower phase-gated least-squares identifier with forgetting; measures its own noise; "
-                 "guarded by a loss-of-lock monitor",
+                 "Told nothing: a phase tracker whose measurement model is a Fourier shape table per channel (offsets, gains, "
+                 "quadrature, harmonics) plus one learnt direction of shape variation (light drift, gap run-out), learnt by a "
+                 "least-squares identifier against a cycle-centred smoothed phase; measures its own noise; guarded by a "
+                 "loss-of-lock monitor",
                  EkfAuto::params(), [] { return std::make_unique<EkfAuto>(); }});
 }
 
