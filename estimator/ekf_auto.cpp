@@ -45,8 +45,6 @@
 #include <cmath>
 #include <complex>
 #include <cstring>
-#include <cstdlib>
-#include <cstdio>
 #include <vector>
 
 namespace fringe::est {
@@ -84,7 +82,7 @@ public:
              "electrical cycles seen with a fundamental-only shape before the full order is fitted"},
             {"noise_memory_samples", "samples", ParamType::Number, 2000.0, 10, 1e9, {},
              "time constant of the residual covariance estimate R"},
-            {"q_variation_per_s", "1/s", ParamType::Number, 0.01, 0, 10, {},
+            {"q_variation_per_s", "1/s", ParamType::Number, 0.001, 0, 10, {},
              "random-walk intensity of the shape-variation state u (u is relative to the shape's amplitude)"},
             {"learn", "", ParamType::Boolean, true, -kInf, kInf, {},
              "learn the shape from the samples; false needs an encoder profile and tracks with its exact shape (an oracle for tests)"},
@@ -134,7 +132,6 @@ public:
     void process(InputSpan in, OutputSpan out) override {
         const std::size_t n = in.size();
         for (std::size_t i = 0; i < n; ++i) {
-            ++total_;
             const double zs = in.sin_v[i], zc = in.cos_v[i];
             if (!(std::isfinite(zs) && std::isfinite(zc))) {
                 ++nonfinite_;
@@ -411,15 +408,6 @@ private:
         eval(x_[0], h, d, h1, d1);
         const double u = x_[3];
         const double rs = zs - h[0] - u * h1[0], rc = zc - h[1] - u * h1[1];
-        // residual covariance (a priori residuals; their state part is negligible once locked)
-        R_[0] += noise_a_ * (rs * rs - R_[0]);
-        R_[1] += noise_a_ * (rs * rc - R_[1]);
-        R_[2] += noise_a_ * (rc * rc - R_[2]);
-        if (++since_noise_ == 256) {  // R and q together, so the tracker's bandwidth stays fn
-            since_noise_ = 0;
-            noise_inv();
-            update_prior();
-        }
         // H = [[a0, 0, 0, b0], [a1, 0, 0, b1]]: phase and u columns only
         const double a0 = d[0] + u * d1[0], a1 = d[1] + u * d1[1], b0 = h1[0], b1 = h1[1];
         double PH[4][2];
@@ -427,9 +415,18 @@ private:
             PH[i][0] = P_[i][0] * a0 + P_[i][3] * b0;
             PH[i][1] = P_[i][0] * a1 + P_[i][3] * b1;
         }
-        const double S00 = a0 * PH[0][0] + b0 * PH[3][0] + R_[0];
-        const double S01 = a0 * PH[0][1] + b0 * PH[3][1] + R_[1];
-        const double S11 = a1 * PH[0][1] + b1 * PH[3][1] + R_[2];
+        const double HPH00 = a0 * PH[0][0] + b0 * PH[3][0], HPH01 = a0 * PH[0][1] + b0 * PH[3][1],
+                     HPH11 = a1 * PH[0][1] + b1 * PH[3][1];
+        // the noise covariance R: the a priori residuals' covariance less the state's part H P H'
+        R_[0] += noise_a_ * (rs * rs - HPH00 - R_[0]);
+        R_[1] += noise_a_ * (rs * rc - HPH01 - R_[1]);
+        R_[2] += noise_a_ * (rc * rc - HPH11 - R_[2]);
+        if (++since_noise_ == 256) {  // R and q together, so the tracker's bandwidth stays fn
+            since_noise_ = 0;
+            noise_inv();
+            update_prior();
+        }
+        const double S00 = HPH00 + R_[0], S01 = HPH01 + R_[1], S11 = HPH11 + R_[2];
         const double det = S00 * S11 - S01 * S01;
         if (!(det > 0)) return;
         const double i00 = S11 / det, i01 = -S01 / det, i11 = S00 / det;
@@ -548,8 +545,6 @@ private:
         const double mean = (slot(e).pre - slot(je).pre) / Nd + base_;
         const double th = mean - al * T_ * T_ * (Nd * Nd - 1) / 24 + om * T_ * (static_cast<double>(c) - tmid) + rot_;
         const Slot& sc = slot(c);
-        if (static FILE* dbg = std::getenv("EA_DUMP") ? std::fopen(std::getenv("EA_DUMP"), "w") : nullptr; dbg)
-            std::fprintf(dbg, "%lld %.12g %.6g %zu\n", total_ - 1 - (long long)(k - c), th - rot_, al, N);
         // the samples between two points are averaged into one (the shape is nearly linear
         // over a gate of 2 pi/points_per_cycle: the average's bias is a relative
         // m^2 gate^2/24 per harmonic), so at many samples per cycle every sample counts
@@ -713,13 +708,20 @@ private:
         rot_ += phi1;
         last_ += phi1;
         bin_[2] += phi1 * static_cast<double>(bin_n_);
-        // order: the highest harmonic of h0 above 4 standard errors (noise from R, points counted)
+        // order: the highest harmonic above 4 standard errors (noise from R, points counted) in
+        // h0 or in the variation u h1 at u's rms over the memory (a gap run-out can have a
+        // harmonic only in h1: none at one end of its swing)
         int order = 1;
         if (full_) {
             const double n_eff = std::max(npts_ / scale_, 1.0);
             const double se = std::sqrt(2.0 * std::max(R_[0], R_[2]) / n_eff);
-            for (int m = 2; m <= fit_order; ++m)
-                if (std::hypot(ns[2 * m - 1], ns[2 * m]) > 4 * se || std::hypot(nc[2 * m - 1], nc[2 * m]) > 4 * se) order = m;
+            const double u_rms = std::sqrt(std::max(trig_[2][0].real(), 0.0) / W);
+            for (int m = 2; m <= fit_order; ++m) {
+                const bool in_h0 = std::hypot(ns[2 * m - 1], ns[2 * m]) > 4 * se || std::hypot(nc[2 * m - 1], nc[2 * m]) > 4 * se;
+                const bool in_h1 = m <= kVarOrder && n1 > 0 &&
+                                   (u_rms * std::hypot(vs[2 * m - 1], vs[2 * m]) > 4 * se || u_rms * std::hypot(vc[2 * m - 1], vc[2 * m]) > 4 * se);
+                if (in_h0 || in_h1) order = m;
+            }
         }
         // h1: no component along h0' (that is a phase change, not a shape change), |h1| = |h0|
         const int mv = std::min(order, kVarOrder);
@@ -754,7 +756,10 @@ private:
         double dsq = 0;
         for (int i = 0; i < kMaxBasis; ++i) dsq += sq(ns[i] - c0s_[i]) + sq(nc[i] - c0c_[i]);
         if (dsq > sq(kWarpChange) * n0sq) clean_after_ = k_ + last_window_ + 2;
-        if (full_ && dsq < sq(kSettled) * n0sq && ++settled_solves_ >= 8) vary_ = true;
+        // (or, if the shape keeps changing, after 8 cycles at full order: the change may be the
+        // variation itself)
+        if (full_ && dsq < sq(kSettled) * n0sq) ++settled_solves_;
+        if (full_ && (settled_solves_ >= 8 || seen_rad_ >= bootstrap_rad_ + 8 * kTwoPi)) vary_ = true;
         c0s_ = ns;
         c0c_ = nc;
         c1s_ = vs;
@@ -763,9 +768,6 @@ private:
         noise_inv();
         update_prior();
         ++refits_;
-        if (std::getenv("EA_SOLVES") && refits_ < 400)
-            std::fprintf(stderr, "solve %lld t=%.4f full=%d order=%d phi1=%.3e h2s=%.4e,%.4e h3s=%.3e h2c=%.4e,%.4e dsq=%.3e pts=%lld W=%.3g\n", refits_, total_ / fs_, (int)full_, order_, phi1,
-                         c0s_[3], c0s_[4], std::hypot(c0s_[5], c0s_[6]), c0c_[3], c0c_[4], std::sqrt(dsq / n0sq), accepted_, trig_[0][0].real() / scale_);
     }
 
     static void rotate(Coeffs& c, int order, double phi) {
@@ -779,7 +781,7 @@ private:
 
     double fs_ = 1, T_ = 1, fn_ = 100, wn_ = 0;
     int max_order_ = 8, ppc_ = 256, order_ = 1, told_order_ = 1;
-    double gate_ = 0.1, memory_rad_ = 100, bootstrap_rad_ = 12, noise_a_ = 1e-3, r_bar_ = 0, q_u_ = 0.01;
+    double gate_ = 0.1, memory_rad_ = 100, bootstrap_rad_ = 12, noise_a_ = 1e-3, r_bar_ = 0, q_u_ = 0.001;
     int since_noise_ = 0;
     long long refit_ = 32, accepted_ = 0, refits_ = 0, nonfinite_ = 0;
     bool vary_ = false;
@@ -787,7 +789,7 @@ private:
     bool full_ = false, have_last_ = false, reacquiring_ = false, learn_ = true, told_ = false;
     double last_ = 0, acq_sum_ = 0, seen_rad_ = 0;
     std::array<double, 4> bin_{};  // sums of zs, zc, theta, u since the last point
-    long long bin_n_ = 0, total_ = 0;
+    long long bin_n_ = 0;
     std::size_t acq_n_ = 200;
     Calibration cal_;
     Acquisition acq_;
