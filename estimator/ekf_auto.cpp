@@ -598,15 +598,20 @@ private:
         const Cx e1(c1, s1);
         Cx e = 1.0;
         const double wu = ww * u, wuu = wu * u;
+        // the u-weighted sums are needed only as far as h1's order reaches (k <= M + 4, 8, 4)
+        const int k1 = std::min(2 * M, M + kVarOrder), k2 = 2 * kVarOrder;
+        const double wzs = ww * zs, wzc = ww * zc, wuzs = wu * zs, wuzc = wu * zc;
         for (int k = 0; k <= 2 * M; ++k) {
             trig_[0][k] += ww * e;
-            trig_[1][k] += wu * e;
-            trig_[2][k] += wuu * e;
+            if (k <= k1) trig_[1][k] += wu * e;
+            if (k <= k2) trig_[2][k] += wuu * e;
             if (k <= M) {
-                data_[0][0][k] += ww * zs * e;
-                data_[1][0][k] += ww * zc * e;
-                data_[0][1][k] += wu * zs * e;
-                data_[1][1][k] += wu * zc * e;
+                data_[0][0][k] += wzs * e;
+                data_[1][0][k] += wzc * e;
+                if (k <= kVarOrder) {
+                    data_[0][1][k] += wuzs * e;
+                    data_[1][1][k] += wuzc * e;
+                }
             }
             e *= e1;
         }
