@@ -116,9 +116,11 @@ public:
         } else if (!learn_) {
             throw ConfigError("params.learn", "false needs an encoder profile to take the shape from");
         }
-        // delay line for the cycle-centred average: a cycle at kLearnMinHz must fit
-        const double need = fs_ / kLearnMinHz + 4;
-        cap_ = std::bit_ceil(static_cast<std::size_t>(std::min(need, double(1 << 20))));
+        // delay line for the cycle-centred average: two cycles at kLearnMinHz must fit, in at
+        // most 2^17 samples (11.5 MB); above fs = 262 kHz learning starts at fs/2^16 Hz
+        // electrical rather than at kLearnMinHz
+        const double need = 2 * fs_ / kLearnMinHz + 4;
+        cap_ = std::bit_ceil(static_cast<std::size_t>(std::min(need, double(1 << 17))));
         ring_.assign(cap_, Slot{});
         Calibration none;
         none.prepare();
