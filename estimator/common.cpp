@@ -74,15 +74,18 @@ void LockMonitor::reset(const Calibration& told, double threshold_rad) {
 
 double LockMonitor::reference(double s, double c) {
     if (own_) {
-        smin_ = std::min(smin_, s); smax_ = std::max(smax_, s);
-        cmin_ = std::min(cmin_, c); cmax_ = std::max(cmax_, c);
-        ref_ = unwrap_(fast_atan2((s - 0.5 * (smax_ + smin_)) / (0.5 * (smax_ - smin_)),
-                                  (c - 0.5 * (cmax_ + cmin_)) / (0.5 * (cmax_ - cmin_))));
+        // the frame changes only when a sample leaves the min/max box (rarely once running)
+        if (s < smin_ || s > smax_ || c < cmin_ || c > cmax_) {
+            smin_ = std::min(smin_, s); smax_ = std::max(smax_, s);
+            cmin_ = std::min(cmin_, c); cmax_ = std::max(cmax_, c);
+            own_frame();
+        }
+        ref_ = unwrap_(coarse_atan2((s - smid_) * sinv_, (c - cmid_) * cinv_));
         return ref_;
     }
     double sn, cn;
     told_.normalise(s, c, sn, cn);
-    ref_ = unwrap_(fast_atan2(sn, cn));
+    ref_ = unwrap_(coarse_atan2(sn, cn));
     if (!started_) {
         smin_ = smax_ = s;
         cmin_ = cmax_ = c;
@@ -100,11 +103,12 @@ double LockMonitor::reference(double s, double c) {
         own_start_ = 0;
         return ref_;
     }
-    const double own = fast_atan2((s - 0.5 * (smax_ + smin_)) / as, (c - 0.5 * (cmax_ + cmin_)) / ac);
+    const double own = coarse_atan2((s - 0.5 * (smax_ + smin_)) / as, (c - 0.5 * (cmax_ + cmin_)) / ac);
     if (!own_unwrap_.started()) own_start_ = own;
     if (std::fabs(own_unwrap_(own) - own_start_) > 2 * kTwoPi) {
         // two turns in a stable frame: switch, continuing the told frame's turn count
         own_ = true;
+        own_frame();
         unwrap_.set(ref_ + wrap_pi(own - ref_));
     }
     return ref_;

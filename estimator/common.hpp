@@ -36,6 +36,23 @@ inline double fast_atan2(double y, double x) {
     return std::copysign(a, y);  // a >= 0 here; copysign keeps atan2(-0, x) = -0 or -pi
 }
 
+// The same reduction with the series cut at u^9: |error| < tan(pi/8)^11/11 < 6e-6 rad. For
+// references that only have to be right to well within a radian (the loss-of-lock guard).
+inline double coarse_atan2(double y, double x) {
+    constexpr double kTanPi8 = 0.41421356237309504880;
+    const double ax = std::fabs(x), ay = std::fabs(y);
+    const double mx = ax > ay ? ax : ay, mn = ax > ay ? ay : ax;
+    const bool big = mn > kTanPi8 * mx;
+    const double num = big ? mn - mx : mn, den = big ? mn + mx : mx;
+    const double u = den > 0.0 ? num / den : 0.0;
+    const double u2 = u * u;
+    const double p = 1.0 - u2 * (1.0 / 3.0 - u2 * (1.0 / 5.0 - u2 * (1.0 / 7.0 - u2 * (1.0 / 9.0))));
+    double a = (big ? kPi / 4 : 0.0) + u * p;
+    a = ay > ax ? kPi / 2 - a : a;
+    a = x < 0.0 ? kPi - a : a;
+    return std::copysign(a, y);
+}
+
 // Unwraps a wrapped phase sequence exactly: theta = a + 2*pi*turns with an integer turn
 // count, so no rounding accumulates over 10^8 samples (a running float sum would).
 class Unwrapper {
@@ -160,6 +177,13 @@ private:
     long long events_ = 0, invalid_ = 0;
     // own frame: per-channel min/max, and how far the phase has gone round in it
     double smin_ = 0, smax_ = 0, cmin_ = 0, cmax_ = 0, own_start_ = 0;
+    double smid_ = 0, cmid_ = 0, sinv_ = 1, cinv_ = 1;  // the own frame: centres, 1/half-ranges
+    void own_frame() {
+        smid_ = 0.5 * (smax_ + smin_);
+        cmid_ = 0.5 * (cmax_ + cmin_);
+        sinv_ = 2.0 / (smax_ - smin_);
+        cinv_ = 2.0 / (cmax_ - cmin_);
+    }
     Unwrapper own_unwrap_;
     bool started_ = false, own_ = false;
 };
