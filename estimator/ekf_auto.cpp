@@ -60,6 +60,7 @@ constexpr double kLearnMinHz = 4.0;           // no learning below this electric
 constexpr double kUPullS = 5.0;               // time constant of u's pull to 0 (s)
 constexpr double kURidge = 3e-4;              // ridge on h1: as if u had this rms
 constexpr double kSettled = 1e-3;             // shape changes below this (relative) for 8 solves: settled
+constexpr double kMaxPhaseVar = 0.1;          // rad^2: a shape and noise giving a worse per-sample phase is no signal
 constexpr double kWarpChange = 1e-2;          // a shape change above this (relative) pauses learning
 
 using Coeffs = std::array<double, kMaxBasis>;
@@ -84,8 +85,10 @@ public:
              "time constant of the residual covariance estimate R"},
             {"q_variation_per_s", "1/s", ParamType::Number, 0.001, 0, 10, {},
              "random-walk intensity of the shape-variation state u (u is relative to the shape's amplitude)"},
+            {"start_from_profile", "", ParamType::Boolean, false, -kInf, kInf, {},
+             "start from the told encoder profile's exact shape (by default a profile that comes with the capture or scenario is ignored: told nothing)"},
             {"learn", "", ParamType::Boolean, true, -kInf, kInf, {},
-             "learn the shape from the samples; false needs an encoder profile and tracks with its exact shape (an oracle for tests)"},
+             "learn the shape from the samples; false needs start_from_profile and a profile, and tracks with its exact shape (an oracle for tests)"},
             acquisition_param(),
             LockMonitor::threshold_param(),
         };
@@ -97,6 +100,8 @@ public:
         fs_ = cfg.sample_rate_hz;
         T_ = 1.0 / fs_;
         fn_ = p.number("natural_freq_hz");
+        // the default 100 Hz needs fs >= 1.26 kHz; below, a default (not a given value) becomes fs/(8 pi)
+        if (!cfg.params.contains("natural_freq_hz") && kTwoPi * fn_ / fs_ > 0.25) fn_ = fs_ / (4 * kTwoPi);
         wn_ = kTwoPi * fn_;
         if (wn_ * T_ > 0.5) throw ConfigError("params.natural_freq_hz", "too high for the sample rate (wn*T must be < 0.5)");
         max_order_ = static_cast<int>(p.integer("max_order"));
@@ -110,12 +115,12 @@ public:
         learn_ = p.boolean("learn");
         acq_n_ = static_cast<std::size_t>(p.integer("acquisition_samples"));
         told_ = false;
-        if (cfg.encoder) {
+        if (p.boolean("start_from_profile")) {
+            if (!cfg.encoder) throw ConfigError("params.start_from_profile", "true needs an encoder profile (--encoder, or the capture's)");
             profile_shape(*cfg.encoder);
             told_ = true;
-        } else if (!learn_) {
-            throw ConfigError("params.learn", "false needs an encoder profile to take the shape from");
         }
+        if (!learn_ && !told_) throw ConfigError("params.learn", "false needs start_from_profile: true and an encoder profile to take the shape from");
         // delay line for the cycle-centred average: two cycles at kLearnMinHz must fit, in at
         // most 2^17 samples (11.5 MB); above fs = 262 kHz learning starts at fs/2^16 Hz
         // electrical rather than at kLearnMinHz
@@ -127,6 +132,7 @@ public:
         cal_ = none;
         lock_.reset(none, p.number("lock_threshold_rad"));
         nonfinite_ = 0;
+        no_evidence_ = 0;
         refits_ = 0;
         restart();
     }
@@ -159,7 +165,12 @@ public:
             update(zs, zc);
             out.theta_rad[i] = theta_out();
             out.omega_rad_s[i] = x_[1];
-            out.valid[i] = 1;
+            // no valid output before the shape was learnt from motion (or told): a capture that
+            // never moves, or holds no signal, gives no phase; nor where the learnt shape leaves
+            // a per-sample phase std above 0.3 rad
+            const bool evidence = (told_ || refits_since_start_ > 0) && r_bar_ < kMaxPhaseVar;
+            out.valid[i] = evidence ? 1 : 0;
+            if (!evidence) ++no_evidence_;
             if (!lock_.check(out.theta_rad[i])) {
                 out.valid[i] = 0;
                 lock_.count_invalid();
@@ -181,7 +192,12 @@ public:
         nlohmann::json j{{"stage", !acq_.done() ? "acquisition" : (full_ ? "tracking" : "bootstrap")},
                          {"order", order_}, {"refits", refits_}, {"accepted_points", accepted_},
                          {"learn", learn_}, {"told_profile", told_},
-                         {"nonfinite_samples", nonfinite_}, {"loss_of_lock", lock_.to_json()}};
+                         {"nonfinite_samples", nonfinite_}, {"loss_of_lock", lock_.to_json()},
+                         {"samples_without_evidence", no_evidence_}};
+        if (acq_.done() && refits_since_start_ == 0 && !told_)
+            j["message"] = "no valid output yet: the shape is learnt from motion (half an electrical cycle after acquisition); the capture has not moved enough, or holds no signal";
+        else if (r_bar_ >= kMaxPhaseVar)
+            j["message"] = "no valid output: the learnt shape and noise leave a per-sample phase std above 0.3 rad (no signal)";
         auto coeffs = [&](const Coeffs& c, int order) {
             nlohmann::json h = nlohmann::json::array();
             for (int m = 1; m <= order; ++m) h.push_back({{"order", m}, {"cos_v", c[2 * m - 1]}, {"sin_v", c[2 * m]}});
@@ -260,6 +276,7 @@ private:
         c1c_.fill(0.0);
         order_ = 1;
         full_ = false;
+        refits_since_start_ = 0;
         vary_ = false;
         settled_solves_ = 0;
         accepted_ = 0;
@@ -304,6 +321,7 @@ private:
         // conservative noise until residuals are measured: 1 % of the amplitude
         const double v = sq(0.01 * std::max(amp, 1e-9));
         R_ = {v, 0.0, v};
+        Rraw_ = R_;
         noise_inv();
         update_prior();
         const double th = lock_.anchor(acq_.theta_rad());
@@ -423,6 +441,16 @@ private:
         R_[0] += noise_a_ * (rs * rs - HPH00 - R_[0]);
         R_[1] += noise_a_ * (rs * rc - HPH01 - R_[1]);
         R_[2] += noise_a_ * (rc * rc - HPH11 - R_[2]);
+        Rraw_[0] += noise_a_ * (rs * rs - Rraw_[0]);
+        Rraw_[2] += noise_a_ * (rc * rc - Rraw_[2]);
+        // a covariance: each variance at least a quarter of the raw residuals' (the filter's own
+        // P can overstate its error), 1e-12 of the shape's power and 1e-24 V^2; correlation
+        // below 0.999
+        const double floor = std::max(1e-12 * (c0s_[1] * c0s_[1] + c0s_[2] * c0s_[2] + c0c_[1] * c0c_[1] + c0c_[2] * c0c_[2]), 1e-24);
+        R_[0] = std::max({R_[0], 0.25 * Rraw_[0], floor});
+        R_[2] = std::max({R_[2], 0.25 * Rraw_[2], floor});
+        const double rmax = 0.999 * std::sqrt(R_[0] * R_[2]);
+        R_[1] = std::clamp(R_[1], -rmax, rmax);
         if (++since_noise_ == 256) {  // R and q together, so the tracker's bandwidth stays fn
             since_noise_ = 0;
             noise_inv();
@@ -620,7 +648,9 @@ private:
         npts_ += scale_;
         seen_rad_ += w;
         ++accepted_;
-        if (accepted_ % refit_ == 0 && seen_rad_ >= kPi) solve();
+        // told a profile, the first solve waits for the bootstrap's cycles (a fit of the full
+        // order to half a cycle would throw the exact shape away)
+        if (accepted_ % refit_ == 0 && seen_rad_ >= (told_ ? bootstrap_rad_ : kPi)) solve();
     }
 
     // Gram entry <f_a, f_b> for basis indices a, b of [1, cos, sin, cos 2, sin 2, ...] from trig sums t.
@@ -775,6 +805,7 @@ private:
         noise_inv();
         update_prior();
         ++refits_;
+        ++refits_since_start_;
     }
 
     static void rotate(Coeffs& c, int order, double phi) {
@@ -790,7 +821,7 @@ private:
     int max_order_ = 8, ppc_ = 256, order_ = 1, told_order_ = 1;
     double gate_ = 0.1, memory_rad_ = 100, bootstrap_rad_ = 12, noise_a_ = 1e-3, r_bar_ = 0, q_u_ = 0.001;
     int since_noise_ = 0;
-    long long refit_ = 32, accepted_ = 0, refits_ = 0, nonfinite_ = 0;
+    long long refit_ = 32, accepted_ = 0, refits_ = 0, refits_since_start_ = 0, nonfinite_ = 0, no_evidence_ = 0;
     bool vary_ = false;
     int settled_solves_ = 0;
     bool full_ = false, have_last_ = false, reacquiring_ = false, learn_ = true, told_ = false;
@@ -805,7 +836,7 @@ private:
     std::array<double, 4> x_{};
     long long turns_ = 0;
     double P_[4][4] = {}, Q_[3][3] = {};
-    std::array<double, 3> R_{}, Ri_{};
+    std::array<double, 3> R_{}, Ri_{}, Rraw_{};
     // shape h0, variation h1, the told profile's shape
     Coeffs c0s_{}, c0c_{}, c1s_{}, c1c_{}, told_s_{}, told_c_{};
     // delay line

@@ -73,7 +73,7 @@ std::vector<SuiteKind> suite() {
     // the shape's variation is learnt over one revolution of the gap's swing (0.6 s)
     s.push_back({kind_named("runout"), "ekf-diffraction", {{"kinematics", "ca"}, {"track_kappa", true}, {"q_kappa_per_s", 0.01}}, 2.0, 1.0, 2.0});
     // ekf-ideal has no harmonic model: the oracle is the shape-table tracker told the exact shape
-    s.push_back({kind_named("reversals"), "ekf-auto", {{"learn", false}}});
+    s.push_back({kind_named("reversals"), "ekf-auto", {{"learn", false}, {"start_from_profile", true}}});
     return s;
 }
 
