@@ -9,7 +9,9 @@
 
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <cstdio>
+#include <tuple>
 
 using namespace fringe;
 using namespace fringe::test;
@@ -192,4 +194,54 @@ TEST_CASE("ekf-auto: no cycle slip in 10^7 samples of the paper's signal", "[est
     CHECK(m.invalid_after_settle == 0);
     CHECK(e->state()["loss_of_lock"]["events"] == 0);
     CHECK(m.std_rad < 4e-5);
+}
+
+TEST_CASE("ekf-auto gives no valid output without a signal that moves, and says why", "[estimator][ekf-auto]") {
+    est::EstimatorConfig cfg;
+    cfg.sample_rate_hz = kFs;
+    for (const auto& [name, s_v, c_v] : {std::tuple{"zeros", 0.0, 0.0}, std::tuple{"constant", 0.5, 0.3}}) {
+        auto e = est::make("ekf-auto", cfg);
+        const std::size_t n = 20000;
+        std::vector<double> s(n, s_v), c(n, c_v), th(n), om(n);
+        std::vector<std::uint8_t> v(n, 1);
+        e->process({s, c}, {th, om, v});
+        INFO(name << ": " << e->state().dump());
+        CHECK(std::count(v.begin(), v.end(), 1) == 0);
+        CHECK(e->state().contains("message"));
+        const auto R = e->state()["noise_cov_v2"];
+        CHECK(R[0].get<double>() > 0);
+        CHECK(R[2].get<double>() > 0);
+    }
+}
+
+TEST_CASE("ekf-auto ignores a profile unless told to start from it, and then keeps lock", "[estimator][ekf-auto]") {
+    const auto kind = kind_named("paper-duty1p6");
+    const Block b = generate(kind.encoder, kind.motion, kFs, 60000, 7);
+    // the profile comes with the capture: ignored (told nothing), output invalid until learnt
+    auto plain = run_estimator("ekf-auto", json::object(), kind.encoder, b, kFs, kind.encoder, kSettleS);
+    CHECK(plain.e->state()["told_profile"] == false);
+    CHECK(std::find(plain.valid.begin() + 200, plain.valid.begin() + 400, 1) == plain.valid.begin() + 400);
+    // started from it: valid from acquisition on, no loss of lock, at the bound
+    auto told = run_estimator("ekf-auto", {{"start_from_profile", true}}, kind.encoder, b, kFs, kind.encoder, kSettleS);
+    INFO(told.e->state().dump());
+    CHECK(told.e->state()["told_profile"] == true);
+    CHECK(told.e->state()["loss_of_lock"]["events"] == 0);
+    CHECK(told.valid[300] == 1);
+    CHECK(told.m.std_rad < 1.5 * told.bounds["pcrb_rad"].get<double>());
+    est::EstimatorConfig cfg;
+    cfg.sample_rate_hz = kFs;
+    cfg.params = {{"start_from_profile", true}};
+    CHECK_THROWS_WITH(est::make("ekf-auto", cfg), Catch::Contains("params.start_from_profile"));
+    cfg.params = {{"learn", false}};
+    CHECK_THROWS_WITH(est::make("ekf-auto", cfg), Catch::Contains("params.learn"));
+}
+
+TEST_CASE("ekf-auto needs no parameters at a 1 kHz sample rate either", "[estimator][ekf-auto]") {
+    est::EstimatorConfig cfg;
+    cfg.sample_rate_hz = 1000;
+    auto e = est::make("ekf-auto", cfg);  // the 100 Hz default would be too high: fs/(8 pi)
+    REQUIRE(e->prior());
+    CHECK(e->prior()->natural_freq_hz == Approx(1000 / (8 * 3.14159265358979)).epsilon(1e-9));
+    cfg.params = {{"natural_freq_hz", 100.0}};  // given, it is not changed: an error
+    CHECK_THROWS_WITH(est::make("ekf-auto", cfg), Catch::Contains("params.natural_freq_hz"));
 }
