@@ -28,12 +28,18 @@ std::vector<std::pair<std::string, std::string>> Scenario::device_uris() const {
 }
 
 json load_json_file(const std::string& path) {
+    // a directory opens as a stream on Linux and only fails when read (found by fuzz_config:
+    // a scenario whose "encoder" is "" names its own folder)
+    std::error_code ec;
+    if (fs::is_directory(path, ec)) throw ConfigError("", "'" + path + "' is a directory, not a JSON file");
     std::ifstream in(path);
     if (!in) throw ConfigError("", "cannot open '" + path + "'");
     try {
         return json::parse(in);
     } catch (const json::exception& e) {
         throw ConfigError("", path + ": malformed JSON: " + e.what());
+    } catch (const std::ios_base::failure& e) {
+        throw ConfigError("", "cannot read '" + path + "': " + e.what());
     }
 }
 

@@ -106,6 +106,10 @@ TEST_CASE("scenario errors name the key", "[config]") {
     bad["encoder"] = "does-not-exist.json";
     CHECK_THROWS_WITH(scenario_from_json(bad, "/tmp"), Catch::Contains("cannot open"));
     CHECK_THROWS_AS(load_json_file(kSrc + "/README.md"), ConfigError);
+    // a name that resolves to a folder (found by fuzz_config: "encoder": "")
+    bad["encoder"] = "";
+    CHECK_THROWS_WITH(scenario_from_json(bad, kSrc + "/fixtures"), Catch::Contains("is a directory"));
+    CHECK_THROWS_AS(load_json_file(kSrc + "/fixtures"), ConfigError);
 }
 
 TEST_CASE("scenario seed is an integer in [0, 2^53], checked exactly", "[config]") {
