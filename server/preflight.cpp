@@ -100,6 +100,18 @@ std::vector<Finding> preflight(const Scenario& sc) {
                              e.label + ": tracker natural frequency " + fmt(fn) + " Hz is within a factor 20 of the sample rate " +
                                  fmt(sc.sample_rate_hz) + " Hz: the loop is barely discrete-time stable and its bound assumptions fail"});
         }
+        if (e.name == "ekf-auto") {
+            // told nothing, it learns the shape from ~50 electrical cycles of motion (docs/estimators.md)
+            const bool told = e.params.is_object() && e.params.contains("start_from_profile") &&
+                              e.params["start_from_profile"].is_boolean() && e.params["start_from_profile"].get<bool>();
+            double t[2] = {sc.t0_s, sc.t0_s + std::min(sc.settle_s, sc.duration_s)}, ph[2], om[2], al[2];
+            sc.motion.evaluate(t, 2, ph, om, al);
+            const double cycles = std::fabs(ph[1] - ph[0]) * static_cast<double>(sc.encoder.lines_per_rev) / kTwoPi;
+            if (!told && cycles < 50)
+                w.push_back({false, "scores_learning", "settle_s",
+                             e.label + " (ekf-auto) learns the waveform shape over about 50 electrical cycles of motion; the settle time of " +
+                                 fmt(sc.settle_s) + " s covers " + fmt(cycles) + ", so its score includes its learning (raise settle_s)"});
+        }
         if (assumes_ideal_sinusoids(e.name) && sc.encoder.model == ModelKind::Diffraction) {
             bool limited = false;
             for (const auto& l : sc.limits) limited |= (l.estimator == "*" || l.estimator == e.label) && l.max;

@@ -151,6 +151,23 @@ TEST_CASE("preflight: double quantisation, clipping and model mismatch are warne
     CHECK(codes.count("model_mismatch"));  // ekf-ideal under an rms limit on a diffraction encoder
 }
 
+TEST_CASE("preflight: ekf-auto scored before it learnt the shape is warned", "[evidence][preflight]") {
+    Scenario sc = load_scenario(src("fixtures/scenarios/paper-duty1p6.json"));  // ~107 Hz electrical
+    sc.estimators.push_back({"ekf-auto", "auto", json::object(), std::nullopt});
+    auto codes = [&] {
+        std::set<std::string> c;
+        for (const auto& f : validate_run(sc)) c.insert(f.code);
+        return c;
+    };
+    sc.settle_s = 0.1;  // ~11 cycles
+    CHECK(codes().count("scores_learning"));
+    sc.settle_s = 0.5;  // ~53 cycles
+    CHECK(!codes().count("scores_learning"));
+    sc.settle_s = 0.1;
+    sc.estimators.back().params = {{"start_from_profile", true}};
+    CHECK(!codes().count("scores_learning"));
+}
+
 TEST_CASE("bounds: the device's quantisation and noise are in the bound", "[evidence][bounds]") {
     // 8-bit loopback ADC and DAC on a 1 V ideal signal with 2e-4 V noise, and 5 mV of analog
     // noise between them (which dithers the ADC, so it quantises independently of the DAC): the
