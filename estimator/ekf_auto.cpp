@@ -1,6 +1,6 @@
 // ekf-auto (issue 13): an estimator told nothing. A phase tracker whose measurement model is a
-// Fourier shape table per channel, learnt by a slower least-squares identifier against a
-// fixed-lag smoothed phase. docs/estimators.md ("ekf-auto: design") gives the reasons.
+// Fourier shape table per channel plus one learnt direction of variation, learnt by a slower
+// least-squares identifier against a fixed-lag smoothed phase. docs/estimators.md ("ekf-auto: design") gives the reasons.
 //
 //   shape:    z_ch = h0_ch(theta) + u * h1_ch(theta) + noise,
 //             h_ch(theta) = c_ch . phi(theta), phi = [1, cos theta, sin theta, ..., cos M theta, sin M theta]
@@ -15,21 +15,23 @@
 //             with a slow pull to 0; a two-channel update with R the residual covariance it measures.
 //   learning phase: the tracker follows any shape error that varies slower than fn, so a warped
 //             shape and a warped phase could agree. The identifier therefore learns against
-//             the tracker's phase averaged over one electrical cycle centred on the sample
-//             (a fixed lag of half a cycle): the average of a periodic warp over its period is
-//             zero, the average of the motion is its centre value (exact for constant speed,
-//             corrected by alpha T^2 H(H+1)/6 for acceleration, odd terms cancel).
-//   identifier: weighted least squares of z_ch on [phi(theta), u phi_1(theta)], each point
+//             the tracker's phase averaged over the samples whose phase spans one cycle,
+//             centred on the sample (a fixed lag of one cycle): the average of a periodic warp
+//             over its period is zero, the average of the motion is its centre value plus
+//             alpha T^2 (N^2 - 1)/24 (odd terms cancel), alpha from the mean speeds of the
+//             one-cycle windows either side of the centre (both warp-free too).
+//   identifier: weighted least squares of z_ch on [phi(theta), (u - u_mean) phi_1(theta)], each point
 //             weighted by the phase it advanced (every part of the cycle weighs the same at any
 //             speed; a standstill adds nothing, so the shape holds still and cannot drift),
 //             forgetting over memory_cycles of phase. The Gram matrix is kept as trig sums
-//             sum w u^p e^{ik theta}, so a point costs O(M). h1 has a ridge prior on its
-//             previous value, so it moves only when u varies measurably.
-//   convention (MODEL.md 2.2): theta is defined by the fundamental of the sin channel of h0. After
+//             sum w u^p e^{ik theta}, so a point costs O(M). h1 has a ridge prior towards the
+//             common gain (h1 = h0), so it moves only when u varies measurably.
+//   convention (docs/model.md): theta is defined by the fundamental of the sin channel of h0. After
 //             each solve its phase phi1 is moved into the tracker and all sums are rotated.
-//   order:    the highest harmonic of h0 above 4 standard errors (max_order at most), at least 1.
+//   order:    the highest harmonic of h0 or u h1 above 4 standard errors (max_order at most), at least 1.
 //   stages:   acquisition (atan2 line fit, output invalid) -> bootstrap (order 1, until the
-//             identifier has seen bootstrap_cycles electrical cycles; output valid) -> full order.
+//             identifier has seen bootstrap_cycles electrical cycles; output valid from its
+//             first solve) -> full order -> h1 learnt once the shape has settled.
 //   guard:    the LockMonitor of common.hpp; on loss of lock the shape is discarded and the
 //             tracker re-acquires (safe mode), output invalid meanwhile.
 #include "common.hpp"
@@ -215,11 +217,9 @@ private:
     struct Slot {
         double zs = 0, zc = 0;
         double th = 0;   // tracker phase in the fixed frame (minus rot_ at push), rad
-        double al = 0;   // tracker alpha, rad/s^2
         double om = 0;   // tracker omega, rad/s
         double u = 0;    // tracker u divided by ugain_ at push
         double pre = 0;  // prefix sum of (th - base_)
-        double apre = 0; // prefix sum of al
         double upre = 0; // prefix sum of u
         double wbar = 0; // mean speed over the one-cycle window ending here (rad/s), 0: none
         std::size_t wj = 0;  // that window is (wj, here]
@@ -486,19 +486,16 @@ private:
         s.zs = zs;
         s.zc = zc;
         s.th = theta_out() - rot_;
-        s.al = x_[2];
         s.om = x_[1];
         s.u = x_[3] / ugain_;
         s.wbar = 0;
         if (k_ == seg0_) {
             base_ = s.th;
             s.pre = s.th - base_;
-            s.apre = s.al;
             s.upre = s.u;
         } else {
             const Slot& prev = slot(k_ - 1);
             s.pre = prev.pre + (s.th - base_);
-            s.apre = prev.apre + s.al;
             s.upre = prev.upre + s.u;
         }
         ++k_;
@@ -508,14 +505,12 @@ private:
     // Prefix sums relative to a nearer base, so they stay small (exact re-summation).
     void rebase() {
         base_ = slot(k_ - 1).th;
-        double acc = 0, aacc = 0, uacc = 0;
+        double acc = 0, uacc = 0;
         for (std::size_t j = live_start(); j < k_; ++j) {
             Slot& s = slot(j);
             acc += s.th - base_;
-            aacc += s.al;
             uacc += s.u;
             s.pre = acc;
-            s.apre = aacc;
             s.upre = uacc;
         }
     }
