@@ -392,6 +392,29 @@ private:
         h1[0] = gs; h1[1] = gc; d1[0] = es; d1[1] = ec;
     }
 
+    // d^2/dtheta^2 of h0 + u h1, both channels (V/rad^2).
+    void second_derivative(double theta, double u, double out[2]) const {
+        double s1, c1;
+        sincos_small(wrap_pi(theta), s1, c1);
+        double cm = c1, sm = s1, vs = 0, vc = 0;
+        const int mv = var_order();
+        for (int m = 1; m <= order_; ++m) {
+            double as = c0s_[2 * m - 1], bs = c0s_[2 * m], ac = c0c_[2 * m - 1], bc = c0c_[2 * m];
+            if (m <= mv) {
+                as += u * c1s_[2 * m - 1]; bs += u * c1s_[2 * m];
+                ac += u * c1c_[2 * m - 1]; bc += u * c1c_[2 * m];
+            }
+            const double m2 = static_cast<double>(m * m);
+            vs -= m2 * (as * cm + bs * sm);
+            vc -= m2 * (ac * cm + bc * sm);
+            const double cn = cm * c1 - sm * s1;
+            sm = sm * c1 + cm * s1;
+            cm = cn;
+        }
+        out[0] = vs;
+        out[1] = vc;
+    }
+
     void predict() {
         const double T = T_;
         x_[0] += T * x_[1] + 0.5 * T * T * x_[2];
@@ -570,14 +593,20 @@ private:
         const double mean = (slot(e).pre - slot(je).pre) / Nd + base_;
         const double th = mean - al * T_ * T_ * (Nd * Nd - 1) / 24 + om * T_ * (static_cast<double>(c) - tmid) + rot_;
         const Slot& sc = slot(c);
-        // the samples between two points are averaged into one (the shape is nearly linear
-        // over a gate of 2 pi/points_per_cycle: the average's bias is a relative
-        // m^2 gate^2/24 per harmonic), so at many samples per cycle every sample counts
-        // u averaged over the same cycle: the tracker's u follows each sample's noise (and, while
-        // the shape is still wrong, its warp); as a regressor it must not carry the noise of
-        // the sample it explains
+        // the samples between two points are averaged into one, so at many samples per cycle
+        // every sample counts. The average of a shape over a spread of phases is
+        // h(mean) + h''(mean) var/2 (harmonic m shrinks by m^2 var/2, 2.9e-5 for the fundamental
+        // at 256 points per cycle): that bias is taken out with the current shape when the point
+        // is made. Left in, the learnt shape was too small (the tracker's u and the identifier
+        // amplified it to 1.8e-4), a gain error that u, whose direction can carry a DC pedestal
+        // (light drift), turns into an offset and so a first-harmonic phase error.
+        // u is averaged over the same cycle: the tracker's u follows each sample's noise (and,
+        // while the shape is still wrong, its warp); as a regressor it must not carry the noise
+        // of the sample it explains
         const double u = (slot(e).upre - slot(je).upre) / Nd * ugain_;
+        if (bin_n_ == 0) bin_th0_ = th;
         bin_[0] += sc.zs; bin_[1] += sc.zc; bin_[2] += th; bin_[3] += u;
+        bin_[4] += th - bin_th0_; bin_[5] += sq(th - bin_th0_);
         ++bin_n_;
         double w = gate_;
         if (have_last_) {
@@ -588,7 +617,16 @@ private:
         last_ = th;
         have_last_ = true;
         const double n = static_cast<double>(bin_n_);
-        accumulate(bin_[0] / n, bin_[1] / n, bin_[2] / n, bin_[3] / n, w);
+        const double tm = bin_[2] / n, um = bin_[3] / n;
+        const double var = std::max(bin_[5] / n - sq(bin_[4] / n), 0.0);  // rad^2
+        double zs = bin_[0] / n, zc = bin_[1] / n;
+        if (var > 0) {
+            double h2[2];
+            second_derivative(tm, um, h2);
+            zs -= 0.5 * var * h2[0];
+            zc -= 0.5 * var * h2[1];
+        }
+        accumulate(zs, zc, tm, um, w);
         bin_.fill(0.0);
         bin_n_ = 0;
     }
@@ -740,6 +778,7 @@ private:
         rot_ += phi1;
         last_ += phi1;
         bin_[2] += phi1 * static_cast<double>(bin_n_);
+        bin_th0_ += phi1;
         // order: the highest harmonic above 4 standard errors (noise from R, points counted) in
         // h0 or in the variation u h1 at u's rms over the memory (a gap run-out can have a
         // harmonic only in h1: none at one end of its swing)
@@ -821,7 +860,8 @@ private:
     int settled_solves_ = 0;
     bool full_ = false, have_last_ = false, reacquiring_ = false, learn_ = true, told_ = false;
     double last_ = 0, acq_sum_ = 0, seen_rad_ = 0;
-    std::array<double, 4> bin_{};  // sums of zs, zc, theta, u since the last point
+    std::array<double, 6> bin_{};  // sums of zs, zc, theta, u, theta - theta0, (theta - theta0)^2 since the last point
+    double bin_th0_ = 0;           // the bin's first theta, rad
     long long bin_n_ = 0;
     std::size_t acq_n_ = 200;
     Calibration cal_;
