@@ -9,7 +9,13 @@
 //             a light source that drifts (h1 = the raw signal with its DC pedestal) or a gap
 //             that swings once per revolution (the diffraction shape is affine in 1/kappa) is
 //             exactly one such direction. h1 starts as h0 (a common gain) and is learnt.
-//   tracker:  EKF on [theta, omega, alpha, u]: CA kinematics (white jerk, q = wn^6 r T with r
+//             v (dimensionless) scales the fundamental of h0 alone (g below): z = h0 + u h1 + v g.
+//             It follows what one learnt direction cannot: a gap whose kappa dips just below 1
+//             stops the 2nd harmonic at 0 (c2 = max(0, 1 - 1/kappa)) while the fundamental goes
+//             on changing, a kink in the variation. v is not learnt (the identifier learns the
+//             samples as they are); it starts once h1 is learnt, with a small random walk
+//             (q_fundamental_per_s) and a 0.2 s pull to 0, so it only carries brief departures.
+//   tracker:  EKF on [theta, omega, alpha, u, v]: CA kinematics (white jerk, q = wn^6 r T with r
 //             from the learnt shape and the measured noise; constant speed, acceleration,
 //             reversals and standstill without a CV/CA choice), u a random walk (q_variation_per_s)
 //             with a slow pull to 0; a two-channel update with R the residual covariance it measures.
@@ -60,6 +66,7 @@ constexpr int kVarBasis = 2 * kVarOrder + 1;
 constexpr int kTrig = 2 * kMaxOrder + 1;      // trig sums k = 0 .. 2 max_order
 constexpr double kLearnMinHz = 4.0;           // no learning below this electrical rate
 constexpr double kUPullS = 5.0;               // time constant of u's pull to 0 (s)
+constexpr double kVPullS = 0.2;               // time constant of v's pull to 0 (s)
 constexpr double kURidge = 3e-4;              // ridge on h1: as if u had this rms
 constexpr double kSettled = 1e-3;             // shape changes below this (relative) for 8 solves: settled
 constexpr double kMaxPhaseVar = 0.1;          // rad^2: a shape and noise giving a worse per-sample phase is no signal
@@ -87,6 +94,8 @@ public:
              "time constant of the residual covariance estimate R"},
             {"q_variation_per_s", "1/s", ParamType::Number, 0.001, 0, 10, {},
              "random-walk intensity of the shape-variation state u (u is relative to the shape's amplitude)"},
+            {"q_fundamental_per_s", "1/s", ParamType::Number, 1e-6, 0, 10, {},
+             "random-walk intensity of v, a brief change of the fundamental's amplitude alone (relative), on top of the learnt variation (0: off)"},
             {"start_from_profile", "", ParamType::Boolean, false, -kInf, kInf, {},
              "start from the told encoder profile's exact shape (by default a profile that comes with the capture or scenario is ignored: told nothing)"},
             {"learn", "", ParamType::Boolean, true, -kInf, kInf, {},
@@ -114,6 +123,7 @@ public:
         bootstrap_rad_ = kTwoPi * p.number("bootstrap_cycles");
         noise_a_ = 1.0 / p.number("noise_memory_samples");
         q_u_ = p.number("q_variation_per_s");
+        q_v_ = p.number("q_fundamental_per_s");
         learn_ = p.boolean("learn");
         acq_n_ = static_cast<std::size_t>(p.integer("acquisition_samples"));
         told_ = false;
@@ -207,7 +217,7 @@ public:
         };
         j["shape_sin"] = coeffs(c0s_, order_);
         j["shape_cos"] = coeffs(c0c_, order_);
-        j["variation"] = {{"u", x_[3]}, {"learnt", vary_}, {"sin", coeffs(c1s_, var_order())}, {"cos", coeffs(c1c_, var_order())}};
+        j["variation"] = {{"u", x_[3]}, {"v", x_[4]}, {"learnt", vary_}, {"sin", coeffs(c1s_, var_order())}, {"cos", coeffs(c1c_, var_order())}};
         j["noise_cov_v2"] = {R_[0], R_[1], R_[2]};
         j["r_model_rad2"] = r_bar_;
         return j;
@@ -327,12 +337,13 @@ private:
         const double th = lock_.anchor(acq_.theta_rad());
         const double fr = wrap_pi(th);
         turns_ = std::llround((th - fr) / kTwoPi);
-        x_ = {fr, acq_.omega_rad_s(), 0.0, 0.0};
+        x_ = {fr, acq_.omega_rad_s(), 0.0, 0.0, 0.0};
         std::memset(P_, 0, sizeof P_);
         P_[0][0] = 0.05 * 0.05;
         P_[1][1] = sq(kTwoPi * 5);
         P_[2][2] = sq(kTwoPi * 1000);
         P_[3][3] = sq(0.01);
+        P_[4][4] = 0;
         lock_.rearm();
         reacquiring_ = false;
     }
@@ -365,8 +376,17 @@ private:
 
     // h0 and h1 of both channels and their derivatives in theta (h0 at order_, h1 at var_order()).
     void eval(double theta, double h[2], double d[2], double h1[2], double d1[2]) const {
+        double g[2], dg[2];
+        eval(theta, h, d, h1, d1, g, dg);
+    }
+    // ... and g, the fundamental of h0 (the direction of v), with its derivative.
+    void eval(double theta, double h[2], double d[2], double h1[2], double d1[2], double g[2], double dg[2]) const {
         double s1, c1;
         sincos_small(wrap_pi(theta), s1, c1);
+        g[0] = c0s_[1] * c1 + c0s_[2] * s1;
+        g[1] = c0c_[1] * c1 + c0c_[2] * s1;
+        dg[0] = c0s_[2] * c1 - c0s_[1] * s1;
+        dg[1] = c0c_[2] * c1 - c0c_[1] * s1;
         double hs = c0s_[0], hc = c0c_[0], ds = 0, dc = 0;
         double gs = c1s_[0], gc = c1c_[0], es = 0, ec = 0;
         double cm = c1, sm = s1;
@@ -421,45 +441,50 @@ private:
         x_[1] += T * x_[2];
         const double pull = 1.0 - T / kUPullS;
         x_[3] *= pull;
+        const double vpull = 1.0 - T / kVPullS;
+        x_[4] *= vpull;
         if (x_[0] > kPi || x_[0] < -kPi) {
             const double k = std::round(x_[0] / kTwoPi);
             x_[0] -= kTwoPi * k;
             turns_ += static_cast<long long>(k);
         }
-        // P = F P F' + Q, F = [[1, T, T^2/2, 0], [0, 1, T, 0], [0, 0, 1, 0], [0, 0, 0, pull]]
+        // P = F P F' + Q, F = [[1, T, T^2/2, 0, 0], [0, 1, T, 0, 0], [0, 0, 1, 0, 0], [0, 0, 0, pull, 0], [0, 0, 0, 0, pull]]
         const double h2 = 0.5 * T * T;
-        double FP[4][4];
-        for (int j = 0; j < 4; ++j) {
+        double FP[kNx][kNx];
+        for (int j = 0; j < kNx; ++j) {
             FP[0][j] = P_[0][j] + T * P_[1][j] + h2 * P_[2][j];
             FP[1][j] = P_[1][j] + T * P_[2][j];
             FP[2][j] = P_[2][j];
             FP[3][j] = pull * P_[3][j];
+            FP[4][j] = vpull * P_[4][j];
         }
-        for (int i = 0; i < 4; ++i) {
+        for (int i = 0; i < kNx; ++i) {
             P_[i][0] = FP[i][0] + T * FP[i][1] + h2 * FP[i][2];
             P_[i][1] = FP[i][1] + T * FP[i][2];
             P_[i][2] = FP[i][2];
             P_[i][3] = pull * FP[i][3];
+            P_[i][4] = vpull * FP[i][4];
         }
         for (int i = 0; i < 3; ++i)
             for (int j = 0; j < 3; ++j) P_[i][j] += Q_[i][j];
         P_[3][3] += q_u_ * T;
+        if (vary_) P_[4][4] += q_v_ * T;  // v only once the variation direction is learnt
     }
 
     void update(double zs, double zc) {
-        double h[2], d[2], h1[2], d1[2];
-        eval(x_[0], h, d, h1, d1);
-        const double u = x_[3];
-        const double rs = zs - h[0] - u * h1[0], rc = zc - h[1] - u * h1[1];
-        // H = [[a0, 0, 0, b0], [a1, 0, 0, b1]]: phase and u columns only
-        const double a0 = d[0] + u * d1[0], a1 = d[1] + u * d1[1], b0 = h1[0], b1 = h1[1];
-        double PH[4][2];
-        for (int i = 0; i < 4; ++i) {
-            PH[i][0] = P_[i][0] * a0 + P_[i][3] * b0;
-            PH[i][1] = P_[i][0] * a1 + P_[i][3] * b1;
+        double h[2], d[2], h1[2], d1[2], g[2], dg[2];
+        eval(x_[0], h, d, h1, d1, g, dg);
+        const double u = x_[3], v = x_[4];
+        const double rs = zs - h[0] - u * h1[0] - v * g[0], rc = zc - h[1] - u * h1[1] - v * g[1];
+        // H = [[a0, 0, 0, b0, g0], [a1, 0, 0, b1, g1]]: phase, u and v columns only
+        const double a0 = d[0] + u * d1[0] + v * dg[0], a1 = d[1] + u * d1[1] + v * dg[1], b0 = h1[0], b1 = h1[1];
+        double PH[kNx][2];
+        for (int i = 0; i < kNx; ++i) {
+            PH[i][0] = P_[i][0] * a0 + P_[i][3] * b0 + P_[i][4] * g[0];
+            PH[i][1] = P_[i][0] * a1 + P_[i][3] * b1 + P_[i][4] * g[1];
         }
-        const double HPH00 = a0 * PH[0][0] + b0 * PH[3][0], HPH01 = a0 * PH[0][1] + b0 * PH[3][1],
-                     HPH11 = a1 * PH[0][1] + b1 * PH[3][1];
+        const double HPH00 = a0 * PH[0][0] + b0 * PH[3][0] + g[0] * PH[4][0], HPH01 = a0 * PH[0][1] + b0 * PH[3][1] + g[0] * PH[4][1],
+                     HPH11 = a1 * PH[0][1] + b1 * PH[3][1] + g[1] * PH[4][1];
         // the noise covariance R: the a priori residuals' covariance less the state's part H P H'
         R_[0] += noise_a_ * (rs * rs - HPH00 - R_[0]);
         R_[1] += noise_a_ * (rs * rc - HPH01 - R_[1]);
@@ -483,20 +508,21 @@ private:
         const double det = S00 * S11 - S01 * S01;
         if (!(det > 0)) return;
         const double i00 = S11 / det, i01 = -S01 / det, i11 = S00 / det;
-        double K[4][2];
-        for (int i = 0; i < 4; ++i) {
+        double K[kNx][2];
+        for (int i = 0; i < kNx; ++i) {
             K[i][0] = PH[i][0] * i00 + PH[i][1] * i01;
             K[i][1] = PH[i][0] * i01 + PH[i][1] * i11;
         }
-        for (int i = 0; i < 4; ++i) x_[i] += K[i][0] * rs + K[i][1] * rc;
+        for (int i = 0; i < kNx; ++i) x_[i] += K[i][0] * rs + K[i][1] * rc;
         // P -= K (H P) = K PH'
-        for (int i = 0; i < 4; ++i)
-            for (int j = i; j < 4; ++j) {
-                const double v = P_[i][j] - (K[i][0] * PH[j][0] + K[i][1] * PH[j][1]);
-                P_[i][j] = P_[j][i] = v;
+        for (int i = 0; i < kNx; ++i)
+            for (int j = i; j < kNx; ++j) {
+                const double pij = P_[i][j] - (K[i][0] * PH[j][0] + K[i][1] * PH[j][1]);
+                P_[i][j] = P_[j][i] = pij;
             }
         // a variation larger than the shape itself is not a variation: hold it
         if (std::fabs(x_[3]) > 0.5) x_[3] = std::copysign(0.5, x_[3]);
+        if (std::fabs(x_[4]) > 0.5) x_[4] = std::copysign(0.5, x_[4]);
     }
 
     // --- the delay line and the cycle-centred phase ---
@@ -816,7 +842,7 @@ private:
         const double k = std::sqrt(n0sq / n1sq);  // h1 *= k, so u /= k
         for (int i = 0; i < 2 * mv + 1; ++i) { vs[i] *= k; vc[i] *= k; }
         x_[3] /= k;
-        for (int i = 0; i < 4; ++i) { P_[3][i] /= k; P_[i][3] /= k; }
+        for (int i = 0; i < kNx; ++i) { P_[3][i] /= k; P_[i][3] /= k; }
         ugain_ /= k;
         for (auto& v : trig_[1]) v /= k;
         for (auto& v : trig_[2]) v /= k * k;
@@ -853,7 +879,7 @@ private:
 
     double fs_ = 1, T_ = 1, fn_ = 100, wn_ = 0;
     int max_order_ = 8, ppc_ = 256, order_ = 1, told_order_ = 1;
-    double gate_ = 0.1, memory_rad_ = 100, bootstrap_rad_ = 12, noise_a_ = 1e-3, r_bar_ = 0, q_u_ = 0.001;
+    double gate_ = 0.1, memory_rad_ = 100, bootstrap_rad_ = 12, noise_a_ = 1e-3, r_bar_ = 0, q_u_ = 0.001, q_v_ = 1e-6;
     int since_noise_ = 0;
     long long refit_ = 32, accepted_ = 0, refits_ = 0, refits_since_start_ = 0, nonfinite_ = 0, no_evidence_ = 0;
     bool vary_ = false;
@@ -868,9 +894,10 @@ private:
     Acquisition acq_;
     LockMonitor lock_;
     // tracker [theta, omega, alpha, u]
-    std::array<double, 4> x_{};
+    static constexpr int kNx = 5;
+    std::array<double, kNx> x_{};
     long long turns_ = 0;
-    double P_[4][4] = {}, Q_[3][3] = {};
+    double P_[kNx][kNx] = {}, Q_[3][3] = {};
     std::array<double, 3> R_{}, Ri_{}, Rraw_{};
     // shape h0, variation h1, the told profile's shape
     Coeffs c0s_{}, c0c_{}, c1s_{}, c1c_{}, told_s_{}, told_c_{};

@@ -1,9 +1,7 @@
 // ekf-auto (issue 13): told nothing, compared with an EKF that knows the true model (the
 // oracle: the generator's own profile, the same CA kinematics and fn) and with the PCRB of its
 // declared prior, on every kind of signal of the issue: phase-error std within 1.5x of the
-// larger of the two after the kind's settling time, zero slipped samples, two seeds; the one
-// kind that does not reach 1.5x yet (run-out) is held at 2x and listed in docs/estimators.md
-// with its numbers.
+// larger of the two after the kind's settling time, zero slipped samples, two seeds.
 #include "estimator_helpers.hpp"
 #include "signal_kinds.hpp"
 
@@ -69,11 +67,10 @@ std::vector<SuiteKind> suite() {
     s.push_back({{"duty10-10bit", diffraction_w(0.5, 10), constant_electrical(f_paper, 1024)}, "ekf-diffraction", ca});
     s.push_back({kind_named("acceleration"), "ekf-diffraction", ca});
     s.push_back({kind_named("light-drift"), "ekf-diffraction", {{"kinematics", "ca"}, {"agc", true}, {"q_gain_per_s", 0.01}}});
-    // Not yet at the issue's 1.5x (docs/estimators.md): 1.6x on run-out (spikes where the gap's
-    // kappa crosses 1 and the diffraction shape has a kink that a linear variation cannot
-    // follow). Held at 2x here so that a regression is caught.
-    // the shape's variation is learnt over one revolution of the gap's swing (0.6 s)
-    s.push_back({kind_named("runout"), "ekf-diffraction", {{"kinematics", "ca"}, {"track_kappa", true}, {"q_kappa_per_s", 0.01}}, 2.0, 1.0, 2.0});
+    // the shape's variation is learnt over one revolution of the gap's swing (0.6 s); where
+    // eccentricity takes kappa just below 1 the diffraction shape has a kink (its 2nd harmonic
+    // stops at 0 while the fundamental goes on changing), followed by v, not by the learnt u
+    s.push_back({kind_named("runout"), "ekf-diffraction", {{"kinematics", "ca"}, {"track_kappa", true}, {"q_kappa_per_s", 0.01}}, 2.0, 1.0});
     // ekf-ideal has no harmonic model: the oracle is the shape-table tracker told the exact shape
     s.push_back({kind_named("reversals"), "ekf-auto", {{"learn", false}, {"start_from_profile", true}}});
     return s;
