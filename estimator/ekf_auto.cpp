@@ -31,7 +31,9 @@
 //             speed; a standstill adds nothing, so the shape holds still and cannot drift),
 //             forgetting over memory_cycles of phase. The Gram matrix is kept as trig sums
 //             sum w u^p e^{ik theta}, so a point costs O(M). h1 has a ridge prior towards the
-//             common gain (h1 = h0), so it moves only when u varies measurably.
+//             common gain (h1 = h0), so it moves only when u varies measurably, and learns
+//             only from points where the tracker's lag to a jerk (jerk/wn^3) is below 1e-4 rad.
+//             Each point (an average over a bin of samples) has its bias h'' var/2 taken out.
 //   convention (docs/model.md): theta is defined by the fundamental of the sin channel of h0. After
 //             each solve its phase phi1 is moved into the tracker and all sums are rotated.
 //   order:    the highest harmonic of h0 or u h1 above 4 standard errors (max_order at most), at least 1.
@@ -52,6 +54,7 @@
 #include <bit>
 #include <cmath>
 #include <complex>
+#include <limits>
 #include <cstring>
 #include <vector>
 
@@ -67,7 +70,8 @@ constexpr int kTrig = 2 * kMaxOrder + 1;      // trig sums k = 0 .. 2 max_order
 constexpr double kLearnMinHz = 4.0;           // no learning below this electrical rate
 constexpr double kUPullS = 5.0;               // time constant of u's pull to 0 (s)
 constexpr double kVPullS = 0.2;               // time constant of v's pull to 0 (s)
-constexpr double kURidge = 3e-4;              // ridge on h1: as if u had this rms
+constexpr double kURidge = 3e-4;
+constexpr double kMaxLagRad = 1e-4;           // rad: a point whose tracker lag (jerk/wn^3) exceeds this does not teach h1              // ridge on h1: as if u had this rms
 constexpr double kSettled = 1e-3;             // shape changes below this (relative) for 8 solves: settled
 constexpr double kMaxPhaseVar = 0.1;          // rad^2: a shape and noise giving a worse per-sample phase is no signal
 constexpr double kWarpChange = 1e-2;          // a shape change above this (relative) pauses learning
@@ -232,6 +236,7 @@ private:
         double pre = 0;  // prefix sum of (th - base_)
         double upre = 0; // prefix sum of u
         double wbar = 0; // mean speed over the one-cycle window ending here (rad/s), 0: none
+        double al = 0;   // acceleration at the window centred here (rad/s^2), NaN: none
         std::size_t wj = 0;  // that window is (wj, here]
     };
 
@@ -538,6 +543,7 @@ private:
         s.om = x_[1];
         s.u = x_[3] / ugain_;
         s.wbar = 0;
+        s.al = std::numeric_limits<double>::quiet_NaN();
         if (k_ == seg0_) {
             base_ = s.th;
             s.pre = s.th - base_;
@@ -629,7 +635,20 @@ private:
         // u is averaged over the same cycle: the tracker's u follows each sample's noise (and,
         // while the shape is still wrong, its warp); as a regressor it must not carry the noise
         // of the sample it explains
-        const double u = (slot(e).upre - slot(je).upre) / Nd * ugain_;
+        double u = (slot(e).upre - slot(je).upre) / Nd * ugain_;
+        // The tracker lags a jerk by about jerk/wn^3, and that lag is in the averaged phase too
+        // (it is no periodic warp); u swings with it (at reversals, +-1e-2) while the samples do
+        // not vary, and h1 fitted to that is a direction of errors. Where the lag exceeds
+        // kMaxLagRad (jerk from this window's and the previous window's acceleration) the point
+        // teaches h0 but not h1: its u is the memory's mean.
+        slot(e).al = al;
+        const std::size_t ep = e >= Nr ? e - Nr : 0;
+        const double al_prev = ep >= lo ? slot(ep).al : std::numeric_limits<double>::quiet_NaN();
+        const double lag = std::fabs(al - al_prev) / (Nf * T_) / (wn_ * wn_ * wn_);
+        if (!(lag < kMaxLagRad)) {
+            const double W = trig_[0][0].real();
+            u = W > 0 ? trig_[1][0].real() / W : 0.0;
+        }
         if (bin_n_ == 0) bin_th0_ = th;
         bin_[0] += sc.zs; bin_[1] += sc.zc; bin_[2] += th; bin_[3] += u;
         bin_[4] += th - bin_th0_; bin_[5] += sq(th - bin_th0_);

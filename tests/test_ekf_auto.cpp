@@ -1,7 +1,7 @@
 // ekf-auto (issue 13): told nothing, compared with an EKF that knows the true model (the
 // oracle: the generator's own profile, the same CA kinematics and fn) and with the PCRB of its
 // declared prior, on every kind of signal of the issue: phase-error std within 1.5x of the
-// larger of the two after the kind's settling time, zero slipped samples, two seeds.
+// larger of the two after the kind's settling time, zero slipped samples, six seeds.
 #include "estimator_helpers.hpp"
 #include "signal_kinds.hpp"
 
@@ -94,7 +94,7 @@ Row measure(const SuiteKind& k, std::uint64_t seed) {
 // Hidden (minutes under ASan+UBSan): run in the Release build's estimator.long entry.
 TEST_CASE("ekf-auto told nothing tracks within 1.5x of the oracle or the PCRB", "[estimator][ekf-auto][accuracy][long][.long]") {
     for (const auto& k : suite()) {
-        for (std::uint64_t seed : {3, 4}) {
+        for (std::uint64_t seed : {3, 4, 5, 6, 7, 8}) {
             const Row r = measure(k, seed);
             INFO(k.kind.name << " seed " << seed << ": ekf-auto std " << r.automatic << ", oracle " << r.oracle << ", PCRB " << r.pcrb
                              << " state " << r.state.dump());
@@ -106,12 +106,20 @@ TEST_CASE("ekf-auto told nothing tracks within 1.5x of the oracle or the PCRB", 
 }
 
 // Prints the table of docs/estimators.md: build/tests/fringe_tests "[ekf-auto-table]"
+// (seed 3's numbers, and the worst ratio and the slips over the test's six seeds)
 TEST_CASE("ekf-auto table", "[.ekf-auto-table]") {
-    std::printf("| kind | oracle | PCRB | ekf-auto | ratio | settle s | slipped |\n");
+    std::printf("| kind | oracle | PCRB | ekf-auto | ratio | worst ratio, seeds 3-8 | settle s | slipped, seeds 3-8 |\n");
     for (const auto& k : suite()) {
         const Row r = measure(k, 3);
-        std::printf("| %s | %.3g | %.3g | %.3g | %.2f | %.1f | %lld |\n", k.kind.name.c_str(), r.oracle, r.pcrb, r.automatic,
-                    r.automatic / std::max(r.oracle, r.pcrb), k.settle_s, static_cast<long long>(r.m.slipped_samples));
+        double worst = 0;
+        long long slipped = 0;
+        for (std::uint64_t seed = 3; seed <= 8; ++seed) {
+            const Row q = seed == 3 ? r : measure(k, seed);
+            worst = std::max(worst, q.automatic / std::max(q.oracle, q.pcrb));
+            slipped += static_cast<long long>(q.m.slipped_samples);
+        }
+        std::printf("| %s | %.3g | %.3g | %.3g | %.2f | %.2f | %.1f | %lld |\n", k.kind.name.c_str(), r.oracle, r.pcrb, r.automatic,
+                    r.automatic / std::max(r.oracle, r.pcrb), worst, k.settle_s, slipped);
         std::fflush(stdout);
     }
 }
