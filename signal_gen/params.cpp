@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <sstream>
+#include <stdexcept>
 
 namespace fringe {
 
@@ -73,14 +74,18 @@ Params resolve_params(const std::vector<ParamInfo>& infos, const json& given, co
         switch (info->type) {
             case ParamType::Number:
             case ParamType::Integer: {
-                if (!value.is_number()) throw ConfigError(field, std::string("must be a ") + type_name(info->type));
+                const bool integer = info->type == ParamType::Integer;
+                if (!value.is_number()) throw ConfigError(field, integer ? "must be an integer" : "must be a number");
                 const double d = value.get<double>();
                 if (!std::isfinite(d)) throw ConfigError(field, "must be finite");
-                if (info->type == ParamType::Integer && (!value.is_number_integer()))
-                    throw ConfigError(field, "must be an integer");
+                // 8.0 is the integer 8 (JSON writers and people write it so); 8.5 is not
+                if (integer && !value.is_number_integer() && d != std::floor(d)) throw ConfigError(field, "must be an integer");
                 if (d < info->min || d > info->max)
                     throw ConfigError(field, "out of range " + range_text(*info) + (info->unit.empty() ? "" : " " + info->unit));
-                out[key] = value;
+                if (integer && !value.is_number_integer())
+                    out[key] = static_cast<long long>(d);
+                else
+                    out[key] = value;
                 break;
             }
             case ParamType::Boolean:
@@ -129,7 +134,14 @@ json parse_param_assignments(const std::vector<ParamInfo>& infos, const std::vec
             case ParamType::Integer: {
                 std::size_t used = 0;
                 double d = 0;
-                try { d = std::stod(text, &used); } catch (const std::exception&) { used = 0; }
+                try {
+                    d = std::stod(text, &used);
+                } catch (const std::out_of_range&) {
+                    // a number, but beyond a double (1e-400 underflows, 1e400 overflows)
+                    throw ConfigError(field, "'" + text + "' is beyond the range of a double (about 2.2e-308 to 1.8e308 in magnitude)");
+                } catch (const std::exception&) {
+                    used = 0;
+                }
                 if (used != text.size() || text.empty()) throw ConfigError(field, "'" + text + "' is not a number");
                 if (info->type == ParamType::Integer) {
                     if (d != std::floor(d)) throw ConfigError(field, "'" + text + "' is not an integer");

@@ -87,6 +87,25 @@ TEST_CASE("parameters: unknown keys, wrong types and ranges are named", "[estima
     CHECK(p["agc"].get<bool>());
     CHECK_THROWS_WITH(est::parse_param_assignments(info.params, {"natural_freq_hz=fast"}), Catch::Contains("params.natural_freq_hz"));
     CHECK_THROWS_WITH(est::parse_param_assignments(info.params, {"natural_freq_hz"}), Catch::Contains("key=value"));
+    // a number beyond a double is named as such, not as "not a number"
+    CHECK_THROWS_WITH(est::parse_param_assignments(info.params, {"natural_freq_hz=1e-400"}),
+                      Catch::Contains("params.natural_freq_hz") && Catch::Contains("beyond the range of a double"));
+}
+
+TEST_CASE("integer parameters: 8.0 is 8, 8.5 and strings are refused with their type named", "[estimator][params]") {
+    est::EstimatorConfig cfg;
+    cfg.sample_rate_hz = kFs;
+    cfg.params = {{"max_order", 8.0}};
+    auto e = est::make("ekf-auto", cfg);
+    CHECK(e->state()["order"].get<int>() >= 1);
+    cfg.params = {{"max_order", 8.5}};
+    CHECK_THROWS_WITH(est::make("ekf-auto", cfg), Catch::Contains("params.max_order: must be an integer"));
+    cfg.params = {{"max_order", "8"}};
+    CHECK_THROWS_WITH(est::make("ekf-auto", cfg), Catch::Contains("params.max_order: must be an integer"));
+    cfg.params = {{"natural_freq_hz", "fast"}};
+    CHECK_THROWS_WITH(est::make("ekf-auto", cfg), Catch::Contains("params.natural_freq_hz: must be a number"));
+    cfg.params = {{"max_order", 13.0}};
+    CHECK_THROWS_WITH(est::make("ekf-auto", cfg), Catch::Contains("params.max_order: out of range"));
 }
 
 TEST_CASE("atan2 reaches the per-sample CRB sigma^2/A^2 on ideal quadrature", "[estimator][accuracy]") {
