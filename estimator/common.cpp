@@ -70,16 +70,36 @@ void LockMonitor::reset(const Calibration& told, double threshold_rad) {
     started_ = own_ = false;
     own_unwrap_.reset();
     own_start_ = 0;
+    outliers_ = 0;
 }
 
 double LockMonitor::reference(double s, double c) {
     if (own_) {
         // the frame changes only when a sample leaves the min/max box (rarely once running)
         if (s < smin_ || s > smax_ || c < cmin_ || c > cmax_) {
+            // A sample beyond the box by more than half its range is an outlier (one glitch, a
+            // 1e300): it does not widen the box, which it would spoil for good, and the
+            // reference holds. Many of them (a leaky count over 32) mean the signal itself
+            // changed (its amplitude jumped): the frame is learnt again, from the told one.
+            const double hs = 0.5 * (smax_ - smin_), hc = 0.5 * (cmax_ - cmin_);
+            if (s < smin_ - hs || s > smax_ + hs || c < cmin_ - hc || c > cmax_ + hc) {
+                outliers_ += 2;
+                if (outliers_ < 64) return ref_;
+                outliers_ = 0;
+                own_ = started_ = false;
+                own_unwrap_.reset();
+                own_start_ = 0;
+                double sn, cn;
+                told_.normalise(s, c, sn, cn);
+                const double told = coarse_atan2(sn, cn);
+                unwrap_.set(ref_ + wrap_pi(told - ref_));
+                return reference(s, c);
+            }
             smin_ = std::min(smin_, s); smax_ = std::max(smax_, s);
             cmin_ = std::min(cmin_, c); cmax_ = std::max(cmax_, c);
             own_frame();
         }
+        if (outliers_ > 0) --outliers_;
         ref_ = unwrap_(coarse_atan2((s - smid_) * sinv_, (c - cmid_) * cinv_));
         return ref_;
     }

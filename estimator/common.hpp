@@ -164,6 +164,8 @@ public:
     // The reference's turn count given to a re-acquired phase.
     double anchor(double theta_rad) const { return ref_ + wrap_pi(theta_rad - ref_); }
     void rearm() { diff_ = 0.0; }
+    // A loss the tracker found itself (its updates no longer fit the signal).
+    void declare_loss() { ++events_; }
     void count_invalid() { ++invalid_; }
     long long events() const { return events_; }
     long long samples_invalid() const { return invalid_; }
@@ -186,6 +188,7 @@ private:
     }
     Unwrapper own_unwrap_;
     bool started_ = false, own_ = false;
+    int outliers_ = 0;  // leaky count of samples far outside the own frame's box
 };
 
 }  // namespace fringe::est

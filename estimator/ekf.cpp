@@ -143,6 +143,8 @@ struct Ekf::Impl {
 
 namespace {
 
+constexpr double kOutlierNis = 1e4;  // normalised innovation squared beyond which a sample may be an outlier
+
 // Diagnostics only (not per sample): dynamic size, so the eigen solver is compiled once
 // rather than for every state size.
 bool dynamic_covariance_ok(const Eigen::MatrixXd& P, double* min_eig) {
@@ -245,6 +247,12 @@ struct EkfN final : Ekf::Impl {
             const double inv_det = 1.0 / det;
             Eigen::Matrix2d Sinv;
             Sinv << S(1, 1) * inv_det, -S(0, 1) * inv_det, -S(1, 0) * inv_det, S(0, 0) * inv_det;
+            // an outlier (a glitch of 5 V or 1e300 in one sample): 100 standard deviations out
+            // and off the model by more than half the signal's radius, not taken in (it threw
+            // the state off by up to 3e-2 rad, or into divergence). Both: a filter whose model
+            // misses the signal's harmonics (ekf-ideal on a diffraction signal) sees 100 sigma
+            // every cycle, but never half the radius.
+            if (!(innov.dot(Sinv * innov) <= kOutlierNis) && !(innov.squaredNorm() <= 0.25 * (h[0] * h[0] + h[1] * h[1]))) return false;
             const MatN2 K = (Sinv * HP).transpose();
             xs += K * innov;
             const Mat IKH = Mat::Identity(n_, n_) - K * H;

@@ -67,11 +67,14 @@ constexpr int kMaxBasis = 2 * kMaxOrder + 1;
 constexpr int kVarOrder = 4;                  // order of the variation direction h1
 constexpr int kVarBasis = 2 * kVarOrder + 1;
 constexpr int kTrig = 2 * kMaxOrder + 1;      // trig sums k = 0 .. 2 max_order
-constexpr double kLearnMinHz = 4.0;           // no learning below this electrical rate
+constexpr double kLearnMinHz = 2.0;           // no learning below this electrical rate (Hz)
 constexpr double kUPullS = 5.0;               // time constant of u's pull to 0 (s)
 constexpr double kVPullS = 0.2;               // time constant of v's pull to 0 (s)
 constexpr double kURidge = 3e-4;
-constexpr double kMaxLagRad = 1e-4;           // rad: a point whose tracker lag (jerk/wn^3) exceeds this does not teach h1              // ridge on h1: as if u had this rms
+constexpr double kOutlierNis = 1e4;           // a sample whose normalised innovation (2 dof) exceeds this is an outlier
+constexpr int kOutlierRun = 32;               // this many in a row: the signal changed, acquire afresh
+constexpr double kMaxLagRad = 1e-4;
+constexpr double kCorrRef = 0.03;             // rad: a point's acceleration correction at which its weight halves           // rad: a point whose tracker lag (jerk/wn^3) exceeds this does not teach h1              // ridge on h1: as if u had this rms
 constexpr double kSettled = 1e-3;             // shape changes below this (relative) for 8 solves: settled
 constexpr double kMaxPhaseVar = 0.1;          // rad^2: a shape and noise giving a worse per-sample phase is no signal
 constexpr double kWarpChange = 1e-2;          // a shape change above this (relative) pauses learning
@@ -138,8 +141,8 @@ public:
         }
         if (!learn_ && !told_) throw ConfigError("params.learn", "false needs start_from_profile: true and an encoder profile to take the shape from");
         // delay line for the cycle-centred average: two cycles at kLearnMinHz must fit, in at
-        // most 2^17 samples (11.5 MB); above fs = 262 kHz learning starts at fs/2^16 Hz
-        // electrical rather than at kLearnMinHz
+        // most 2^17 samples (96 bytes each, 12.6 MB); above fs = 131 kHz learning starts at
+        // fs/2^16 Hz electrical rather than at kLearnMinHz
         const double need = 2 * fs_ / kLearnMinHz + 4;
         cap_ = std::bit_ceil(static_cast<std::size_t>(std::min(need, double(1 << 17))));
         ring_.assign(cap_, Slot{});
@@ -149,6 +152,9 @@ public:
         lock_.reset(none, p.number("lock_threshold_rad"));
         nonfinite_ = 0;
         no_evidence_ = 0;
+        outliers_ = 0;
+        outlier_run_ = 0;
+        signal_changes_ = 0;
         refits_ = 0;
         restart();
     }
@@ -178,7 +184,23 @@ public:
                 continue;
             }
             predict();
-            update(zs, zc);
+            if (!update(zs, zc)) {
+                // an outlier (a glitch, a spike): not used, not learnt, its output invalid; the
+                // delay line restarts after it as after a gap. A run of them is a signal that
+                // changed (its amplitude jumped): acquire it afresh.
+                ++outliers_;
+                out.theta_rad[i] = theta_out();
+                out.omega_rad_s[i] = x_[1];
+                out.valid[i] = 0;
+                seg0_ = k_;
+                if (++outlier_run_ >= kOutlierRun) {
+                    ++signal_changes_;
+                    restart();
+                    reacquiring_ = true;
+                }
+                continue;
+            }
+            outlier_run_ = 0;
             out.theta_rad[i] = theta_out();
             out.omega_rad_s[i] = x_[1];
             // no valid output before the shape was learnt from motion (or told): a capture that
@@ -209,7 +231,8 @@ public:
                          {"order", order_}, {"refits", refits_}, {"accepted_points", accepted_},
                          {"learn", learn_}, {"told_profile", told_},
                          {"nonfinite_samples", nonfinite_}, {"loss_of_lock", lock_.to_json()},
-                         {"samples_without_evidence", no_evidence_}};
+                         {"samples_without_evidence", no_evidence_}, {"outlier_samples", outliers_},
+                         {"signal_changes", signal_changes_}};
         if (acq_.done() && refits_since_start_ == 0 && !told_)
             j["message"] = "no valid output yet: the shape is learnt from motion (half an electrical cycle after acquisition); the capture has not moved enough, or holds no signal";
         else if (r_bar_ >= kMaxPhaseVar)
@@ -236,7 +259,9 @@ private:
         double pre = 0;  // prefix sum of (th - base_)
         double upre = 0; // prefix sum of u
         double wbar = 0; // mean speed over the one-cycle window ending here (rad/s), 0: none
-        double al = 0;   // acceleration at the window centred here (rad/s^2), NaN: none
+        double wc = 0;   // centre of that window (samples, exact: it spans 2 pi from a fractional start)
+        double al = 0;   // acceleration (rad/s^2) estimated for the point whose window ends here, NaN: none
+        double alt = 0;  // the time it applies to (samples)
         std::size_t wj = 0;  // that window is (wj, here]
     };
 
@@ -476,7 +501,8 @@ private:
         if (vary_) P_[4][4] += q_v_ * T;  // v only once the variation direction is learnt
     }
 
-    void update(double zs, double zc) {
+    // false: the sample is an outlier (its innovation beyond kOutlierNis), nothing updated
+    bool update(double zs, double zc) {
         double h[2], d[2], h1[2], d1[2], g[2], dg[2];
         eval(x_[0], h, d, h1, d1, g, dg);
         const double u = x_[3], v = x_[4];
@@ -490,6 +516,12 @@ private:
         }
         const double HPH00 = a0 * PH[0][0] + b0 * PH[3][0] + g[0] * PH[4][0], HPH01 = a0 * PH[0][1] + b0 * PH[3][1] + g[0] * PH[4][1],
                      HPH11 = a1 * PH[0][1] + b1 * PH[3][1] + g[1] * PH[4][1];
+        // an outlier? (only once the shape is learnt: before, the residuals are the shape's)
+        if (full_ && refits_since_start_ > 0) {
+            const double T00 = HPH00 + R_[0], T01 = HPH01 + R_[1], T11 = HPH11 + R_[2];
+            const double dt = T00 * T11 - T01 * T01;
+            if (dt > 0 && (T11 * rs * rs - 2 * T01 * rs * rc + T00 * rc * rc) / dt > kOutlierNis) return false;
+        }
         // the noise covariance R: the a priori residuals' covariance less the state's part H P H'
         R_[0] += noise_a_ * (rs * rs - HPH00 - R_[0]);
         R_[1] += noise_a_ * (rs * rc - HPH01 - R_[1]);
@@ -511,7 +543,7 @@ private:
         }
         const double S00 = HPH00 + R_[0], S01 = HPH01 + R_[1], S11 = HPH11 + R_[2];
         const double det = S00 * S11 - S01 * S01;
-        if (!(det > 0)) return;
+        if (!(det > 0)) return true;
         const double i00 = S11 / det, i01 = -S01 / det, i11 = S00 / det;
         double K[kNx][2];
         for (int i = 0; i < kNx; ++i) {
@@ -528,6 +560,7 @@ private:
         // a variation larger than the shape itself is not a variation: hold it
         if (std::fabs(x_[3]) > 0.5) x_[3] = std::copysign(0.5, x_[3]);
         if (std::fabs(x_[4]) > 0.5) x_[4] = std::copysign(0.5, x_[4]);
+        return true;
     }
 
     // --- the delay line and the cycle-centred phase ---
@@ -600,6 +633,7 @@ private:
         const double om_k = std::copysign(kTwoPi, thk - slot(j).th) / (Nf * T_);
         slot(k).wbar = om_k;
         slot(k).wj = j;
+        slot(k).wc = static_cast<double>(k) - 0.5 * Nf;
         // The point: the centre of the one-cycle window ending half a cycle back (at e, centre
         // m = k - N). Its acceleration comes from the mean speeds of the windows centred half a
         // cycle either side of m (ending at k and at k - N), so it is centred on m too.
@@ -609,7 +643,27 @@ private:
         const std::size_t je = slot(e).wj;
         if (je < lo || je >= e) return pause();
         const double om = slot(e).wbar;
-        const double al = (om_k - slot(kp).wbar) / (Nf * T_);
+        // The acceleration at the point, from the mean speeds of the windows ending at k and at
+        // kp, placed at their exact centres (at low speed with acceleration the two windows
+        // differ in length by 10-20 %, and the correction alpha T^2 (N^2 - 1)/24 below reaches
+        // 0.05 rad: taking their spacing as one window put 4e-3 rad of error into each point).
+        // The slope is alpha at their midpoint; the jerk (from the previous point's estimate)
+        // moves it to the point.
+        const double tmid = 0.5 * static_cast<double>(je + 1 + e);     // centre of the window, samples
+        const double wcA = slot(k).wc, wcB = slot(kp).wc;
+        if (!(wcA - wcB > 0)) return pause();
+        const double al_mid = (om_k - slot(kp).wbar) / ((wcA - wcB) * T_);
+        const double mid = 0.5 * (wcA + wcB);
+        const std::size_t ep = e >= Nr ? e - Nr : 0;
+        double jerk = std::numeric_limits<double>::quiet_NaN();  // rad/s^3
+        if (ep >= lo && std::isfinite(slot(ep).al) && mid - slot(ep).alt > 0.25 * Nf)
+            jerk = (al_mid - slot(ep).al) / ((mid - slot(ep).alt) * T_);
+        slot(e).al = al_mid;
+        slot(e).alt = mid;
+        // (the mean speeds' own jerk terms W^2/24 are left in: for smooth motion they cancel
+        // the slope's snap term, which is of the same size; taking out only the first made
+        // alpha 2x worse on a sine motion, in simulation and in the tracker)
+        const double al = std::isfinite(jerk) ? al_mid + jerk * (tmid - mid) * T_ : al_mid;
         // no reversal or standstill inside: the tracker's own speed at both ends and in the middle
         // agrees with the window's mean speed to within a factor of 2
         for (const std::size_t i : {kp, je, e, k})
@@ -621,7 +675,6 @@ private:
         // longer the centre's phase)
         if (Nd * T_ * std::fabs(al) > 0.25 * std::fabs(om)) return pause();
         const std::size_t c = je + 1 + (Ne - 1) / 2;                   // centre sample
-        const double tmid = 0.5 * static_cast<double>(je + 1 + e);     // centre of the window, samples
         const double mean = (slot(e).pre - slot(je).pre) / Nd + base_;
         const double th = mean - al * T_ * T_ * (Nd * Nd - 1) / 24 + om * T_ * (static_cast<double>(c) - tmid) + rot_;
         const Slot& sc = slot(c);
@@ -639,12 +692,9 @@ private:
         // The tracker lags a jerk by about jerk/wn^3, and that lag is in the averaged phase too
         // (it is no periodic warp); u swings with it (at reversals, +-1e-2) while the samples do
         // not vary, and h1 fitted to that is a direction of errors. Where the lag exceeds
-        // kMaxLagRad (jerk from this window's and the previous window's acceleration) the point
-        // teaches h0 but not h1: its u is the memory's mean.
-        slot(e).al = al;
-        const std::size_t ep = e >= Nr ? e - Nr : 0;
-        const double al_prev = ep >= lo ? slot(ep).al : std::numeric_limits<double>::quiet_NaN();
-        const double lag = std::fabs(al - al_prev) / (Nf * T_) / (wn_ * wn_ * wn_);
+        // kMaxLagRad (or the jerk is not known yet) the point teaches h0 but not h1: its u is
+        // the memory's mean.
+        const double lag = std::fabs(jerk) / (wn_ * wn_ * wn_);
         if (!(lag < kMaxLagRad)) {
             const double W = trig_[0][0].real();
             u = W > 0 ? trig_[1][0].real() / W : 0.0;
@@ -652,6 +702,7 @@ private:
         if (bin_n_ == 0) bin_th0_ = th;
         bin_[0] += sc.zs; bin_[1] += sc.zc; bin_[2] += th; bin_[3] += u;
         bin_[4] += th - bin_th0_; bin_[5] += sq(th - bin_th0_);
+        bin_corr_ = std::max(bin_corr_, std::fabs(al * T_ * T_ * (Nd * Nd - 1) / 24));
         ++bin_n_;
         double w = gate_;
         if (have_last_) {
@@ -671,7 +722,10 @@ private:
             zs -= 0.5 * var * h2[0];
             zc -= 0.5 * var * h2[1];
         }
-        accumulate(zs, zc, tm, um, w);
+        // a point whose acceleration correction is large is less sure of its phase (1 % of the
+        // correction, the alpha estimate's error): its weight falls as 1/(1 + (corr/kCorrRef)^2)
+        accumulate(zs, zc, tm, um, w / (1 + sq(bin_corr_ / kCorrRef)));
+        bin_corr_ = 0;
         bin_.fill(0.0);
         bin_n_ = 0;
     }
@@ -901,12 +955,15 @@ private:
     double gate_ = 0.1, memory_rad_ = 100, bootstrap_rad_ = 12, noise_a_ = 1e-3, r_bar_ = 0, q_u_ = 0.001, q_v_ = 1e-6;
     int since_noise_ = 0;
     long long refit_ = 32, accepted_ = 0, refits_ = 0, refits_since_start_ = 0, nonfinite_ = 0, no_evidence_ = 0;
+    long long outliers_ = 0, signal_changes_ = 0;
+    int outlier_run_ = 0;
     bool vary_ = false;
     int settled_solves_ = 0;
     bool full_ = false, have_last_ = false, reacquiring_ = false, learn_ = true, told_ = false;
     double last_ = 0, acq_sum_ = 0, seen_rad_ = 0;
     std::array<double, 6> bin_{};  // sums of zs, zc, theta, u, theta - theta0, (theta - theta0)^2 since the last point
-    double bin_th0_ = 0;           // the bin's first theta, rad
+    double bin_th0_ = 0;
+    double bin_corr_ = 0;           // the bin's first theta, rad
     long long bin_n_ = 0;
     std::size_t acq_n_ = 200;
     Calibration cal_;

@@ -214,6 +214,7 @@ public:
         lock_.reset(acq_cal, p.number("lock_threshold_rad"));
         selfcal_sum_ = 0;
         skipped_ = clipped_ = nonfinite_ = 0;
+        skip_run_ = 0;
         reacquiring_ = false;
         n_gain_ = auto_range_ ? 0 : n_max_;
         quiet_ = 0;
@@ -270,7 +271,20 @@ public:
                 }
                 case Variant::ClosedLoop: ok = closed_loop_update(z); break;
             }
-            if (!ok) ++skipped_;
+            if (!ok) {
+                // not taken in (an outlier, or a singular update): no measured output. A run of
+                // them is a signal the filter no longer fits (its amplitude jumped): a loss of
+                // lock, acquired afresh, not a coast that looks valid
+                ++skipped_;
+                emit(out, i, 0);
+                if (++skip_run_ >= kSkipRun) {
+                    skip_run_ = 0;
+                    lock_.declare_loss();
+                    lose_lock(out, i);
+                }
+                continue;
+            }
+            skip_run_ = 0;
             emit(out, i, 1);
             if (!lock_.check(out.theta_rad[i])) lose_lock(out, i);
         }
@@ -397,6 +411,8 @@ private:
     bool amplitude_known_ = true;
     double selfcal_sum_ = 0;
     long long skipped_ = 0, clipped_ = 0, nonfinite_ = 0, first_max_gain_sample_ = -1;
+    static constexpr int kSkipRun = 32;  // updates not taken in a row that make a loss of lock
+    int skip_run_ = 0;
     std::uint64_t k_ = 0;
     // closed loop
     bool closed_ = false, auto_range_ = true;

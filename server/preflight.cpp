@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <vector>
 
 namespace fringe {
 
@@ -104,13 +105,20 @@ std::vector<Finding> preflight(const Scenario& sc) {
             // told nothing, it learns the shape from ~50 electrical cycles of motion (docs/estimators.md)
             const bool told = e.params.is_object() && e.params.contains("start_from_profile") &&
                               e.params["start_from_profile"].is_boolean() && e.params["start_from_profile"].get<bool>();
-            double t[2] = {sc.t0_s, sc.t0_s + std::min(sc.settle_s, sc.duration_s)}, ph[2], om[2], al[2];
-            sc.motion.evaluate(t, 2, ph, om, al);
-            const double cycles = std::fabs(ph[1] - ph[0]) * static_cast<double>(sc.encoder.lines_per_rev) / kTwoPi;
+            // the distance travelled, not the net one: a swinging motion learns on every swing
+            constexpr std::size_t kN = 4001;
+            std::vector<double> t(kN), ph(kN), om(kN), al(kN);
+            const double span = std::min(sc.settle_s, sc.duration_s);
+            for (std::size_t k = 0; k < kN; ++k) t[k] = sc.t0_s + span * static_cast<double>(k) / (kN - 1);
+            sc.motion.evaluate(t.data(), kN, ph.data(), om.data(), al.data());
+            double travelled_rad = 0;
+            for (std::size_t k = 1; k < kN; ++k) travelled_rad += std::fabs(ph[k] - ph[k - 1]);
+            const double cycles = travelled_rad * static_cast<double>(sc.encoder.lines_per_rev) / kTwoPi;
             if (!told && cycles < 50)
                 w.push_back({false, "scores_learning", "settle_s",
                              e.label + " (ekf-auto) learns the waveform shape over about 50 electrical cycles of motion; the settle time of " +
-                                 fmt(sc.settle_s) + " s covers " + fmt(cycles) + ", so its score includes its learning (raise settle_s)"});
+                                 fmt(sc.settle_s) + " s covers " + fmt(cycles) +
+                                 " electrical cycles of travel, so its score includes its learning (raise settle_s)"});
         }
         if (assumes_ideal_sinusoids(e.name) && sc.encoder.model == ModelKind::Diffraction) {
             bool limited = false;

@@ -7,6 +7,7 @@
 
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <set>
 
 using namespace fringe;
@@ -71,4 +72,31 @@ TEST_CASE("pll2 reports loss of lock when its bandwidth cannot follow the motion
     INFO(st.dump() << " slipped " << r.m.slipped_samples);
     CHECK(lock_events(st) > 0);
     CHECK(r.m.invalid_after_settle > 0);
+}
+
+// Found by a hostile trial: one glitch sample (1e300) threw a told EKF into divergence (940 rad
+// rms on samples it called valid) and spoiled the loss-of-lock monitor's own frame for good; a
+// signal whose amplitude jumps (x10) away from the told profile was coasted through as valid.
+TEST_CASE("a glitch sample is not taken in; a signal the told model no longer fits is a loss of lock", "[estimator][divergence]") {
+    const auto kinds = signal_kinds();
+    const auto kind = std::find_if(kinds.begin(), kinds.end(), [](const auto& k) { return k.name == "paper-duty1p6"; });
+    REQUIRE(kind != kinds.end());
+    const json ca{{"kinematics", "ca"}};
+    for (const double glitch_v : {5.0, 1e300}) {
+        Block b = generate(kind->encoder, kind->motion, kFs, 40000, 11);
+        b.cos_v[20000] = glitch_v;
+        auto r = run_estimator("ekf-diffraction", ca, kind->encoder, b, kFs, kind->encoder, 0.1);
+        INFO(glitch_v << ": " << r.e->state().dump());
+        CHECK(lock_events(r.e->state()) == 0);
+        CHECK(r.m.slipped_samples == 0);
+        CHECK(r.m.max_abs_rad < 2e-4);
+    }
+    Block b = generate(kind->encoder, kind->motion, kFs, 40000, 12);
+    for (std::size_t i = 20000; i < b.size(); ++i) { b.sin_v[i] *= 10; b.cos_v[i] *= 10; }
+    auto r = run_estimator("ekf-diffraction", ca, kind->encoder, b, kFs, kind->encoder, 0.1);
+    INFO(r.e->state().dump());
+    CHECK(lock_events(r.e->state()) > 0);
+    CHECK(r.m.slipped_samples == 0);
+    CHECK(r.m.max_abs_rad < 1e-3);  // whatever it still calls valid is right
+    CHECK(std::count(r.valid.begin() + 21000, r.valid.end(), 1) < 2000);
 }

@@ -166,6 +166,21 @@ TEST_CASE("preflight: ekf-auto scored before it learnt the shape is warned", "[e
     sc.settle_s = 0.1;
     sc.estimators.back().params = {{"start_from_profile", true}};
     CHECK(!codes().count("scores_learning"));
+    // a swinging motion counts the distance it travels (its net travel is 0): +-20 rad
+    // electrical at 1 Hz travels 80 rad (12.7 cycles) a second
+    sc.estimators.back().params = json::object();
+    sc.motion = MotionProfile{};
+    sc.motion.kind = MotionKind::Sine;
+    sc.motion.freq_hz = 1.0;
+    sc.motion.amplitude_rad = 20.0 / sc.encoder.lines_per_rev;
+    sc.settle_s = 2.0;
+    sc.duration_s = 6.0;
+    std::string msg;
+    for (const auto& f : validate_run(sc))
+        if (f.code == "scores_learning") msg = f.message;
+    CHECK_THAT(msg, Catch::Contains("covers 25.5 electrical cycles"));
+    sc.settle_s = 4.0;  // 50.9 cycles
+    CHECK(!codes().count("scores_learning"));
 }
 
 TEST_CASE("bounds: the device's quantisation and noise are in the bound", "[evidence][bounds]") {

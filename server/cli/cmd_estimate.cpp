@@ -121,6 +121,7 @@ int run_estimate(const EstimateOptions& o) {
             }
             for (const auto& d : r["diagnosis"]) std::printf("warning: %s\n", d["message"].get<std::string>().c_str());
         }
+        if (const std::string n = state_notes(r["estimator"].value("state", json())); !n.empty()) std::printf("%s: %s\n", o.estimator.c_str(), n.c_str());
         if (r.contains("dut")) {
             const auto& ro = r["dut"]["readout"];
             const auto& m = r["dut"]["metrics"];

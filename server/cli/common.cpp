@@ -46,6 +46,19 @@ void install_cancel_handlers() {
     std::signal(SIGTERM, on_cancel_signal);
 }
 
+std::string state_notes(const json& state) {
+    std::string out;
+    if (!state.is_object()) return out;
+    const auto lock = state.value("loss_of_lock", json::object());
+    const long long events = lock.value("events", 0LL);
+    if (events > 0)
+        out += "loss of lock " + std::to_string(events) + (events == 1 ? " time" : " times") + " (" +
+               std::to_string(lock.value("samples_invalid", 0LL)) + " samples invalid while it re-acquired)";
+    if (state.contains("message") && state["message"].is_string())
+        out += (out.empty() ? "" : "; ") + state["message"].get<std::string>();
+    return out;
+}
+
 void print_run_summary(const json& r, const std::string& name) {
     std::printf("run %s: %s %s (%s)\n", r["id"].get<std::string>().c_str(), name.c_str(), r["verdict"].get<std::string>().c_str(),
                 r["status"].get<std::string>().c_str());
@@ -66,6 +79,9 @@ void print_run_summary(const json& r, const std::string& name) {
                     static_cast<unsigned long long>(ev.value("scored_samples", std::uint64_t{0})), ev.value("scored_cycles", 0.0),
                     100.0 * ev.value("valid_fraction", 0.0));
     }
+    for (const auto& e : r["estimators"])
+        if (const std::string n = state_notes(e.value("state", json())); !n.empty())
+            std::printf("  %-20s %s\n", e["label"].get<std::string>().c_str(), n.c_str());
     // Counts as integers, everything else to 4 significant digits.
     auto fmt = [](const json& v) {
         if (!v.is_number()) return std::string("not measured");

@@ -51,6 +51,8 @@ void install_cancel_handlers();
 
 // The run's verdict, its warnings, each estimator's errors with their evidence, and each
 // measurement with its limit and outcome (fringe run, fringe runs --show).
+// The estimator state's loss-of-lock count and message, as one line (empty: nothing to say).
+std::string state_notes(const nlohmann::json& state);
 void print_run_summary(const nlohmann::json& report, const std::string& name);
 
 }  // namespace fringe::cli
