@@ -124,11 +124,13 @@ json parse_param_assignments(const std::vector<ParamInfo>& infos, const std::vec
         const ParamInfo* info = nullptr;
         for (const auto& p : infos)
             if (p.name == key) info = &p;
+        const std::string field = path + "." + key;
+        // given twice on one command line: one of them would be dropped without a word
+        if (out.contains(key)) throw ConfigError(field, "given twice ('" + key + "=" + out[key].dump() + "' and '" + a + "')");
         if (!info) {
             out[key] = text;  // resolve_params reports it as unknown, with the known names
             continue;
         }
-        const std::string field = path + "." + key;
         switch (info->type) {
             case ParamType::Number:
             case ParamType::Integer: {
@@ -142,7 +144,9 @@ json parse_param_assignments(const std::vector<ParamInfo>& infos, const std::vec
                 } catch (const std::exception&) {
                     used = 0;
                 }
-                if (used != text.size() || text.empty()) throw ConfigError(field, "'" + text + "' is not a number");
+                // decimal only: strtod also reads hex ("0x10" = 16) and "infinity"
+                const bool decimal = text.find_first_not_of("0123456789+-.eE") == std::string::npos;
+                if (used != text.size() || text.empty() || !decimal) throw ConfigError(field, "'" + text + "' is not a decimal number");
                 if (info->type == ParamType::Integer) {
                     if (d != std::floor(d)) throw ConfigError(field, "'" + text + "' is not an integer");
                     out[key] = static_cast<long long>(d);

@@ -87,6 +87,11 @@ TEST_CASE("parameters: unknown keys, wrong types and ranges are named", "[estima
     CHECK(p["agc"].get<bool>());
     CHECK_THROWS_WITH(est::parse_param_assignments(info.params, {"natural_freq_hz=fast"}), Catch::Contains("params.natural_freq_hz"));
     CHECK_THROWS_WITH(est::parse_param_assignments(info.params, {"natural_freq_hz"}), Catch::Contains("key=value"));
+    // hex and duplicates are refused, not read as 16 or silently dropped
+    CHECK_THROWS_WITH(est::parse_param_assignments(info.params, {"natural_freq_hz=0x10"}),
+                      Catch::Contains("params.natural_freq_hz") && Catch::Contains("not a decimal number"));
+    CHECK_THROWS_WITH(est::parse_param_assignments(info.params, {"natural_freq_hz=10", "natural_freq_hz=20"}),
+                      Catch::Contains("params.natural_freq_hz: given twice"));
     // a number beyond a double is named as such, not as "not a number"
     CHECK_THROWS_WITH(est::parse_param_assignments(info.params, {"natural_freq_hz=1e-400"}),
                       Catch::Contains("params.natural_freq_hz") && Catch::Contains("beyond the range of a double"));
