@@ -77,7 +77,7 @@ TEST_CASE("pll2 reports loss of lock when its bandwidth cannot follow the motion
 // Found by a hostile trial: one glitch sample (1e300) threw a told EKF into divergence (940 rad
 // rms on samples it called valid) and spoiled the loss-of-lock monitor's own frame for good; a
 // signal whose amplitude jumps (x10) away from the told profile was coasted through as valid.
-TEST_CASE("a glitch sample is not taken in; a signal the told model no longer fits is a loss of lock", "[estimator][divergence]") {
+TEST_CASE("a glitch sample is not taken in, and a signal the told model no longer fits is a loss of lock", "[estimator][divergence]") {
     const auto kinds = signal_kinds();
     const auto kind = std::find_if(kinds.begin(), kinds.end(), [](const auto& k) { return k.name == "paper-duty1p6"; });
     REQUIRE(kind != kinds.end());
