@@ -70,11 +70,11 @@ constexpr int kTrig = 2 * kMaxOrder + 1;      // trig sums k = 0 .. 2 max_order
 constexpr double kLearnMinHz = 2.0;           // no learning below this electrical rate (Hz)
 constexpr double kUPullS = 5.0;               // time constant of u's pull to 0 (s)
 constexpr double kVPullS = 0.2;               // time constant of v's pull to 0 (s)
-constexpr double kURidge = 3e-4;
+constexpr double kURidge = 3e-4;              // ridge on h1: as if u had this rms
 constexpr double kOutlierNis = 1e4;           // a sample whose normalised innovation (2 dof) exceeds this is an outlier
 constexpr int kOutlierRun = 32;               // this many in a row: the signal changed, acquire afresh
-constexpr double kMaxLagRad = 1e-4;
-constexpr double kCorrRef = 0.03;             // rad: a point's acceleration correction at which its weight halves           // rad: a point whose tracker lag (jerk/wn^3) exceeds this does not teach h1              // ridge on h1: as if u had this rms
+constexpr double kMaxLagRad = 1e-4;           // rad: a point whose tracker lag (jerk/wn^3) exceeds this does not teach h1
+constexpr double kCorrRef = 0.03;             // rad: a point's acceleration correction at which its weight halves
 constexpr double kSettled = 1e-3;             // shape changes below this (relative) for 8 solves: settled
 constexpr double kMaxPhaseVar = 0.1;          // rad^2: a shape and noise giving a worse per-sample phase is no signal
 constexpr double kWarpChange = 1e-2;          // a shape change above this (relative) pauses learning
@@ -962,14 +962,14 @@ private:
     bool full_ = false, have_last_ = false, reacquiring_ = false, learn_ = true, told_ = false;
     double last_ = 0, acq_sum_ = 0, seen_rad_ = 0;
     std::array<double, 6> bin_{};  // sums of zs, zc, theta, u, theta - theta0, (theta - theta0)^2 since the last point
-    double bin_th0_ = 0;
-    double bin_corr_ = 0;           // the bin's first theta, rad
+    double bin_th0_ = 0;           // the bin's first theta, rad
+    double bin_corr_ = 0;          // the largest acceleration correction in the bin, rad
     long long bin_n_ = 0;
     std::size_t acq_n_ = 200;
     Calibration cal_;
     Acquisition acq_;
     LockMonitor lock_;
-    // tracker [theta, omega, alpha, u]
+    // tracker [theta, omega, alpha, u, v]
     static constexpr int kNx = 5;
     std::array<double, kNx> x_{};
     long long turns_ = 0;
