@@ -472,11 +472,29 @@ export async function newRun(view, cleanup) {
     setTimeout(() => URL.revokeObjectURL(a.href), 10000);
   };
 
+  // Loading a fixture overwrites the fields: while it loads they are disabled (what a user types
+  // there meanwhile would be lost) and the form is aria-busy; a slower earlier load never
+  // overwrites a later one.
+  let loadSeq = 0;
+  const setBusy = (busy) => {
+    form.setAttribute('aria-busy', busy ? 'true' : 'false');
+    for (const fs of form.querySelectorAll('fieldset')) if (!fs.contains(fixtureSel)) fs.disabled = busy;
+    startBtn.disabled = busy;
+  };
   const loadFixture = async () => {
+    const seq = ++loadSeq;
     formError.replaceChildren();
+    setBusy(true);
+    let fetched;
     try {
-      base = (await api.get(`fixtures/${encodeURIComponent(fixtureSel.value)}`)).scenario;
-    } catch (e) { showApiError(e); return; }
+      fetched = (await api.get(`fixtures/${encodeURIComponent(fixtureSel.value)}`)).scenario;
+    } catch (e) {
+      if (seq === loadSeq) { setBusy(false); showApiError(e); }
+      return;
+    }
+    if (seq !== loadSeq) return;
+    base = fetched;
+    setBusy(false);
     desc.textContent = base.description || '';
     nameIn.value = base.name || '';
     fillEncoder(base.encoder);

@@ -106,6 +106,9 @@ async function runFromForm(page, url, seed, duration = 0.5) {
   await page.goto(`${url}#/new`);
   await page.waitForSelector('#fixture option[value="fig10c-loopback"]', { state: 'attached' });
   await page.selectOption('#fixture', 'fig10c-loopback');
+  // selectOption fires change even for the fixture already shown: it reloads, and the fields are
+  // disabled until it has (a fill before that was overwritten under ASan: run B ran 1 s, not 0.6).
+  await page.waitForSelector('#new-run[aria-busy="false"]');
   await page.waitForFunction(() => document.querySelector('input[name="seed"]').value !== '');
   await page.fill('input[name="seed"]', String(seed));
   await page.fill('input[name="duration_s"]', String(duration));
@@ -161,6 +164,19 @@ try {
   await page.waitForFunction(() => document.querySelector('#token-state').dataset.set === '1');
   check(await page.evaluate((t) => localStorage.getItem('fringe.token') === t && !location.hash.includes(t), token),
     'the #token= link sets the token in an open tab and leaves the address bar');
+
+  // A user who types while a fixture loads keeps what they typed: the fields wait for the load
+  // (CI under ASan filled the duration, then a second load of the same fixture overwrote it).
+  await page.goto(`${url}#/new`);
+  await page.waitForSelector('#new-run[aria-busy="false"]');
+  await page.route('**/api/v1/fixtures/*', async (route) => { await new Promise((r) => setTimeout(r, 800)); await route.continue(); });
+  await page.selectOption('#fixture', 'fig10c-loopback');
+  const busyNow = await page.getAttribute('#new-run', 'aria-busy');
+  await page.fill('input[name="duration_s"]', '0.37');
+  await page.waitForSelector('#new-run[aria-busy="false"]');
+  const kept = await page.inputValue('input[name="duration_s"]');
+  await page.unroute('**/api/v1/fixtures/*');
+  check(busyNow === 'true' && kept === '0.37', `typing during a fixture load is not overwritten (busy ${busyNow}, duration kept ${kept})`);
 
   // 1 s at 100 kHz, 106.7 Hz electrical: a stride of 50 samples is 1/19 of a cycle, which a
   // polyline through stride samples turned into a star.
