@@ -70,5 +70,17 @@ hb = json.dumps(h).encode()
 open(sys.argv[2], "wb").write(b[:8] + struct.pack("<I", len(hb)) + hb + b[12 + n:])
 PY
 expect_error "dup.fcap: header.columns\[2\]: duplicate column 'sin'" "$FRINGE" estimate "$dir/dup.fcap" --estimator atan2 -o "$dir/x.csv"
+expect_error "\-q prints nothing" "$FRINGE" estimate "$dir/cap.csv" --estimator atan2 -q
 expect_error "no output for" "$FRINGE" estimate "$dir/cap.csv" --estimator external --param "command=sleep 20" --param timeout_s=0.3 -o "$dir/x.csv"
+# the summary says when an estimator lost lock or re-learnt: the signal x10 from the middle on
+awk -F, 'BEGIN{OFS=","} NR>15001{$2*=10;$3*=10} {print}' "$dir/cap.csv" > "$dir/jump.csv"; cp "$dir/cap.json" "$dir/jump.json"
+"$FRINGE" estimate "$dir/jump.csv" --estimator ekf-diffraction --report "$dir/j.json" > "$dir/j.txt"
+grep -Eq "^ekf-diffraction: loss of lock [1-9][0-9]* times \([1-9][0-9]* samples invalid" "$dir/j.txt" || fail "no loss-of-lock line: $(cat "$dir/j.txt")"
+$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); l=r["estimator"]["state"]["loss_of_lock"]; assert l["events"]>0 and r["metrics"]["evidence"]["valid_fraction"]<0.5, l' "$dir/j.json"
+"$FRINGE" estimate "$dir/jump.csv" --estimator ekf-auto --report "$dir/ja.json" > "$dir/ja.txt"
+grep -q "^ekf-auto: the signal changed 1 time" "$dir/ja.txt" || fail "no signal-change line: $(cat "$dir/ja.txt")"
+# and says nothing of the kind on the clean capture; without -o or --report the summary is the output
+"$FRINGE" estimate "$dir/cap.csv" --estimator ekf-diffraction > "$dir/c.txt"
+grep -q "^error after 0.1 s settle" "$dir/c.txt" || fail "summary-only: $(cat "$dir/c.txt")"
+! grep -q "loss of lock\|not taken in" "$dir/c.txt" || fail "clean capture: $(cat "$dir/c.txt")"
 echo "cli.estimate OK"

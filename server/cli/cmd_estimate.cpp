@@ -69,7 +69,9 @@ int run_estimate(const EstimateOptions& o) {
     }
     if (o.capture.empty()) throw ConfigError("capture", "a capture file is required (or --list)");
     if (o.estimator.empty()) throw ConfigError("estimator", "--estimator NAME is required (see --list)");
-    if (o.output.empty() && o.report.empty()) throw ConfigError("output", "give -o ESTIMATES.csv and/or --report REPORT.json");
+    // Without -o or --report the printed summary is the output; with -q as well there would be none.
+    if (o.output.empty() && o.report.empty() && o.quiet)
+        throw ConfigError("output", "-q prints nothing: give -o ESTIMATES.csv and/or --report REPORT.json");
     EvaluateOptions e;
     e.capture_path = o.capture;
     e.estimator = o.estimator;
@@ -116,7 +118,7 @@ int run_estimate(const EstimateOptions& o) {
             if (b.is_object() && b.contains("per_sample_crb_rad")) {
                 std::printf("bounds: per-sample CRB %.3e rad", b["per_sample_crb_rad"].get<double>());
                 if (b.contains("pcrb_rad")) std::printf(", PCRB %.3e rad (noise-only %.3e)", b["pcrb_rad"].get<double>(), b["pcrb_noise_only_rad"].get<double>());
-                if (!b["efficiency"].is_null()) std::printf(", efficiency %.3f vs %s", b["efficiency"].get<double>(), b["efficiency_against"].get<std::string>().c_str());
+                if (!b["efficiency"].is_null()) std::printf(", efficiency %.3g vs %s", b["efficiency"].get<double>(), b["efficiency_against"].get<std::string>().c_str());
                 std::printf("\n");
             }
             for (const auto& d : r["diagnosis"]) std::printf("warning: %s\n", d["message"].get<std::string>().c_str());
@@ -154,7 +156,7 @@ Command add_estimate(CLI::App& app) {
     es->add_option("--estimator", o->estimator, "Estimator name (see --list)");
     es->add_option("--encoder", o->encoder, "Encoder profile JSON the estimator is told (default: the capture's metadata)")->check(CLI::ExistingFile);
     es->add_option("--param", o->params, "Estimator parameter key=value (repeatable)");
-    es->add_option("-o,--output", o->output, "Estimates CSV to write: t,theta_rad,omega_rad_s,valid");
+    es->add_option("-o,--output", o->output, "Estimates CSV to write: t,theta_rad,omega_rad_s,valid (without -o and --report: the summary only)");
     es->add_option("--report", o->report, "Report JSON to write (scores and bounds when the capture has truth)");
     es->add_option("--settle-s", o->settle_s, "Seconds from the start excluded from scoring")->check(CLI::NonNegativeNumber);
     es->add_flag("--list", o->list, "List the estimators and their parameters");

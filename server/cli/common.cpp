@@ -54,6 +54,16 @@ std::string state_notes(const json& state) {
     if (events > 0)
         out += "loss of lock " + std::to_string(events) + (events == 1 ? " time" : " times") + " (" +
                std::to_string(lock.value("samples_invalid", 0LL)) + " samples invalid while it re-acquired)";
+    const auto count = [&](const char* key) { return state.contains(key) && state[key].is_number_integer() ? state[key].get<long long>() : 0LL; };
+    const auto add = [&](const std::string& t) { out += (out.empty() ? "" : "; ") + t; };
+    if (const long long n = count("signal_changes"); n > 0)
+        add("the signal changed " + std::to_string(n) + (n == 1 ? " time" : " times") + " (shape learnt afresh; errors are large until it has been)");
+    if (const long long n = count("outlier_samples"); n > 0)
+        add(std::to_string(n) + " outlier sample" + (n == 1 ? "" : "s") + " not taken in");
+    if (const long long n = count("skipped_updates"); n > 0)
+        add(std::to_string(n) + " sample" + (n == 1 ? "" : "s") + " not taken in (outliers or singular updates)");
+    if (const long long n = count("nonfinite_samples"); n > 0)
+        add(std::to_string(n) + " non-finite sample" + (n == 1 ? "" : "s") + " skipped");
     if (state.contains("message") && state["message"].is_string())
         out += (out.empty() ? "" : "; ") + state["message"].get<std::string>();
     return out;
