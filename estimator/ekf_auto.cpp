@@ -233,7 +233,9 @@ public:
                          {"nonfinite_samples", nonfinite_}, {"loss_of_lock", lock_.to_json()},
                          {"samples_without_evidence", no_evidence_}, {"outlier_samples", outliers_},
                          {"signal_changes", signal_changes_}};
-        if (acq_.done() && refits_since_start_ == 0 && !told_)
+        if (!acq_.done())
+            j["message"] = "acquiring at the end of the capture: no lock on a quadrature signal (too short, noise only, or no signal)";
+        else if (refits_since_start_ == 0 && !told_)
             j["message"] = "no valid output yet: the shape is learnt from motion (half an electrical cycle after acquisition); the capture has not moved enough, or holds no signal";
         else if (r_bar_ >= kMaxPhaseVar)
             j["message"] = "no valid output: the learnt shape and noise leave a per-sample phase std above 0.3 rad (no signal)";

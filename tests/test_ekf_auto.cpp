@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <random>
 #include <tuple>
 
 using namespace fringe;
@@ -247,6 +248,20 @@ TEST_CASE("ekf-auto gives no valid output without a signal that moves, and says 
         const auto R = e->state()["noise_cov_v2"];
         CHECK(R[0].get<double>() > 0);
         CHECK(R[2].get<double>() > 0);
+    }
+    SECTION("noise only: nothing valid, and the message says it never locked") {
+        auto e = est::make("ekf-auto", cfg);
+        const std::size_t n = 50000;
+        std::mt19937_64 rng(11);
+        std::normal_distribution<double> g(0.0, 0.01);  // V
+        std::vector<double> s(n), c(n), th(n), om(n);
+        for (std::size_t k = 0; k < n; ++k) { s[k] = g(rng); c[k] = g(rng); }
+        std::vector<std::uint8_t> v(n, 1);
+        e->process({s, c}, {th, om, v});
+        INFO(e->state().dump());
+        CHECK(std::count(v.begin(), v.end(), 1) < static_cast<long>(n / 100));
+        REQUIRE(e->state()["message"].is_string());
+        CHECK(e->state()["message"].get<std::string>().find("no lock") != std::string::npos);
     }
 }
 
