@@ -4,10 +4,12 @@
 #include "drivers/capture_file.hpp"
 #include "estimator/estimator.hpp"
 #include "scoring.hpp"
+#include "signal_gen/fastmath.hpp"
 
+#include <algorithm>
 #include <charconv>
-#include <cmath>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 
@@ -78,7 +80,10 @@ json evaluate_capture(const EvaluateOptions& o) {
     ConventionCheck conventions;
     std::vector<double> th, om;
     std::vector<std::uint8_t> valid;
-    std::uint64_t total = 0;
+    std::uint64_t total = 0, valid_total = 0;
+    // electrical radians of truth travelled during the settle time (distance, not net: a swing
+    // teaches ekf-auto on every pass), for the scores_learning warning
+    double settle_travel_rad = 0, t_first = 0, th_prev = 0;
     const auto t0 = std::chrono::steady_clock::now();
     double est_seconds = 0;
     for (; more; more = reader.read(o.block, d)) {
@@ -88,10 +93,16 @@ json evaluate_capture(const EvaluateOptions& o) {
         estimator->process({d.sin_v, d.cos_v}, {th, om, valid});
         est_seconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - a).count();
         if (out) out->write(n, d.t_s.data(), th.data(), om.data(), valid.data());
+        valid_total += static_cast<std::uint64_t>(std::count(valid.begin(), valid.end(), std::uint8_t{1}));
         if (truth) {
             scorer.add(n, d.t_s.data(), d.theta_true_rad.data(),
                        d.omega_true_rad_s.empty() ? nullptr : d.omega_true_rad_s.data(), th.data(), om.data(), valid.data());
             conventions.add(n, d.theta_true_rad.data(), th.data(), valid.data());
+            if (total == 0 && n > 0) { t_first = d.t_s[0]; th_prev = d.theta_true_rad[0]; }
+            for (std::size_t i = 0; i < n && d.t_s[i] - t_first < o.settle_s; ++i) {
+                settle_travel_rad += std::fabs(d.theta_true_rad[i] - th_prev);
+                th_prev = d.theta_true_rad[i];
+            }
         }
         if (abz) {
             dut_th.resize(n);
@@ -115,6 +126,9 @@ json evaluate_capture(const EvaluateOptions& o) {
     r["schema_version"] = 1;
     r["capture"] = {{"path", o.capture_path}, {"samples", total}, {"sample_rate_hz", fs}, {"has_truth", truth}};
     r["estimator"] = {{"name", o.estimator}, {"params", cfg.params}, {"state", estimator->state()}};
+    // With or without truth: how much of the output the estimator vouched for.
+    r["estimates"] = {{"samples", total}, {"valid_samples", valid_total},
+                      {"valid_fraction", total > 0 ? json(static_cast<double>(valid_total) / static_cast<double>(total)) : json()}};
     r["encoder_source"] = o.encoder ? "profile file" : (from_capture ? "capture metadata" : "none");
     r["timing"] = {{"estimator_s", est_seconds}, {"wall_s", wall},
                    {"estimator_samples_per_s", est_seconds > 0 ? static_cast<double>(total) / est_seconds : 0.0}};
@@ -141,6 +155,25 @@ json evaluate_capture(const EvaluateOptions& o) {
     }
     json diag = json::array();
     for (const auto& f : conventions.findings()) diag.push_back({{"code", f.code}, {"message", f.message}});
+    const auto fmt3 = [](double x) { char b[32]; std::snprintf(b, sizeof b, "%.3g", x); return std::string(b); };
+    if (m.after_settle > 0 && m.scored > 0) {
+        const double vf = static_cast<double>(m.scored) / static_cast<double>(m.after_settle);
+        if (vf < 0.95)  // a run's scoring.min_valid_fraction
+            diag.push_back({{"code", "low_valid_fraction"},
+                            {"message", "only " + fmt3(100.0 * vf) + " % of the " + std::to_string(m.after_settle) +
+                                            " samples after the settle time are valid (a run needs 95 %): the figures describe those " +
+                                            std::to_string(m.scored) + " samples only, not the capture"}});
+    }
+    if (o.estimator == "ekf-auto") {
+        const json st = r["estimator"]["state"];
+        const bool told = st.is_object() && st.value("told_profile", false);
+        const double cycles = settle_travel_rad / kTwoPi;
+        if (!told && m.scored > 0 && cycles < 50)
+            diag.push_back({{"code", "scores_learning"},
+                            {"message", "ekf-auto learns the waveform shape over about 50 electrical cycles of motion; the settle time of " +
+                                            fmt3(o.settle_s) + " s covers " + fmt3(cycles) +
+                                            " electrical cycles of travel, so the score includes its learning (raise --settle-s)"}});
+    }
     r["diagnosis"] = diag;
     if (truth_enc && m.scored > 0)
         r["bounds"] = bounds_json(*truth_enc, *estimator, fs, m.scored, m.rms_rad);

@@ -83,4 +83,37 @@ grep -q "^ekf-auto: the signal changed 1 time" "$dir/ja.txt" || fail "no signal-
 "$FRINGE" estimate "$dir/cap.csv" --estimator ekf-diffraction > "$dir/c.txt"
 grep -q "^error after 0.1 s settle" "$dir/c.txt" || fail "summary-only: $(cat "$dir/c.txt")"
 ! grep -q "loss of lock\|not taken in" "$dir/c.txt" || fail "clean capture: $(cat "$dir/c.txt")"
+grep -q "^warning: only 25 % of the 20000 samples after the settle time are valid" "$dir/j.txt" || fail "no low-valid warning: $(cat "$dir/j.txt")"
+grep -q "^warning: ekf-auto learns the waveform shape .* covers 10.7 electrical cycles" "$dir/ja.txt" || fail "no scores_learning warning: $(cat "$dir/ja.txt")"
+$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); c=[d["code"] for d in r["diagnosis"]]; assert "scores_learning" in c and "low_valid_fraction" in c, c; e=r["estimates"]; assert e["samples"]==30000 and 0<e["valid_fraction"]<1, e' "$dir/ja.json"
+! grep -q "^warning" "$dir/c.txt" || fail "clean capture warned: $(cat "$dir/c.txt")"
+
+# truth, but nothing scored: exit 1, not success
+set +e; "$FRINGE" estimate "$dir/cap.csv" --estimator atan2 --settle-s 5 > "$dir/ns.txt"; rc=$?; set -e
+[ $rc -eq 1 ] && grep -q "^no scored samples" "$dir/ns.txt" || fail "nothing scored: exit $rc: $(cat "$dir/ns.txt")"
+# without truth the summary still says how much the estimator vouched for
+"$FRINGE" estimate "$dir/notruth.csv" --estimator ekf-auto > "$dir/nt.txt"
+grep -q "estimates only; valid [0-9.]* % of 30000 samples" "$dir/nt.txt" || fail "no-truth valid fraction: $(cat "$dir/nt.txt")"
+
+# an output never overwrites an input (the capture, its sidecar, the scenario) or the other output
+cp "$dir/cap.csv" "$dir/keep.csv"; cp "$dir/cap.json" "$dir/keep.json"; ln -s keep.csv "$dir/link.csv"
+expect_error "keep.csv is the capture: writing it would destroy it" "$FRINGE" estimate "$dir/keep.csv" --estimator atan2 -o "$dir/keep.csv"
+expect_error "link.csv is the capture" "$FRINGE" estimate "$dir/keep.csv" --estimator atan2 -o "$dir/link.csv"
+expect_error "keep.json is the capture's sidecar" "$FRINGE" estimate "$dir/keep.csv" --estimator atan2 --report "$dir/keep.json"
+expect_error "is also the output" "$FRINGE" estimate "$dir/keep.csv" --estimator atan2 -o "$dir/o.x" --report "$dir/./o.x"
+cmp -s "$dir/cap.csv" "$dir/keep.csv" && cmp -s "$dir/cap.json" "$dir/keep.json" || fail "an input was overwritten"
+# where a sidecar would be read from, even before one exists; and a report found there is not metadata
+expect_error "notruth.json is the capture's sidecar" "$FRINGE" estimate "$dir/notruth.csv" --estimator atan2 --report "$dir/notruth.json"
+[ ! -e "$dir/notruth.json" ] || fail "the report was written where the sidecar goes"
+cp "$dir/r.json" "$dir/keep.json"
+expect_error "keep.json: sidecar is a fringe.estimate report, not a capture's metadata" "$FRINGE" estimate "$dir/keep.csv" --estimator atan2
+cp "$SRC/fixtures/scenarios/paper-duty1p6.json" "$dir/scen.json"
+expect_error "output's sidecar: .*scen.json is the scenario" "$FRINGE" gen "$dir/scen.json" -o "$dir/scen.csv" -q --samples 100
+expect_error "report: .*scen.json is the scenario" "$FRINGE" run "$dir/scen.json" --report "$dir/scen.json" --data "$dir/data"
+cmp -s "$SRC/fixtures/scenarios/paper-duty1p6.json" "$dir/scen.json" || fail "the scenario was overwritten"
+[ ! -e "$dir/scen.csv" ] || fail "gen wrote its capture before refusing"
+# numbers on the command line are finite
+expect_error "settle-s: 'nan' is not a finite number" "$FRINGE" estimate "$dir/cap.csv" --estimator atan2 --settle-s nan
+expect_error "settle-s: 'inf' is not a finite number" "$FRINGE" estimate "$dir/cap.csv" --estimator atan2 --settle-s inf
+expect_error "max-upload-mb: 'nan' is not a finite number" "$FRINGE" serve --max-upload-mb nan --data "$dir/data"
 echo "cli.estimate OK"

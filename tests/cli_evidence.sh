@@ -51,7 +51,7 @@ grep -q "sample_rate_hz: undersampled: 1.95[0-9]* (< 2) samples per electrical c
 
 # 4. warnings travel: double quantisation (encoder ADC + device ADC) in the CLI, JUnit, HTML
 scenario "$dir/s4.json" 's["encoder"]["adc"]["bits"] = 16; s["limits"] = []'
-run_rc "$FRINGE" run "$dir/s4.json" --no-db --junit "$dir/s4.xml" --html "$dir/s4.html" --report "$dir/s4.json"
+run_rc "$FRINGE" run "$dir/s4.json" --no-db --junit "$dir/s4.xml" --html "$dir/s4.html" --report "$dir/s4.report.json"
 [ $rc -eq 0 ] || fail "double quantisation still runs: exit $rc: $(cat "$dir/out.txt")"
 grep -q "warning: the encoder profile has its own 16-bit ADC" "$dir/out.txt" || fail "CLI warning: $(cat "$dir/out.txt")"
 grep -q 'property name="warning" value="double_quantisation' "$dir/s4.xml" || fail "JUnit warning property"
@@ -79,9 +79,10 @@ assert m["harmonic_analysis"]["power_fraction"] > 0.9, m["harmonic_analysis"]
 assert r["estimators"][0]["bounds"]["efficiency"] is not None
 PY
 
-# 7. fringe estimate on a 99-sample capture: "no scored samples", no zeros
+# 7. fringe estimate on a 99-sample capture: "no scored samples", no zeros, exit 1
 "$FRINGE" gen "$SRC/fixtures/scenarios/paper-duty1p6.json" -o "$dir/short.csv" -q --samples 99
-"$FRINGE" estimate "$dir/short.csv" --estimator atan2 --report "$dir/e.json" > "$dir/out.txt"
+set +e; "$FRINGE" estimate "$dir/short.csv" --estimator atan2 --report "$dir/e.json" > "$dir/out.txt"; rc=$?; set -e
+[ $rc -eq 1 ] || fail "estimate with nothing scored exited $rc, not 1"
 grep -q "no scored samples: 99 samples" "$dir/out.txt" || fail "estimate: $(cat "$dir/out.txt")"
 if grep -q "rms 0.000e+00" "$dir/out.txt"; then fail "estimate printed a zero rms"; fi
 $PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["metrics"]["rms"] is None and r["metrics"]["scored"] == 0' "$dir/e.json"

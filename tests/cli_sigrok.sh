@@ -55,17 +55,17 @@ done
 # are the same as the CSV's given the same profile
 cp "$dir/cap-sr.sr" "$dir/bare.sr"
 enc="$SRC/fixtures/encoders/paper-d2-duty1p6.json"
-"$FRINGE" estimate "$dir/bare.sr" --estimator ekf-diffraction --encoder "$enc" --report "$dir/bare.json" -q
+"$FRINGE" estimate "$dir/bare.sr" --estimator ekf-diffraction --encoder "$enc" --report "$dir/bare.report.json" -q
 "$FRINGE" estimate "$dir/cap.csv" --estimator ekf-diffraction --encoder "$enc" --report "$dir/csvp.json" -q
-$PY -c 'import json,sys; a,b=(json.load(open(p)) for p in sys.argv[1:3]); assert a["metrics"]==b["metrics"] and a["bounds"]==b["bounds"]' "$dir/bare.json" "$dir/csvp.json"
+$PY -c 'import json,sys; a,b=(json.load(open(p)) for p in sys.argv[1:3]); assert a["metrics"]==b["metrics"] and a["bounds"]==b["bounds"]' "$dir/bare.report.json" "$dir/csvp.json"
 
 # the channel map: a scope's channel names
 sed '1s/.*/t,CH1,CH2,theta_true,omega_true/' "$dir/cap.csv" > "$dir/scope.csv"
 sigrok-cli -I "csv:column_formats=-,a,a,a,a:header=yes:samplerate=$rate" -i "$dir/scope.csv" -o "$dir/scope.sr"
 expect_error "no channel for column 'sin'" "$FRINGE" estimate "$dir/scope.sr" --estimator atan2 --report "$dir/x.json"
-"$FRINGE" estimate "$dir/scope.sr" --channels sin=CH1,cos=CH2 --estimator atan2 --report "$dir/scope.json" -q
+"$FRINGE" estimate "$dir/scope.sr" --channels sin=CH1,cos=CH2 --estimator atan2 --report "$dir/scope.report.json" -q
 "$FRINGE" estimate "$dir/bare.sr" --estimator atan2 --report "$dir/bare-atan2.json" -q
-$PY -c 'import json,sys; a,b=(json.load(open(p)) for p in sys.argv[1:3]); assert a["metrics"]==b["metrics"]' "$dir/scope.json" "$dir/bare-atan2.json"
+$PY -c 'import json,sys; a,b=(json.load(open(p)) for p in sys.argv[1:3]); assert a["metrics"]==b["metrics"]' "$dir/scope.report.json" "$dir/bare-atan2.json"
 
 # hostile: a cut-off session, and a file that is not a ZIP: exit 2 naming the problem
 head -c 20000 "$dir/bare.sr" > "$dir/cut.sr"
@@ -94,9 +94,9 @@ sigrok-cli -I "csv:column_formats=-,a,a,a,l,l,l:header=yes:samplerate=$rate" -i 
 cp "$dir/cap.json" "$dir/abz-sr.json"
 unzip -p "$dir/abz-sr.sr" metadata | grep -q '^probe1=a$' || fail "logic channels: $(unzip -p "$dir/abz-sr.sr" metadata)"
 "$FRINGE" estimate "$dir/abz.csv" --estimator atan2 --dut-interpolation $N --report "$dir/abz-csv.json" -q
-"$FRINGE" estimate "$dir/abz-sr.sr" --estimator atan2 --dut-interpolation $N --report "$dir/abz-sr.json" > "$dir/abz.txt"
+"$FRINGE" estimate "$dir/abz-sr.sr" --estimator atan2 --dut-interpolation $N --report "$dir/abz-sr.report.json" > "$dir/abz.txt"
 grep -q "dut (ABZ, 64 counts per cycle, reference index)" "$dir/abz.txt" || fail "dut summary: $(cat "$dir/abz.txt")"
-$PY - "$dir/abz-csv.json" "$dir/abz-sr.json" $N <<'PY'
+$PY - "$dir/abz-csv.json" "$dir/abz-sr.report.json" $N <<'PY'
 import json, math, sys
 a, b = (json.load(open(p)) for p in sys.argv[1:3])
 N = int(sys.argv[3]); step = 2 * math.pi / (4 * N)

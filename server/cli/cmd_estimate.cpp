@@ -1,9 +1,11 @@
 // fringe estimate: run an estimator on a capture and score it against the capture's truth.
 #include "server/cli/commands.hpp"
 #include "estimator/estimator.hpp"
+#include "drivers/capture_file.hpp"
 #include "server/evaluate.hpp"
 #include "server/scenario.hpp"
 
+#include <cmath>
 #include <cstdio>
 #include <stdexcept>
 
@@ -72,6 +74,12 @@ int run_estimate(const EstimateOptions& o) {
     // Without -o or --report the printed summary is the output; with -q as well there would be none.
     if (o.output.empty() && o.report.empty() && o.quiet)
         throw ConfigError("output", "-q prints nothing: give -o ESTIMATES.csv and/or --report REPORT.json");
+    if (!std::isfinite(o.settle_s)) throw ConfigError("settle_s", "--settle-s must be a finite number of seconds");
+    // A .csv's or .sr's sidecar is read from x.json whether or not it exists yet: a report
+    // written there would be read as the capture's metadata next time.
+    const bool has_sidecar = capture_format_for(o.capture) != CaptureFormat::Binary;
+    refuse_overwrite({{"output", o.output}, {"report", o.report}},
+                     {{"capture", o.capture}, {"capture's sidecar", has_sidecar ? sidecar_path(o.capture) : ""}, {"encoder profile", o.encoder}});
     EvaluateOptions e;
     e.capture_path = o.capture;
     e.estimator = o.estimator;
@@ -97,7 +105,13 @@ int run_estimate(const EstimateOptions& o) {
                     static_cast<unsigned long long>(r["capture"]["samples"].get<std::uint64_t>()),
                     r["timing"]["estimator_samples_per_s"].get<double>() / 1e6);
         if (r["metrics"].is_null()) {
-            std::printf("no theta_true in the capture: estimates only\n");
+            const auto& es = r["estimates"];
+            const double vf = es["valid_fraction"].is_number() ? es["valid_fraction"].get<double>() : 0.0;
+            std::printf("no theta_true in the capture: estimates only; valid %.1f %% of %llu samples\n",
+                        100.0 * vf, static_cast<unsigned long long>(es["samples"].get<std::uint64_t>()));
+            if (vf < 0.95)
+                std::printf("warning: the estimator marked %.1f %% of the samples invalid: read its notes below before using the estimates\n",
+                            100.0 * (1.0 - vf));
         } else if (r["metrics"]["scored"].get<std::uint64_t>() == 0) {
             std::printf("%s\n", r["note"].get<std::string>().c_str());
         } else {
@@ -138,6 +152,9 @@ int run_estimate(const EstimateOptions& o) {
             std::printf("\n");
         }
     }
+    // Truth but nothing scored: no figures, and a script gating on the exit code must not read
+    // that as success (a run's evidence measurements FAIL the same way).
+    if (r["capture"]["has_truth"].get<bool>() && r["metrics"]["scored"].get<std::uint64_t>() == 0) return kExitFail;
     return kExitOk;
 }
 
@@ -158,7 +175,7 @@ Command add_estimate(CLI::App& app) {
     es->add_option("--param", o->params, "Estimator parameter key=value (repeatable)");
     es->add_option("-o,--output", o->output, "Estimates CSV to write: t,theta_rad,omega_rad_s,valid (without -o and --report: the summary only)");
     es->add_option("--report", o->report, "Report JSON to write (scores and bounds when the capture has truth)");
-    es->add_option("--settle-s", o->settle_s, "Seconds from the start excluded from scoring")->check(CLI::NonNegativeNumber);
+    es->add_option("--settle-s", o->settle_s, "Seconds from the start excluded from scoring")->check(kFiniteNonNegative);
     es->add_flag("--list", o->list, "List the estimators and their parameters");
     es->add_flag("--json", o->json_list, "With --list: as JSON");
     es->add_flag("-q,--quiet", o->quiet, "No summary or progress");

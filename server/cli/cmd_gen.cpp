@@ -48,6 +48,9 @@ json summarise(const std::vector<double>& sin_v, const std::vector<double>& thet
 }
 
 int run_gen(const GenOptions& o) {
+    // x.csv brings its sidecar x.json: never over the scenario it was made from
+    refuse_overwrite({{"output", o.output}, {"output's sidecar", capture_format_for(o.output) == CaptureFormat::Csv ? sidecar_path(o.output) : ""}},
+                     {{"scenario", o.scenario}});
     Scenario sc = load_scenario(o.scenario);
     if (o.seed >= 0) sc.seed = static_cast<std::uint64_t>(o.seed);
     const std::uint64_t total = o.samples > 0 ? static_cast<std::uint64_t>(o.samples) : sc.samples();

@@ -70,6 +70,8 @@ int run_run_remote(const RunCliOptions& o, const Scenario& sc) {
 }
 
 int run_run(const RunCliOptions& o) {
+    // checked before the run: a report written over the scenario (or over another report) is lost work
+    refuse_overwrite({{"report", o.report}, {"junit", o.junit}, {"html", o.html}}, {{"scenario", o.scenario}});
     Scenario sc = load_scenario(o.scenario);
     if (o.seed >= 0) sc.seed = static_cast<std::uint64_t>(o.seed);
     if (!o.device.empty()) {
@@ -164,7 +166,7 @@ Command add_run(CLI::App& app) {
     rn->add_option("--store", o->store, "Run store: sqlite:PATH, or a shared PostgreSQL (postgresql://USER@HOST/DB, postgresql:///DB?host=/socket/dir) "
                                         "written through DATA/runs.db and forwarded (default DATA/runs.db)");
     rn->add_option("--forward-wait", o->forward_wait_s, "With a PostgreSQL --store: seconds to keep retrying the forward before leaving it pending")
-        ->check(CLI::NonNegativeNumber)->capture_default_str();
+        ->check(kFiniteNonNegative)->capture_default_str();
     rn->add_option("--bench", o->bench, "Bench name in the run's provenance (default $FRINGE_BENCH, else the host name)");
     rn->add_option("--dut", o->dut, "DUT serial (overrides the scenario's \"dut\"; default the device's board id)");
     rn->add_option("--dut-part", o->dut_part, "DUT part number (overrides the scenario's \"dut_part\")");

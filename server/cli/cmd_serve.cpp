@@ -117,21 +117,21 @@ Command add_serve(CLI::App& app) {
     sv->add_option("--web", o->web, "Browser UI folder")->capture_default_str();
     sv->add_option("--workers", o->workers, "Runs executed in parallel (default: cores); runs on one board always queue");
     sv->add_option("--threads", o->threads, "HTTP I/O threads")->check(CLI::Range(1, 64))->capture_default_str();
-    sv->add_option("--max-upload-mb", o->max_upload_mb, "Largest capture upload, MiB")->check(CLI::PositiveNumber)->capture_default_str();
+    sv->add_option("--max-upload-mb", o->max_upload_mb, "Largest capture upload, MiB")->check(kFinitePositive)->capture_default_str();
     sv->add_option("--upload-quota-mb", o->upload_quota_mb, "All uploaded captures together on disk, MiB (507 quota_exceeded beyond)")
-        ->check(CLI::PositiveNumber)->capture_default_str();
+        ->check(kFinitePositive)->capture_default_str();
     sv->add_option("--max-samples", o->max_samples, "Samples per run (duration_s x sample_rate_hz; 413 too_many_samples beyond)")
-        ->check(CLI::PositiveNumber)->capture_default_str();
+        ->check(kFinitePositive)->capture_default_str();
     sv->add_option("--max-estimators", o->max_estimators, "Estimators per run (413 too_many_estimators beyond)")->check(CLI::Range(1, 1000))->capture_default_str();
     sv->add_option("--max-limits", o->max_limits, "Limits per run (413 too_many_limits beyond)")->check(CLI::Range(1, 10000))->capture_default_str();
     sv->add_option("--max-report-mb", o->max_report_mb, "Largest report stored, MiB (a larger one ends the run as an error)")
-        ->check(CLI::PositiveNumber)->capture_default_str();
+        ->check(kFinitePositive)->capture_default_str();
     sv->add_option("--max-connections", o->max_connections, "Connections served at once; more get 503 and are closed")
         ->check(CLI::Range(1, 100000))->capture_default_str();
     sv->add_option("--body-timeout", o->body_timeout_s, "Seconds a JSON body may take to arrive; also the grace before the upload rate applies (408 beyond)")
         ->check(CLI::Range(1, 3600))->capture_default_str();
     sv->add_option("--upload-min-kibps", o->upload_min_kib_s, "Slowest average upload rate accepted after --body-timeout seconds, KiB/s (408 below)")
-        ->check(CLI::NonNegativeNumber)->capture_default_str();
+        ->check(kFiniteNonNegative)->capture_default_str();
     sv->add_flag("--allow-external", o->allow_external, "Allow the external estimator (runs a command on this host) in HTTP requests");
     sv->add_option("--allow-device", o->allow_device,
                    "Let clients' scenarios use devices matching this glob (repeatable): modbus+tcp://HOST:PORT, modbus+rtu:/dev/ttyUSB*, usb:1209:*; "

@@ -206,7 +206,7 @@ Command add_sweep(CLI::App& app) {
     sw->add_flag("--collect", o->collect, "Build the table from the store's runs (every row); names rows still missing (exit 2)");
     sw->add_flag("--only-missing", o->only_missing, "With --collect: run the missing rows first");
     sw->add_option("--forward-wait", o->forward_wait_s, "With a PostgreSQL --store: seconds to keep retrying the forward at the end")
-        ->check(CLI::NonNegativeNumber)->capture_default_str();
+        ->check(kFiniteNonNegative)->capture_default_str();
     sw->add_option("--bench", o->bench, "Bench name in each run's provenance (default $FRINGE_BENCH, else the host name)");
     sw->add_option("--operator", o->operator_name, "Operator in each run's provenance (default $USER)");
     return {sw, [o] { return run_sweep_cli(*o); }};

@@ -1,9 +1,12 @@
 // What the fringe commands share (common.hpp).
 #include "common.hpp"
 
+#include "signal_gen/config.hpp"
+
 #include <cmath>
 #include <csignal>
 #include <cstdio>
+#include <filesystem>
 #include <unistd.h>
 
 namespace fringe::cli {
@@ -44,6 +47,48 @@ std::atomic<bool>& cancel_flag() { return g_cancel; }
 void install_cancel_handlers() {
     std::signal(SIGINT, on_cancel_signal);
     std::signal(SIGTERM, on_cancel_signal);
+}
+
+namespace {
+bool same_file(const std::string& a, const std::string& b) {
+    namespace fs = std::filesystem;
+    std::error_code ec1, ec2;
+    if (fs::exists(a, ec1) && fs::exists(b, ec2)) {
+        std::error_code ec;
+        const bool eq = fs::equivalent(a, b, ec);
+        if (!ec) return eq;
+    }
+    std::error_code ec;
+    const fs::path pa = fs::weakly_canonical(fs::absolute(a), ec);
+    const fs::path pb = fs::weakly_canonical(fs::absolute(b), ec);
+    return pa.lexically_normal() == pb.lexically_normal();
+}
+}  // namespace
+
+CLI::Validator finite_number(bool allow_zero) {
+    return CLI::Validator(
+        [allow_zero](std::string& text) -> std::string {
+            double x = 0;
+            if (!CLI::detail::lexical_cast(text, x)) return "'" + text + "' is not a number";
+            if (!std::isfinite(x)) return "'" + text + "' is not a finite number";
+            if (allow_zero ? x < 0 : x <= 0) return "'" + text + "' must be " + (allow_zero ? "0 or more" : "more than 0");
+            return {};
+        },
+        allow_zero ? "NUMBER >= 0" : "NUMBER > 0");
+}
+
+void refuse_overwrite(const std::vector<NamedPath>& outputs, const std::vector<NamedPath>& inputs) {
+    for (std::size_t i = 0; i < outputs.size(); ++i) {
+        const auto& o = outputs[i];
+        if (o.path.empty()) continue;
+        for (const auto& in : inputs)
+            if (!in.path.empty() && same_file(o.path, in.path))
+                throw ConfigError(o.role, o.path + " is the " + in.role + (in.path == o.path ? "" : " (" + in.path + ")") +
+                                              ": writing it would destroy it; name another file");
+        for (std::size_t j = 0; j < i; ++j)
+            if (!outputs[j].path.empty() && same_file(o.path, outputs[j].path))
+                throw ConfigError(o.role, o.path + " is also the " + outputs[j].role + ": name two different files");
+    }
 }
 
 std::string state_notes(const json& state) {

@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <functional>
 #include <string>
+#include <vector>
 
 namespace fringe::cli {
 
@@ -19,6 +20,11 @@ constexpr int kExitError = 2;  // bad input, a device or run error
 
 // The scenario schema's range (docs/schema.md): seeds are stored as JSON numbers.
 inline const CLI::Range kSeedRange(std::int64_t{0}, std::int64_t{1} << 53);
+// A finite number >= 0 (CLI11's NonNegativeNumber lets "nan" through and answers "inf" with a
+// 300-digit range); kFinitePositive: > 0.
+CLI::Validator finite_number(bool allow_zero);
+inline const CLI::Validator kFiniteNonNegative = finite_number(true);
+inline const CLI::Validator kFinitePositive = finite_number(false);
 
 // A command: its CLI11 subcommand and what runs when it was chosen (returns the exit code).
 struct Command {
@@ -44,6 +50,14 @@ private:
     bool active_ = false, shown_ = false;
     std::chrono::steady_clock::time_point last_{};
 };
+
+// A file named on the command line, with what it is for ("capture", "report", ...).
+struct NamedPath {
+    std::string role, path;
+};
+// Throws a ConfigError naming both when an output would overwrite an input or another output:
+// the same file (links included) or the same path once made absolute. Empty paths are skipped.
+void refuse_overwrite(const std::vector<NamedPath>& outputs, const std::vector<NamedPath>& inputs);
 
 // Ctrl-C and SIGTERM set this flag (install_cancel_handlers); runs end as ABORTED with their report.
 std::atomic<bool>& cancel_flag();
