@@ -71,6 +71,7 @@ void LockMonitor::reset(const Calibration& told, double threshold_rad) {
     own_unwrap_.reset();
     own_start_ = 0;
     outliers_ = 0;
+    radius2_ = 0;
 }
 
 double LockMonitor::reference(double s, double c) {
@@ -84,11 +85,12 @@ double LockMonitor::reference(double s, double c) {
             const double hs = 0.5 * (smax_ - smin_), hc = 0.5 * (cmax_ - cmin_);
             if (s < smin_ - hs || s > smax_ + hs || c < cmin_ - hc || c > cmax_ + hc) {
                 outliers_ += 2;
-                if (outliers_ < 64) return ref_;
+                if (outliers_ < 64) return ref_ = unwrap_.hold();
                 outliers_ = 0;
                 own_ = started_ = false;
                 own_unwrap_.reset();
                 own_start_ = 0;
+                radius2_ = 0;
                 double sn, cn;
                 told_.normalise(s, c, sn, cn);
                 const double told = coarse_atan2(sn, cn);
@@ -105,6 +107,22 @@ double LockMonitor::reference(double s, double c) {
     }
     double sn, cn;
     told_.normalise(s, c, sn, cn);
+    // Before the own frame: a sample whose radius in the told frame is beyond 3x (or within
+    // 1/3 of) the running radius is an outlier (a 5 V glitch, a dropout to 0 V): its atan2 can
+    // lie anywhere, and one landing opposite the phase would unwrap a whole turn away. It holds
+    // the reference and does not widen the min/max box (which it would spoil for good); a run
+    // of them (the leaky count over 32) means the signal changed, and the radius is learnt again.
+    const double r2 = sn * sn + cn * cn;
+    if (!(radius2_ > 0)) radius2_ = r2;
+    if (radius2_ > 0 && (r2 > 9.0 * radius2_ || r2 < radius2_ / 9.0)) {
+        outliers_ += 2;
+        if (outliers_ < 64) return ref_ = unwrap_.hold();
+        outliers_ = 0;
+        radius2_ = r2;
+    } else {
+        radius2_ += 0.03 * (r2 - radius2_);  // ~32 samples
+        if (outliers_ > 0) --outliers_;
+    }
     ref_ = unwrap_(coarse_atan2(sn, cn));
     if (!started_) {
         smin_ = smax_ = s;
@@ -125,7 +143,8 @@ double LockMonitor::reference(double s, double c) {
     }
     const double own = coarse_atan2((s - 0.5 * (smax_ + smin_)) / as, (c - 0.5 * (cmax_ + cmin_)) / ac);
     if (!own_unwrap_.started()) own_start_ = own;
-    if (std::fabs(own_unwrap_(own) - own_start_) > 2 * kTwoPi) {
+    // (never on a held sample: the own frame's turn count would continue from a spike's phase)
+    if (std::fabs(own_unwrap_(own) - own_start_) > 2 * kTwoPi && !unwrap_.holding()) {
         // two turns in a stable frame: switch, continuing the told frame's turn count
         own_ = true;
         own_frame();
@@ -147,7 +166,7 @@ ParamInfo LockMonitor::threshold_param() {
 
 void Acquisition::reset(std::size_t n, double sample_rate_hz, const Calibration& cal) {
     n_ = n < 2 ? 2 : n;
-    k_ = 0;
+    k_ = m_ = 0;
     fs_ = sample_rate_hz;
     cal_ = cal;
     unwrap_.reset();
@@ -158,15 +177,32 @@ bool Acquisition::add(double s, double c) {
     double sn, cn;
     cal_.normalise(s, c, sn, cn);
     last_ = unwrap_(fast_atan2(sn, cn));
-    if (k_ == 0) first_ = last_;
+    if (m_ == 0) first_ = last_;
     const double k = static_cast<double>(k_), y = last_ - first_;
     sk_ += k; skk_ += k * k; sy_ += y; sky_ += k * y;
+    ++m_;
     ++k_;
-    if (k_ < n_) return false;
-    const double n = static_cast<double>(n_);
-    const double slope = (n * sky_ - sk_ * sy_) / (n * skk_ - sk_ * sk_);  // rad/sample
-    const double icpt = (sy_ - slope * sk_) / n;
-    theta_ = first_ + icpt + slope * (n - 1.0);
+    return k_ < n_ ? false : fit();
+}
+
+bool Acquisition::skip() {
+    ++k_;
+    return k_ < n_ ? false : fit();
+}
+
+// The least-squares line over the samples fitted (skipped ones are missing data), evaluated
+// at the last sample's index.
+bool Acquisition::fit() {
+    const double m = static_cast<double>(m_), last_k = static_cast<double>(n_) - 1.0;
+    const double den = m * skk_ - sk_ * sk_;
+    if (m_ < 2 || !(den > 0)) {
+        theta_ = last_;
+        omega_ = 0.0;
+        return true;
+    }
+    const double slope = (m * sky_ - sk_ * sy_) / den;  // rad/sample
+    const double icpt = (sy_ - slope * sk_) / m;
+    theta_ = first_ + icpt + slope * last_k;
     omega_ = slope * fs_;
     return true;
 }

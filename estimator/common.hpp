@@ -117,14 +117,18 @@ public:
     void reset(std::size_t n, double sample_rate_hz, const Calibration& cal);
     // Feed one sample; returns true when the fit is complete (theta_rad/omega_rad_s valid).
     bool add(double s, double c);
+    // A sample known to be an outlier: it counts in time, not in the fit.
+    bool skip();
     double theta_rad() const { return theta_; }
     double omega_rad_s() const { return omega_; }
     double last_atan2_rad() const { return last_; }
     bool done() const { return k_ >= n_; }
     std::size_t samples() const { return n_; }
+    std::size_t used() const { return m_; }  // samples in the fit (not skipped)
 
 private:
-    std::size_t n_ = 200, k_ = 0;
+    bool fit();
+    std::size_t n_ = 200, k_ = 0, m_ = 0;
     double fs_ = 1.0;
     Calibration cal_;
     Unwrapper unwrap_;
@@ -132,6 +136,53 @@ private:
     double theta_ = 0.0, omega_ = 0.0;
 };
 ParamInfo acquisition_param();
+
+// An unwrap that one wild sample cannot move by a turn (the loss-of-lock reference's). Plain
+// unwrapping takes each sample's atan2 within pi of the last: a glitch landing opposite the
+// phase, then the next true sample, can add 2*pi (a 1.3 V spike on a 1.1 V signal every 100
+// samples slipped the reference, and re-anchored trackers a turn away, marked valid). Here the
+// phase is predicted from the last accepted one and the mean step per sample; a sample more
+// than pi/2 off the prediction is held (the prediction is returned) up to 3 in a row, after
+// which it is the motion and accepted.
+class RobustUnwrap {
+public:
+    void reset() { started_ = false; stepped_ = false; acc_ = step_ = 0.0; held_ = 0; }
+    bool started() const { return started_; }
+    double operator()(double a) {  // a: this sample's atan2 (rad, wrapped)
+        if (!started_) {
+            started_ = true;
+            acc_ = a;
+            return acc_;
+        }
+        const double pred = acc_ + (1 + held_) * step_;
+        const double dev = wrap_pi(a - pred);
+        if (stepped_ && std::fabs(dev) > 0.5 * kPi && held_ < 3) {
+            ++held_;
+            return pred;
+        }
+        const double next = pred + dev;
+        const double step = (next - acc_) / (1 + held_);
+        step_ = stepped_ ? step_ + 0.125 * (step - step_) : step;
+        stepped_ = true;
+        held_ = 0;
+        acc_ = next;
+        return acc_;
+    }
+    // Hold this sample (an outlier found otherwise): the prediction.
+    double hold() { return started_ ? acc_ + (++held_) * step_ : acc_; }
+    bool holding() const { return held_ > 0; }  // the last sample was held
+    // Re-anchor so that the next call continues from an unwrapped value theta.
+    void set(double theta) {
+        acc_ = theta;
+        held_ = 0;
+        started_ = true;
+    }
+
+private:
+    bool started_ = false, stepped_ = false;
+    double acc_ = 0.0, step_ = 0.0;  // last accepted phase (rad), mean step per sample (rad)
+    int held_ = 0;
+};
 
 // Loss-of-lock guard (issue 13: nothing diverges silently). An independent reference phase,
 // the unwrapped atan2 of the samples, runs beside a tracker on every sample. A cycle slip or
@@ -166,6 +217,8 @@ public:
     void rearm() { diff_ = 0.0; }
     // A loss the tracker found itself (its updates no longer fit the signal).
     void declare_loss() { ++events_; }
+    // The last sample was an outlier to the reference (held, not taken in).
+    bool outlier() const { return unwrap_.holding(); }
     void count_invalid() { ++invalid_; }
     long long events() const { return events_; }
     long long samples_invalid() const { return invalid_; }
@@ -174,7 +227,7 @@ public:
 
 private:
     Calibration told_;
-    Unwrapper unwrap_;
+    RobustUnwrap unwrap_;
     double threshold_ = 1.0, ref_ = 0.0, diff_ = 0.0;
     long long events_ = 0, invalid_ = 0;
     // own frame: per-channel min/max, and how far the phase has gone round in it
@@ -188,7 +241,8 @@ private:
     }
     Unwrapper own_unwrap_;
     bool started_ = false, own_ = false;
-    int outliers_ = 0;  // leaky count of samples far outside the own frame's box
+    int outliers_ = 0;  // leaky count of samples far outside the own frame's box (or the told radius)
+    double radius2_ = 0;  // running squared radius in the told frame (0: none yet)
 };
 
 }  // namespace fringe::est

@@ -73,6 +73,10 @@ constexpr double kVPullS = 0.2;               // time constant of v's pull to 0 
 constexpr double kURidge = 3e-4;              // ridge on h1: as if u had this rms
 constexpr double kOutlierNis = 1e4;           // a sample whose normalised innovation (2 dof) exceeds this is an outlier
 constexpr int kOutlierRun = 32;               // this many in a row: the signal changed, acquire afresh
+constexpr double kOutlierRadius2 = 4.0;        // before the shape is learnt: a residual beyond 2 fundamental amplitudes is an outlier
+constexpr double kHuberNis = 25.0;             // a sample's share in R is capped at this normalised innovation: a
+                                               // fraction p of spikes then inflates R by 1/(1 - 25p) at most (100
+                                               // let 1 % of spikes grow it without bound); Gaussian noise beyond it: 4e-6
 constexpr double kMaxLagRad = 1e-4;           // rad: a point whose tracker lag (jerk/wn^3) exceeds this does not teach h1
 constexpr double kCorrRef = 0.03;             // rad: a point's acceleration correction at which its weight halves
 constexpr double kSettled = 1e-3;             // shape changes below this (relative) for 8 solves: settled
@@ -174,8 +178,11 @@ public:
             }
             lock_.reference(zs, zc);
             if (!acq_.done()) {
-                acq_sum_ += zs * zs + zc * zc;
-                const bool done = acq_.add(zs, zc);
+                // an outlier to the reference (a 1e300, a spike off the phase) stays out of the
+                // line fit and the amplitude
+                const bool skip = lock_.outlier();
+                if (!skip) acq_sum_ += zs * zs + zc * zc;
+                const bool done = skip ? acq_.skip() : acq_.add(zs, zc);
                 out.theta_rad[i] = lock_.anchor(acq_.last_atan2_rad());
                 out.omega_rad_s[i] = 0;
                 out.valid[i] = 0;
@@ -185,18 +192,21 @@ public:
             }
             predict();
             if (!update(zs, zc)) {
-                // an outlier (a glitch, a spike): not used, not learnt, its output invalid; the
-                // delay line restarts after it as after a gap. A run of them is a signal that
-                // changed (its amplitude jumped): acquire it afresh.
+                // an outlier (a glitch, a spike): not used, its output invalid. The delay line
+                // keeps going with the model's own prediction in its place (restarting it, as
+                // after a gap, left a capture with a glitch every cycle never learnt). A run of
+                // them is a signal that changed (its amplitude jumped): acquire it afresh.
                 ++outliers_;
                 out.theta_rad[i] = theta_out();
                 out.omega_rad_s[i] = x_[1];
                 out.valid[i] = 0;
-                seg0_ = k_;
                 if (++outlier_run_ >= kOutlierRun) {
                     ++signal_changes_;
                     restart();
                     reacquiring_ = true;
+                } else if (learn_) {
+                    push(pred_s_, pred_c_);
+                    learn();
                 }
                 continue;
             }
@@ -349,7 +359,7 @@ private:
             full_ = true;
         } else {
             // fundamental-only shape of the Lissajous radius over the acquisition window
-            const double amp = std::sqrt(acq_sum_ / static_cast<double>(acq_.samples()));
+            const double amp = std::sqrt(acq_sum_ / static_cast<double>(std::max<std::size_t>(acq_.used(), 1)));
             c0s_.fill(0.0);
             c0c_.fill(0.0);
             c0s_[2] = amp;  // sin theta
@@ -508,7 +518,9 @@ private:
         double h[2], d[2], h1[2], d1[2], g[2], dg[2];
         eval(x_[0], h, d, h1, d1, g, dg);
         const double u = x_[3], v = x_[4];
-        const double rs = zs - h[0] - u * h1[0] - v * g[0], rc = zc - h[1] - u * h1[1] - v * g[1];
+        pred_s_ = h[0] + u * h1[0] + v * g[0];
+        pred_c_ = h[1] + u * h1[1] + v * g[1];
+        const double rs = zs - pred_s_, rc = zc - pred_c_;
         // H = [[a0, 0, 0, b0, g0], [a1, 0, 0, b1, g1]]: phase, u and v columns only
         const double a0 = d[0] + u * d1[0] + v * dg[0], a1 = d[1] + u * d1[1] + v * dg[1], b0 = h1[0], b1 = h1[1];
         double PH[kNx][2];
@@ -518,18 +530,29 @@ private:
         }
         const double HPH00 = a0 * PH[0][0] + b0 * PH[3][0] + g[0] * PH[4][0], HPH01 = a0 * PH[0][1] + b0 * PH[3][1] + g[0] * PH[4][1],
                      HPH11 = a1 * PH[0][1] + b1 * PH[3][1] + g[1] * PH[4][1];
-        // an outlier? (only once the shape is learnt: before, the residuals are the shape's)
+        // An outlier? Before the shape is learnt the residuals are the shape's, up to about half
+        // the amplitude on a 10 % duty-cycle signal: only a residual beyond two fundamental
+        // amplitudes is one (a 5 V glitch on a 1 V signal; learnt into R and the shape it made
+        // every later glitch look normal: 0.1 % of them gave 200x the error). Once learnt, a
+        // normalised innovation beyond kOutlierNis is one.
+        const double amp2 = 0.5 * (c0s_[1] * c0s_[1] + c0s_[2] * c0s_[2] + c0c_[1] * c0c_[1] + c0c_[2] * c0c_[2]);
+        if (rs * rs + rc * rc > kOutlierRadius2 * amp2) return false;
+        double w = 1.0;  // the sample's weight in R: a rare large residual below the gate must not inflate it
         if (full_ && refits_since_start_ > 0) {
             const double T00 = HPH00 + R_[0], T01 = HPH01 + R_[1], T11 = HPH11 + R_[2];
             const double dt = T00 * T11 - T01 * T01;
-            if (dt > 0 && (T11 * rs * rs - 2 * T01 * rs * rc + T00 * rc * rc) / dt > kOutlierNis) return false;
+            if (dt > 0) {
+                const double nis = (T11 * rs * rs - 2 * T01 * rs * rc + T00 * rc * rc) / dt;
+                if (nis > kOutlierNis) return false;
+                if (nis > kHuberNis) w = kHuberNis / nis;
+            }
         }
         // the noise covariance R: the a priori residuals' covariance less the state's part H P H'
-        R_[0] += noise_a_ * (rs * rs - HPH00 - R_[0]);
-        R_[1] += noise_a_ * (rs * rc - HPH01 - R_[1]);
-        R_[2] += noise_a_ * (rc * rc - HPH11 - R_[2]);
-        Rraw_[0] += noise_a_ * (rs * rs - Rraw_[0]);
-        Rraw_[2] += noise_a_ * (rc * rc - Rraw_[2]);
+        R_[0] += noise_a_ * (w * rs * rs - HPH00 - R_[0]);
+        R_[1] += noise_a_ * (w * rs * rc - HPH01 - R_[1]);
+        R_[2] += noise_a_ * (w * rc * rc - HPH11 - R_[2]);
+        Rraw_[0] += noise_a_ * (w * rs * rs - Rraw_[0]);
+        Rraw_[2] += noise_a_ * (w * rc * rc - Rraw_[2]);
         // a covariance: each variance at least a quarter of the raw residuals' (the filter's own
         // P can overstate its error), 1e-12 of the shape's power and 1e-24 V^2; correlation
         // below 0.999
@@ -977,6 +1000,7 @@ private:
     long long turns_ = 0;
     double P_[kNx][kNx] = {}, Q_[3][3] = {};
     std::array<double, 3> R_{}, Ri_{}, Rraw_{};
+    double pred_s_ = 0, pred_c_ = 0;  // the last update's predicted measurement (V): an outlier's stand-in
     // shape h0, variation h1, the told profile's shape
     Coeffs c0s_{}, c0c_{}, c1s_{}, c1c_{}, told_s_{}, told_c_{};
     // delay line

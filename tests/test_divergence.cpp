@@ -2,12 +2,14 @@
 // kind of signal either tracks with zero slipped samples among its valid samples, or reports
 // its loss of lock in state() (a counted event, the samples marked invalid).
 #include "divergence_configs.hpp"
+#include "estimator/common.hpp"
 #include "estimator_helpers.hpp"
 #include "signal_kinds.hpp"
 
 #include <catch2/catch.hpp>
 
 #include <algorithm>
+#include <cmath>
 #include <set>
 
 using namespace fringe;
@@ -91,6 +93,16 @@ TEST_CASE("a glitch sample is not taken in, and a signal the told model no longe
         CHECK(r.m.slipped_samples == 0);
         CHECK(r.m.max_abs_rad < 2e-4);
     }
+    // spikes every 100 samples, from the start: none of them slips the reference a turn
+    for (const double glitch_v : {1.3, 5.0, 1e300}) {
+        Block b = generate(kind->encoder, kind->motion, kFs, 60000, 14);
+        for (std::size_t i = 100; i < b.size(); i += 100) b.sin_v[i] = glitch_v;
+        auto r = run_estimator("ekf-diffraction", ca, kind->encoder, b, kFs, kind->encoder, 0.1);
+        INFO("every 100 at " << glitch_v << ": " << r.e->state().dump());
+        CHECK(lock_events(r.e->state()) == 0);
+        CHECK(r.m.slipped_samples == 0);
+        CHECK(r.m.max_abs_rad < 1e-2);
+    }
     Block b = generate(kind->encoder, kind->motion, kFs, 40000, 12);
     for (std::size_t i = 20000; i < b.size(); ++i) { b.sin_v[i] *= 10; b.cos_v[i] *= 10; }
     auto r = run_estimator("ekf-diffraction", ca, kind->encoder, b, kFs, kind->encoder, 0.1);
@@ -99,4 +111,29 @@ TEST_CASE("a glitch sample is not taken in, and a signal the told model no longe
     CHECK(r.m.slipped_samples == 0);
     CHECK(r.m.max_abs_rad < 1e-3);  // whatever it still calls valid is right
     CHECK(std::count(r.valid.begin() + 21000, r.valid.end(), 1) < 2000);
+}
+
+// The loss-of-lock reference against the true phase of an ideal signal (closed form): a spike
+// every 7 samples placed exactly opposite the phase never moves it by a turn, and at 4 samples
+// per electrical cycle (the fastest a tracker here is used at) it follows without holding.
+TEST_CASE("the loss-of-lock reference is not slipped by spikes and follows fast motion", "[estimator][divergence]") {
+    est::Calibration cal;
+    cal.prepare();
+    for (const double step_rad : {0.01, 0.3, kTwoPi / 4}) {
+        est::LockMonitor m;
+        m.reset(cal, 1.0);
+        double worst = 0;
+        for (int k = 0; k < 20000; ++k) {
+            const double th = 0.2 + step_rad * k;
+            double s = std::sin(th), c = std::cos(th);
+            const bool spike = k % 7 == 3;
+            if (spike) { s = -1.3 * std::sin(th); c = -1.3 * std::cos(th); }  // opposite, within 1.5x of the range
+            const double ref = m.reference(s, c);
+            if (!spike) worst = std::max(worst, std::fabs(ref - th));
+        }
+        // not a turn, nor half of one: the spikes widen the min/max frame (an offset of up to
+        // 0.2 rad's worth is the reference's allowance on distorted signals)
+        INFO("step " << step_rad << " rad/sample");
+        CHECK(worst < 0.5);
+    }
 }
