@@ -540,6 +540,19 @@ bool CaptureReader::read_csv(std::size_t max_frames, CaptureData& out) {
                            << kCaptureMinRateHz << ", " << kCaptureMaxRateHz << "] Hz (or give sample_rate_hz in the sidecar)";
                         throw CaptureError(os.str());
                     }
+                    rate_from_t_ = true;
+                } else if (have_last_) {
+                    // Every estimator assumes uniform sampling: a step off 1/fs by more than 0.3 of
+                    // a period is missing samples (a dropped block) or a sidecar rate that is not
+                    // the capture's. Either would be scored as if it were not there.
+                    const double steps = (v - last_t_) * fs_;
+                    if (!(std::fabs(steps - 1.0) <= 0.3)) {
+                        std::ostringstream os;
+                        os << path_ << ":" << line_ << ": column t: a time step of " << v - last_t_ << " s is " << steps << " sample periods at "
+                           << fs_ << " Hz (" << (rate_from_t_ ? "from the first two rows" : "the sidecar's sample_rate_hz")
+                           << "): samples are missing here, or the rate is wrong; fringe needs uniformly sampled captures";
+                        throw CaptureError(os.str());
+                    }
                 }
                 last_t_ = v;
                 have_last_ = true;

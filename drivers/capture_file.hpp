@@ -123,6 +123,7 @@ private:
     std::optional<std::uint64_t> expected_frames_;  // the metadata's "samples", when given
     double last_t_ = 0;
     bool have_last_ = false;
+    bool rate_from_t_ = false;  // fs_ came from the first two time stamps (no sidecar rate)
     // binary state
     std::vector<int> bin_fields_;
     std::vector<int> bin_sizes_;

@@ -245,6 +245,9 @@ public:
                          {"signal_changes", signal_changes_}};
         if (!acq_.done())
             j["message"] = "acquiring at the end of the capture: no lock on a quadrature signal (too short, noise only, or no signal)";
+        else if (refits_since_start_ == 0 && !told_ && refits_ > 0)
+            j["message"] = "no valid output since it last re-acquired (the signal changed or lock was lost): the shape is learnt again from motion, and "
+                           "the capture has not moved enough since, or holds no signal";
         else if (refits_since_start_ == 0 && !told_)
             j["message"] = "no valid output yet: the shape is learnt from motion (half an electrical cycle after acquisition); the capture has not moved enough, or holds no signal";
         else if (r_bar_ >= kMaxPhaseVar)

@@ -252,6 +252,9 @@ private:
             std::string t = "exited with status " + std::to_string(code);
             // /bin/sh reports a child killed by signal N as 128 + N
             if (code > 128 && code < 128 + 32) t += std::string(" (killed by signal: ") + strsignal(code - 128) + ")";
+            // /bin/sh's own codes for a command it could not run
+            if (code == 127) t += " (the shell found no such command: check the path in 'command')";
+            if (code == 126) t += " (the shell could not execute it: not executable, or not a program)";
             return t;
         }
         if (WIFSIGNALED(status)) return std::string("was killed by signal ") + strsignal(WTERMSIG(status));

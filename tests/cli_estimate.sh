@@ -71,6 +71,7 @@ open(sys.argv[2], "wb").write(b[:8] + struct.pack("<I", len(hb)) + hb + b[12 + n
 PY
 expect_error "dup.fcap: header.columns\[2\]: duplicate column 'sin'" "$FRINGE" estimate "$dir/dup.fcap" --estimator atan2 -o "$dir/x.csv"
 expect_error "\-q prints nothing" "$FRINGE" estimate "$dir/cap.csv" --estimator atan2 -q
+expect_error "the shell found no such command" "$FRINGE" estimate "$dir/cap.csv" --estimator external --param "command=$dir/no-such-firmware" -o "$dir/x.csv"
 expect_error "no output for" "$FRINGE" estimate "$dir/cap.csv" --estimator external --param "command=sleep 20" --param timeout_s=0.3 -o "$dir/x.csv"
 # the summary says when an estimator lost lock or re-learnt: the signal x10 from the middle on
 awk -F, 'BEGIN{OFS=","} NR>15001{$2*=10;$3*=10} {print}' "$dir/cap.csv" > "$dir/jump.csv"; cp "$dir/cap.json" "$dir/jump.json"

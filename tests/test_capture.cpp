@@ -96,6 +96,16 @@ TEST_CASE("malformed captures are named by file and line", "[capture]") {
     CHECK_THAT(error_of(path), Catch::Contains("bad.csv:4") && Catch::Contains("time does not increase"));
     write_text(path, "t,sin,cos\n0,1,2\n1e-5,1\n");
     CHECK_THAT(error_of(path), Catch::Contains("bad.csv:3") && Catch::Contains("expected 3 cells"));
+    // uniform sampling: a gap (a dropped block), or a step the rate does not give, is named
+    write_text(path, "t,sin,cos\n0,1,2\n1e-5,1,2\n2e-5,1,2\n5e-5,1,2\n");
+    CHECK_THAT(error_of(path), Catch::Contains("bad.csv:5") && Catch::Contains("3 sample periods at 100000 Hz (from the first two rows)") &&
+                                   Catch::Contains("samples are missing here"));
+    write_text(path, "t,sin,cos\n0,1,2\n1e-5,1,2\n2.2e-5,1,2\n3.1e-5,1,2\n");  // jitter within 0.3 of a period is read (rounded time stamps)
+    CHECK(error_of(path) == "<no error>");
+    write_text(sidecar_path(path), R"({"sample_rate_hz": 50000})");
+    write_text(path, "t,sin,cos\n0,1,2\n1e-5,1,2\n");
+    CHECK_THAT(error_of(path), Catch::Contains("bad.csv:3") && Catch::Contains("0.5 sample periods at 50000 Hz (the sidecar's sample_rate_hz)"));
+    std::filesystem::remove(sidecar_path(path));
     write_text(path, "t,sin,cos\n0,1,2,3\n");
     CHECK_THAT(error_of(path), Catch::Contains("bad.csv:2") && Catch::Contains("more cells"));
     write_text(path, "");

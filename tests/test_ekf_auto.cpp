@@ -339,6 +339,21 @@ TEST_CASE("ekf-auto: repeated glitches from the start are outliers: no slip, at 
     }
 }
 
+// A capture that tracked and then froze (an ADC stuck from 40 % on) says so, not that it never moved.
+TEST_CASE("ekf-auto: a signal that freezes after tracking says it has not moved since re-acquiring", "[estimator][ekf-auto]") {
+    const auto kind = kind_named("paper-duty1p6");
+    Block b = generate(kind.encoder, kind.motion, kFs, 100000, 15);
+    for (std::size_t i = 40000; i < b.size(); ++i) { b.sin_v[i] = b.sin_v[40000]; b.cos_v[i] = b.cos_v[40000]; }
+    auto a = run_estimator("ekf-auto", json::object(), std::nullopt, b, kFs, kind.encoder, 0.0);
+    const json st = a.e->state();
+    INFO(st.dump().substr(0, 600));
+    CHECK(std::count(a.valid.begin() + 30000, a.valid.begin() + 39000, 1) > 8000);  // it tracked
+    CHECK(std::count(a.valid.begin() + 45000, a.valid.end(), 1) == 0);            // nothing valid once frozen
+    CHECK(a.m.slipped_samples == 0);
+    REQUIRE(st["message"].is_string());
+    CHECK_THAT(st["message"].get<std::string>(), Catch::Contains("since it last re-acquired"));
+}
+
 // ... and a signal whose amplitude jumps (x10) is acquired afresh, not tracked with the old shape
 TEST_CASE("ekf-auto: an amplitude jump is a signal change: re-acquired, then tracked", "[estimator][ekf-auto]") {
     const auto kind = kind_named("paper-duty1p6");
