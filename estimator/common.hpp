@@ -146,16 +146,21 @@ ParamInfo acquisition_param();
 // which it is the motion and accepted.
 class RobustUnwrap {
 public:
-    void reset() { started_ = false; stepped_ = false; acc_ = step_ = 0.0; held_ = 0; }
+    void reset() { started_ = false; stepped_ = false; acc_ = acc_w_ = step_ = 0.0; held_ = 0; }
     bool started() const { return started_; }
     double operator()(double a) {  // a: this sample's atan2 (rad, wrapped)
         if (!started_) {
             started_ = true;
-            acc_ = a;
+            acc_ = acc_w_ = a;
             return acc_;
         }
         const double pred = acc_ + (1 + held_) * step_;
-        const double dev = wrap_pi(a - pred);
+        // wrap(a - pred) from the wrapped prediction: acc_w_ is acc_ wrapped, kept alongside it
+        // (std::remainder on the unwrapped phase every sample cost the EKFs 10 % of their rate)
+        double dev = a - (acc_w_ + (1 + held_) * step_);
+        if (std::fabs(dev) > 3 * kPi) dev = wrap_pi(dev);
+        else if (dev > kPi) dev -= kTwoPi;
+        else if (dev <= -kPi) dev += kTwoPi;
         if (stepped_ && std::fabs(dev) > 0.5 * kPi && held_ < 3) {
             ++held_;
             return pred;
@@ -166,6 +171,7 @@ public:
         stepped_ = true;
         held_ = 0;
         acc_ = next;
+        acc_w_ = a;  // next, wrapped: a itself
         return acc_;
     }
     // Hold this sample (an outlier found otherwise): the prediction.
@@ -174,13 +180,14 @@ public:
     // Re-anchor so that the next call continues from an unwrapped value theta.
     void set(double theta) {
         acc_ = theta;
+        acc_w_ = wrap_pi(theta);
         held_ = 0;
         started_ = true;
     }
 
 private:
     bool started_ = false, stepped_ = false;
-    double acc_ = 0.0, step_ = 0.0;  // last accepted phase (rad), mean step per sample (rad)
+    double acc_ = 0.0, acc_w_ = 0.0, step_ = 0.0;  // last accepted phase (rad; wrapped), mean step per sample (rad)
     int held_ = 0;
 };
 
