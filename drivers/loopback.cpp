@@ -56,7 +56,12 @@ public:
         dac_ = Quantizer{s.at("dac_bits").get<int>(), -range, range};
         adc_ = Quantizer{s.at("adc_bits").get<int>(), -range, range};
         latency_ = s.at("latency_samples").get<int>();
-        noise_v_ = s.at("noise_v").get<double>();
+        // The chain's own noise: a real DAC-to-ADC path is never noise-free, and without it an
+        // ADC whose decision points fall on the DAC's grid rounds every tie the same way (a
+        // 16-bit DAC into a 14-bit ADC: a DC shift of half a DAC step, a 1x error harmonic that
+        // is not there). noise_lsb is in LSB of the finer converter; noise_v adds in quadrature.
+        const double q_fine = fine_step_v();
+        noise_v_ = std::hypot(s.at("noise_v").get<double>(), s.at("noise_lsb").get<double>() * q_fine);
         rng_ = Xoshiro256pp(static_cast<std::uint64_t>(s.at("seed").get<long long>()));
         drop_after_ = s.at("drop_after").get<long long>();
         drop_count_ = s.at("drop_count").get<long long>();
@@ -71,6 +76,20 @@ public:
         cos_offset_v_ = s.at("cos_offset_v").get<double>();
         swap_ = s.at("swap_channels").get<int>() != 0;
         max_play_ = static_cast<std::size_t>(s.at("max_play_samples").get<long long>());
+    }
+    // LSB (V) of the finer of the two converters; 0 when both are ideal.
+    double fine_step_v() const {
+        double q = 0;
+        for (const Quantizer* z : {&dac_, &adc_})
+            if (!z->ideal()) q = q > 0 ? std::min(q, z->step_v()) : z->step_v();
+        return q;
+    }
+    // The ADC: nearest level, ties to even. floor(x + 1/2) sends every tie up, and a DAC grid
+    // finer than the ADC's by a power of two lands on the ADC's decision points exactly; ties
+    // to even split them evenly, so even a noise-free chain adds no offset of its own.
+    double adc_read(double v) const {
+        if (adc_.ideal()) return v;
+        return adc_.min_v + Quantizer::clamp_code(std::nearbyint((v - adc_.min_v) * adc_.inv_step()), adc_.max_code()) * adc_.step_v();
     }
     DeviceInfo info() const override {
         DeviceInfo i;
@@ -133,7 +152,7 @@ public:
             aa_[ch] = Biquad::lowpass(s_.at("aa_order").get<int>(), s_.at("aa_cutoff_hz").get<double>(), fs);
         }
         queue_.clear();
-        for (int k = 0; k < latency_; ++k) queue_.push_back({adc_.apply(0.0), adc_.apply(0.0), 0.0});
+        for (int k = 0; k < latency_; ++k) queue_.push_back({adc_read(0.0), adc_read(0.0), 0.0});
         written_ = read_ = 0;
         pending_drop_ = 0;
         last_update_ = -1;
@@ -160,7 +179,7 @@ public:
                 a = aa_[ch].step(a);
                 if (saturate_after_ >= 0 && k >= saturate_after_) a = 2 * adc_.max_v;  // driven into the rail
                 if (adc_.clips(a)) ++clipped_;
-                v[ch] = adc_.apply(a);
+                v[ch] = adc_read(a);
             }
             if (drop_after_ >= 0 && k >= drop_after_ && k < drop_after_ + drop_count_) {
                 ++pending_drop_;  // lost on the way in: the gap is reported where it happened
@@ -257,7 +276,7 @@ public:
                 double a = g[ch] * v[ch] + o[ch];
                 if (noise_v_ > 0) a += noise_v_ * standard_normal(rng_);
                 if (adc_.clips(a)) ++clipped_;
-                v[ch] = adc_.apply(a);
+                v[ch] = adc_read(a);
             }
             s[m] = swap_ ? v[1] : v[0];
             c[m] = swap_ ? v[0] : v[1];
@@ -329,7 +348,8 @@ void register_loopback(std::vector<DriverInfo>& r) {
         {"recon_cutoff_hz", "Hz", ParamType::Number, 0.0, 0, 1e9, {}, "reconstruction filter (1st order) cutoff; 0: none"},
         {"aa_cutoff_hz", "Hz", ParamType::Number, 0.0, 0, 1e9, {}, "anti-alias filter cutoff; 0: none"},
         {"aa_order", "", ParamType::Integer, 2, 1, 2, {}, "anti-alias filter order (Butterworth)"},
-        {"noise_v", "V", ParamType::Number, 0.0, 0, 10, {}, "analog noise per channel, rms"},
+        {"noise_v", "V", ParamType::Number, 0.0, 0, 10, {}, "analog noise per channel, rms (added in quadrature to noise_lsb's)"},
+        {"noise_lsb", "LSB", ParamType::Number, 1.0, 0, 1000, {}, "the converter chain's own noise per channel, rms, in LSB of the finer converter (a real DAC-to-ADC path is never noise-free; 0: none)"},
         {"seed", "", ParamType::Integer, 1, 0, 9e15, {}, "analog noise seed"},
         {"latency_samples", "samples", ParamType::Integer, 0, 0, 1e6, {}, "pure delay from DAC to ADC"},
         {"drop_after", "samples", ParamType::Integer, -1, -1, 9e15, {}, "fault: lose drop_count input samples from this index (-1: never)"},

@@ -6,6 +6,8 @@
 #include <Eigen/Dense>
 
 #include <cmath>
+#include <cstdio>
+#include <string>
 
 namespace fringe {
 
@@ -169,8 +171,27 @@ nlohmann::json bounds_json(const EncoderProfile& truth, const est::Estimator& e,
         against = "";  // no declared prior: no tracking bound to grade against
     }
     if (!against.empty() && mse > 0) {
-        j["efficiency"] = graded / mse;
+        const double eff = graded / mse;
+        j["efficiency"] = eff;
         j["efficiency_against"] = against;
+        // No estimator beats the bound it is graded against by more than the scatter of a
+        // finite run: well above 1, the bound is not the estimator's (a tracker declaring a wider
+        // prior than it runs, or a tracker declared memoryless). Named, and no limit passes on it.
+        if (eff > kMaxCredibleEfficiency) {
+            char b[64];
+            std::snprintf(b, sizeof b, "%.3g", eff);
+            const auto p = e.prior();
+            std::string why = std::string("efficiency ") + b + " against " + against + " is above " + std::to_string(kMaxCredibleEfficiency).substr(0, 3) +
+                              ": no estimator beats the bound of its own model by that much, so the bound is not this estimator's: ";
+            if (p) {
+                std::snprintf(b, sizeof b, "%.4g", p->natural_freq_hz);
+                why += std::string("its declared prior (") + (p->kinematics == est::Kinematics::CV ? "cv" : "ca") + ", natural_freq_hz " + b +
+                       ") is likely wider than the loop it runs; declare the prior it actually uses";
+            } else {
+                why += "it is graded as memoryless (per-sample bound) but averages over samples like a tracker; declare it a tracker with its prior";
+            }
+            j["efficiency_not_credible"] = why;
+        }
     } else {
         j["efficiency"] = nullptr;
         j["efficiency_against"] = against.empty() ? "none (the estimator declares no prior)" : against;

@@ -57,6 +57,10 @@ EncoderProfile delivered_profile(const EncoderProfile& enc, const dev::Converter
 // Bounds for a scored run of an estimator: per-sample CRB, PCRB for its declared prior,
 // batch bound over the scored samples, and the efficiency against the bound MODEL.md 6
 // assigns to its class.
+// An efficiency above this against the graded bound is not credible (bounds_json's
+// "efficiency_not_credible"): the bound rests on a model the estimator does not follow.
+inline constexpr double kMaxCredibleEfficiency = 1.2;
+
 nlohmann::json bounds_json(const EncoderProfile& truth, const est::Estimator& e, double sample_rate_hz,
                            std::uint64_t scored_samples, double rms_rad, int channels = 3);
 

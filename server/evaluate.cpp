@@ -154,7 +154,9 @@ json evaluate_capture(const EvaluateOptions& o) {
                     std::to_string(m.invalid_after_settle) + " of them marked invalid by the estimator";
     }
     json diag = json::array();
-    for (const auto& f : conventions.findings()) diag.push_back({{"code", f.code}, {"message", f.message}});
+    const auto findings = conventions.findings();
+    r["metrics"]["convention_violations"] = findings.size();
+    for (const auto& f : findings) diag.push_back({{"code", f.code}, {"message", f.message}});
     const auto fmt3 = [](double x) { char b[32]; std::snprintf(b, sizeof b, "%.3g", x); return std::string(b); };
     if (m.after_settle > 0 && m.scored > 0) {
         const double vf = static_cast<double>(m.scored) / static_cast<double>(m.after_settle);
@@ -174,11 +176,14 @@ json evaluate_capture(const EvaluateOptions& o) {
                                             fmt3(o.settle_s) + " s covers " + fmt3(cycles) +
                                             " electrical cycles of travel, so the score includes its learning (raise --settle-s)"}});
     }
-    r["diagnosis"] = diag;
-    if (truth_enc && m.scored > 0)
+    if (truth_enc && m.scored > 0) {
         r["bounds"] = bounds_json(*truth_enc, *estimator, fs, m.scored, m.rms_rad);
-    else
+        if (r["bounds"].value("efficiency_not_credible", json()).is_string())
+            diag.push_back({{"code", "efficiency_not_credible"}, {"message", r["bounds"]["efficiency_not_credible"]}});
+    } else {
         r["bounds"] = nullptr;
+    }
+    r["diagnosis"] = diag;
     return r;
 }
 

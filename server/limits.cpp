@@ -1,6 +1,7 @@
 #include "limits.hpp"
 
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 
 namespace fringe {
@@ -10,6 +11,12 @@ using nlohmann::json;
 namespace {
 
 // harmonic_<k>x_rad -> k (1..64), else 0
+std::string fmt_g(double v) {
+    char b[32];
+    std::snprintf(b, sizeof b, "%.4g", v);
+    return b;
+}
+
 int harmonic_order(const std::string& name) {
     if (name.rfind("harmonic_", 0) != 0 || name.size() < 15 || name.compare(name.size() - 5, 5, "x_rad") != 0) return 0;
     const std::string digits = name.substr(9, name.size() - 14);
@@ -19,6 +26,35 @@ int harmonic_order(const std::string& name) {
 }
 
 }  // namespace
+
+std::optional<std::pair<double, double>> metric_interval(const std::string& name, const json& metrics, double value) {
+    if (!metrics.is_object()) return std::nullopt;
+    const json u = metrics.value("uncertainty", json());
+    if (!u.is_object()) return std::nullopt;
+    auto iv = [](const json& j) -> std::optional<std::pair<double, double>> {
+        if (!j.is_array() || j.size() != 2 || !j[0].is_number() || !j[1].is_number()) return std::nullopt;
+        return std::make_pair(j[0].get<double>(), j[1].get<double>());
+    };
+    // The same figure in other units: the interval scales with it.
+    auto scaled = [&](const char* key, const char* stat) -> std::optional<std::pair<double, double>> {
+        auto r = iv(u.value(key, json()));
+        const json s = metrics.value(stat, json());
+        if (!r || !s.is_object() || !s.value("rad", json()).is_number()) return std::nullopt;
+        const double rad = s["rad"].get<double>();
+        if (rad == 0) return std::nullopt;
+        const double k = value / rad;
+        return std::make_pair(std::min(r->first * k, r->second * k), std::max(r->first * k, r->second * k));
+    };
+    if (name == "rms_rad" || name == "rms_percent_period" || name == "rms_arcsec_mech") return scaled("rms_rad", "rms");
+    if (name == "std_rad") return iv(u.value("std_rad", json()));
+    if (name == "mean_rad") return iv(u.value("mean_rad", json()));
+    if (name == "broadband_rms_rad") return iv(u.value("broadband_rms_rad", json()));
+    if (const int k = harmonic_order(name)) {
+        for (const auto& h : u.value("harmonics", json::array()))
+            if (h.value("order", 0) == k) return iv(h.value("amplitude_rad", json()));
+    }
+    return std::nullopt;
+}
 
 const std::vector<MetricInfo>& metric_catalog() {
     static const std::vector<MetricInfo> m = [] {
@@ -39,6 +75,7 @@ const std::vector<MetricInfo>& metric_catalog() {
             {"scored_samples", "samples", "valid samples after the settle time (evidence)"},
             {"scored_cycles", "cycles", "electrical cycles of truth under the scored samples (evidence)"},
             {"valid_fraction", "", "valid share of the samples after the settle time (evidence)"},
+            {"convention_violations", "findings", "output conventions broken: wrapped theta, degrees (evidence; docs/model.md)"},
             {"harmonic_power_fraction", "", "share of the error variance in the fitted harmonics"},
             {"broadband_rms_rad", "rad", "rms error left after the fitted harmonics"},
             {"abz_illegal_transitions", "transitions", "DUT ABZ readout: A and B changed together (docs/abz.md)"},
@@ -97,6 +134,7 @@ std::optional<double> metric_value(const std::string& name, const json& metrics,
     if (name == "lock_time_s") return num(metrics.value("lock_time_s", json()), "never locked (the error did not stay within 0.1 rad to the end)");
     if (name == "efficiency") {
         if (!bounds.is_object()) return none("no bound (nothing scored, or no signal model)");
+        if (bounds.value("efficiency_not_credible", json()).is_string()) return none(bounds["efficiency_not_credible"].get<std::string>());
         if (bounds.value("efficiency", json()).is_number()) return bounds["efficiency"].get<double>();
         return none("no efficiency: " + bounds.value("efficiency_against", std::string("no bound")));
     }
@@ -108,6 +146,7 @@ std::optional<double> metric_value(const std::string& name, const json& metrics,
     if (name == "scored_samples") return num(ev.value("scored_samples", json()), "not counted");
     if (name == "scored_cycles") return num(ev.value("scored_cycles", json()), "not counted");
     if (name == "valid_fraction") return num(ev.value("valid_fraction", json()), "no samples after the settle time");
+    if (name == "convention_violations") return num(metrics.value("convention_violations", json()), "not checked (no truth to compare the output with)");
     const json ha = metrics.value("harmonic_analysis", json::object());
     if (name == "harmonic_power_fraction") return num(ha.value("power_fraction", json()), "harmonics not fitted");
     if (name == "broadband_rms_rad") return num(ha.value("broadband_rms_rad", json()), "harmonics not fitted");
@@ -160,6 +199,18 @@ json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus statu
         } else if ((max && *v > *max) || (min && *v < *min)) o = Verdict::Fail;
         else if (max && *v > *max - marginal * std::fabs(*max)) o = Verdict::Marginal;
         else if (min && *v < *min + marginal * std::fabs(*min)) o = Verdict::Marginal;
+        // Every error figure has a 95 % interval: a limit inside it is no confident decision.
+        if (v && status == RunStatus::Done && !implicit) {
+            if (const auto iv = metric_interval(metric, ej.value("metrics", json()), *v)) {
+                mj["interval_95"] = json::array({iv->first, iv->second});
+                auto inside = [&](const std::optional<double>& l) { return l && iv->first <= *l && *l <= iv->second; };
+                if ((inside(max) || inside(min)) && (o == Verdict::Pass || o == Verdict::Fail)) {
+                    mj["reason"] = std::string("the limit lies within the value's 95 % interval [") + fmt_g(iv->first) + ", " + fmt_g(iv->second) +
+                                   "]: not a confident " + (o == Verdict::Pass ? "PASS" : "FAIL") + " (a longer run narrows it)";
+                    o = Verdict::Marginal;
+                }
+            }
+        }
         mj["outcome"] = to_string(o);
         verdict = worse(verdict, o);
         out.push_back(std::move(mj));
@@ -170,6 +221,10 @@ json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus statu
         measure(label, "scored_samples", std::nullopt, static_cast<double>(r.min_scored_samples), 0.0, true, ej);
         if (r.min_scored_cycles > 0) measure(label, "scored_cycles", std::nullopt, r.min_scored_cycles, 0.0, true, ej);
         measure(label, "valid_fraction", std::nullopt, r.min_valid_fraction, 0.0, true, ej);
+        // An estimator that slipped cycles or broke the output conventions (wrapped theta,
+        // degrees) is broken whatever the user's limits say: these are evidence too.
+        measure(label, "slipped_samples", static_cast<double>(r.max_slipped_samples), std::nullopt, 0.0, true, ej);
+        measure(label, "convention_violations", 0.0, std::nullopt, 0.0, true, ej);
     }
     for (const auto& l : sc.limits) {
         if (const auto mi = find_metric(l.metric); mi && mi->run_level) {  // once for the run

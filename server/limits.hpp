@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 
 #include <optional>
+#include <utility>
 #include <string>
 #include <vector>
 
@@ -25,6 +26,10 @@ std::optional<MetricInfo> find_metric(const std::string& name);  // nullopt if u
 // be measured; why in *why when given).
 std::optional<double> metric_value(const std::string& name, const nlohmann::json& metrics, const nlohmann::json& bounds,
                                    std::string* why = nullptr);
+
+// A metric's 95 % interval from the report's metrics "uncertainty" (value: the metric's value, for
+// the same figure in other units); nullopt for metrics without one (extremes, counts, evidence).
+std::optional<std::pair<double, double>> metric_interval(const std::string& name, const nlohmann::json& metrics, double value);
 
 // The measurements of a finished run (report "measurements") from its "estimators" array.
 // status: the run's; measurements of a run that did not complete are ERROR. verdict receives

@@ -252,9 +252,16 @@ json score_lanes(const Scenario& sc, const dev::DeviceInfo& dinfo, std::vector<s
             ej["bounds"] = nullptr;
         }
         json diag = json::array();
-        for (const auto& f : lane->conventions.findings()) {
+        const auto findings = lane->conventions.findings();
+        ej["metrics"]["convention_violations"] = findings.size();
+        for (const auto& f : findings) {
             diag.push_back({{"code", f.code}, {"message", f.message}});
             warnings.push_back({{"severity", "warning"}, {"code", f.code}, {"field", "estimators." + lane->spec->label}, {"message", lane->spec->label + ": " + f.message}});
+        }
+        if (ej["bounds"].is_object() && ej["bounds"].value("efficiency_not_credible", json()).is_string()) {
+            const std::string msg = ej["bounds"]["efficiency_not_credible"].get<std::string>();
+            diag.push_back({{"code", "efficiency_not_credible"}, {"message", msg}});
+            warnings.push_back({{"severity", "warning"}, {"code", "efficiency_not_credible"}, {"field", "estimators." + lane->spec->label}, {"message", lane->spec->label + ": " + msg}});
         }
         ej["diagnosis"] = diag;
         out.push_back(std::move(ej));

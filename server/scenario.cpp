@@ -97,6 +97,7 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
         s.scoring.min_scored_samples = static_cast<std::uint64_t>(sr.integer("min_scored_samples", 1000, 1, 1LL << 53));
         s.scoring.min_scored_cycles = sr.number("min_scored_cycles", s.scoring.min_scored_cycles, 0.0, 1e12);
         s.scoring.min_valid_fraction = sr.number("min_valid_fraction", s.scoring.min_valid_fraction, 0.0, 1.0);
+        s.scoring.max_slipped_samples = static_cast<std::uint64_t>(sr.integer("max_slipped_samples", 0, 0, 1LL << 53));
         sr.finish();
     }
     if (r.has("estimators")) {
@@ -163,7 +164,8 @@ void to_json(json& j, const Scenario& s) {
     if (!s.dut.empty()) j["dut"] = s.dut;
     if (!s.dut_part.empty()) j["dut_part"] = s.dut_part;
     j["scoring"] = {{"max_harmonic", s.scoring.max_harmonic}, {"min_scored_samples", s.scoring.min_scored_samples},
-                    {"min_scored_cycles", s.scoring.min_scored_cycles}, {"min_valid_fraction", s.scoring.min_valid_fraction}};
+                    {"min_scored_cycles", s.scoring.min_scored_cycles}, {"min_valid_fraction", s.scoring.min_valid_fraction},
+                    {"max_slipped_samples", s.scoring.max_slipped_samples}};
     auto est = json::array();
     for (const auto& e : s.estimators) {
         json x{{"name", e.name}, {"label", e.label}, {"params", e.params}};

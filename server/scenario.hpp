@@ -38,6 +38,7 @@ struct ScoringRules {
     std::uint64_t min_scored_samples = 1000;
     double min_scored_cycles = 3.0;         // electrical cycles of truth under the scored samples
     double min_valid_fraction = 0.95;       // valid share of the samples after the settle time
+    std::uint64_t max_slipped_samples = 0;  // scored samples off by more than pi (cycle slips)
 };
 
 struct Scenario {

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 
 namespace fringe {
 
@@ -102,6 +103,8 @@ void Scorer::process(std::size_t n, const double* e_raw, const double* th, const
         s1_.push_back(s);
         c1_.push_back(c);
         es.push_back(e);
+        batch0_sum_ += e;
+        if (++batch0_n_ == kBatch0) { batch_done(batch0_sum_); batch0_sum_ = 0; batch0_n_ = 0; }
         const double w = th[i] - kTwoPi * std::floor(th[i] / kTwoPi);  // [0, 2*pi)
         const auto b = std::min<long>(kAngleBins - 1, static_cast<long>(w / kTwoPi * kAngleBins));
         ++bins_[static_cast<std::size_t>(b)];
@@ -112,7 +115,7 @@ void Scorer::process(std::size_t n, const double* e_raw, const double* th, const
         cm_.assign(c1_.begin(), c1_.end());
         sm_.assign(s1_.begin(), s1_.end());
         sum_cos_[0] += static_cast<double>(ns);
-        for (std::size_t i = 0; i < ns; ++i) sum_e_ += es[i];
+        for (std::size_t i = 0; i < ns; ++i) { sum_e_ += es[i]; sum_e2_ += es[i] * es[i]; }
         const int M = 2 * o_.max_harmonic;
         for (int m = 1; m <= M; ++m) {
             double sc = 0, ss = 0, sec = 0, ses = 0;
@@ -134,6 +137,26 @@ void Scorer::process(std::size_t n, const double* e_raw, const double* th, const
         }
     }
     if (sink_) sink_(n, e_.data(), ok);
+}
+
+// A completed batch of 64 samples (sum of e, rad): record its mean at level 0 and carry the sum
+// up, where two batches make one of the next level.
+void Scorer::batch_done(double sum) {
+    double size = kBatch0;
+    for (int l = 0; l < kBatchLevels; ++l, size *= 2) {
+        BatchLevel& b = batches_[l];
+        if (l > 0) {
+            b.partial += sum;
+            if (++b.parts < 2) return;
+            sum = b.partial;
+            b.partial = 0;
+            b.parts = 0;
+        }
+        const double m = sum / size;
+        b.s1 += m;
+        b.s2 += m * m;
+        ++b.n;
+    }
 }
 
 ErrorMetrics Scorer::finish() {
@@ -186,15 +209,16 @@ ErrorMetrics Scorer::finish() {
                 const Eigen::VectorXd d = ldlt.vectorD();
                 if (ldlt.info() != Eigen::Success || !ldlt.isPositive() || !(d.minCoeff() > 1e-9 * d.maxCoeff())) continue;
                 const Eigen::VectorXd b = ldlt.solve(y);
-                double power = 0;
                 for (int k = 1; k <= K; ++k) {
                     const double a = b(2 * k - 1), c = b(2 * k);
                     m.harmonics.push_back({k, std::hypot(a, c), std::atan2(c, a)});
-                    power += 0.5 * (a * a + c * c);
                 }
-                const double var = m2_ / static_cast<double>(m.scored);
-                m.harmonic_power_fraction = var > 0 ? std::min(1.0, power / var) : 0.0;
-                m.broadband_rms_rad = std::sqrt(std::max(0.0, var - power));
+                // What the fit leaves, from the same least squares: the residual sum of squares
+                // is sum e^2 - b'y at the solution. Over a non-integer number of cycles the
+                // harmonics are not orthogonal, so var - sum(a_k^2)/2 would be wrong (it was).
+                const double rss = std::max(0.0, sum_e2_ - b.dot(y));
+                m.harmonic_power_fraction = m2_ > 0 ? std::clamp(1.0 - rss / m2_, 0.0, 1.0) : 0.0;
+                m.broadband_rms_rad = std::sqrt(rss / static_cast<double>(m.scored));
                 if (K < o_.max_harmonic)
                     m.harmonics_note = "orders above " + std::to_string(K) + "x not fitted: " +
                                        (K == by_samples && K < covered / 4 ? std::to_string(m.scored) + " scored samples support no more (at most a quarter as many unknowns)"
@@ -202,6 +226,21 @@ ErrorMetrics Scorer::finish() {
                                                                                  std::to_string(kAngleBins) + " angle bins) to separate more");
             }
             if (m.harmonics.empty()) m.harmonics_note = "the scored samples visit too few distinct electrical angles to separate harmonics";
+        }
+        // Correlation time from batch means (the Bartlett estimate of the spectral density at 0).
+        const double var = m2_ / static_cast<double>(m.scored);
+        if (var > 0) {
+            for (int l = kBatchLevels - 1; l >= 0; --l) {
+                const BatchLevel& b = batches_[l];
+                const std::uint64_t need = l == 0 ? 4 : 32;
+                if (b.n < need) continue;
+                const double nb = static_cast<double>(b.n);
+                const double vb = std::max(0.0, (b.s2 - b.s1 * b.s1 / nb) / (nb - 1));
+                const double size = static_cast<double>(kBatch0) * std::ldexp(1.0, l);
+                m.correlation_samples = std::clamp(size * vb / var, 1.0, static_cast<double>(m.scored));
+                m.correlation_batch = static_cast<std::uint64_t>(size);
+                break;
+            }
         }
         if (om_n_) {
             m.have_rate = true;
@@ -218,14 +257,24 @@ ErrorMetrics Scorer::finish() {
 }
 
 void ConventionCheck::add(std::size_t n, const double* th_true, const double* th_hat, const std::uint8_t* valid) {
+    constexpr double kHalfTurnDeg = 180.0;
     for (std::size_t i = 0; i < n; ++i) {
         if (!valid[i] || !std::isfinite(th_hat[i]) || !std::isfinite(th_true[i])) { have_ = false; continue; }
+        min_hat_ = std::min(min_hat_, th_hat[i]);
+        max_hat_ = std::max(max_hat_, th_hat[i]);
         if (have_) {
             const double dt = th_true[i] - last_true_, dh = th_hat[i] - last_hat_;
             ++pairs_;
             sum_abs_dtrue_ += std::fabs(dt);
             sum_abs_dhat_ += std::fabs(dh);
             if (std::fabs(std::fabs(dh - dt) - kTwoPi) < 0.5) ++wrap_jumps_;
+            if (std::fabs(dh) > kHalfTurnDeg) {
+                ++deg_jumps_;
+            } else {
+                ++deg_pairs_;
+                deg_sum_abs_dtrue_ += std::fabs(dt);
+                deg_sum_abs_dhat_ += std::fabs(dh);
+            }
         }
         have_ = true;
         last_true_ = th_true[i];
@@ -235,15 +284,36 @@ void ConventionCheck::add(std::size_t n, const double* th_true, const double* th
 
 std::vector<ConventionCheck::Finding> ConventionCheck::findings() const {
     std::vector<Finding> f;
+    constexpr double kDeg = 180.0 / kPi;
+    auto fmt = [](double v) {
+        char b[32];
+        std::snprintf(b, sizeof b, "%.4g", v);
+        return std::string(b);
+    };
+    // Degrees first: wrapped degrees also jump, by 360, and the 2*pi test must not name them radians.
+    if (deg_sum_abs_dtrue_ > 0.1 && deg_pairs_ > 10) {
+        const double ratio = deg_sum_abs_dhat_ / deg_sum_abs_dtrue_;
+        if (std::fabs(ratio / kDeg - 1) < 0.1) {
+            std::string how = "theta changes " + fmt(ratio) + " times as fast as the truth (180/pi = 57.3): the output looks like degrees";
+            if (deg_jumps_ > 0) {
+                const char* range = min_hat_ >= -1e-9 && max_hat_ <= 360.0 + 1e-9 ? ", wrapped to [0, 360)"
+                                    : min_hat_ >= -180.0 - 1e-9 && max_hat_ <= 180.0 + 1e-9 ? ", wrapped to (-180, 180]"
+                                                                                                : ", wrapped";
+                how += std::string(range) + " (" + std::to_string(deg_jumps_) + " jumps of 360 between consecutive samples)";
+                f.push_back({"estimates_in_degrees_wrapped", how + "; theta must be unwrapped radians"});
+            } else {
+                f.push_back({"estimates_in_degrees", how + "; theta must be in radians"});
+            }
+            return f;
+        }
+    }
     if (wrap_jumps_ > 0)
         f.push_back({"estimates_wrapped", "theta jumps by 2*pi between consecutive samples " + std::to_string(wrap_jumps_) +
                                               " times while the truth does not: the output looks wrapped; theta must be unwrapped (continuous across cycles)"});
-    constexpr double kDeg = 180.0 / kPi;
-    if (sum_abs_dtrue_ > 0.1 && pairs_ > 10) {
+    else if (sum_abs_dtrue_ > 0.1 && pairs_ > 10) {
         const double ratio = sum_abs_dhat_ / sum_abs_dtrue_;
         if (std::fabs(ratio / kDeg - 1) < 0.1)
-            f.push_back({"estimates_in_degrees", "theta changes " + std::to_string(ratio).substr(0, 5) +
-                                                     " times as fast as the truth (180/pi = 57.3): the output looks like degrees; theta must be in radians"});
+            f.push_back({"estimates_in_degrees", "theta changes " + fmt(ratio) + " times as fast as the truth (180/pi = 57.3): the output looks like degrees; theta must be in radians"});
     }
     return f;
 }
@@ -252,6 +322,58 @@ nlohmann::json angle_units(double rad, int lines) {
     nlohmann::json j{{"rad", rad}, {"percent_period", rad / kTwoPi * 100.0}};
     j["arcsec_mech"] = lines > 0 ? nlohmann::json(rad / lines * (180.0 / kPi) * 3600.0) : nlohmann::json();
     return j;
+}
+
+namespace {
+
+constexpr double kZ95 = 1.959963984540054;  // two-sided 95 % normal quantile
+
+// Chi-square quantile with nu degrees of freedom at normal quantile z (Wilson-Hilferty; within
+// 1 % of the exact value for nu >= 3).
+double chi2_quantile(double nu, double z) {
+    const double a = 2.0 / (9.0 * nu);
+    const double c = 1.0 - a + z * std::sqrt(a);
+    return nu * c * c * c;
+}
+
+}  // namespace
+
+nlohmann::json uncertainty_json(const ErrorMetrics& m) {
+    using nlohmann::json;
+    json u{{"confidence", 0.95},
+           {"method", "the error's correlation time tau = S(0)/variance from batch means (docs/model.md#uncertainty); "
+                      "independent samples = scored / tau; std and broadband rms by chi-square, mean and harmonics by the normal law, rms by the delta method"}};
+    if (!m.scored || !m.correlation_samples) {
+        u["note"] = m.scored ? "too few scored samples to estimate the error's correlation time (at least 4 batches of 64)" : "nothing scored";
+        return u;
+    }
+    const double tau = *m.correlation_samples, nu = static_cast<double>(m.scored) / tau;
+    u["correlation_samples"] = tau;
+    u["correlation_batch_samples"] = m.correlation_batch;
+    u["independent_samples"] = nu;
+    if (nu < 3) {
+        u["note"] = "fewer than 3 independent samples: no interval";
+        return u;
+    }
+    const double sigma = m.std_rad, mu = m.mean_rad;
+    auto pair = [](double lo, double hi) { return json::array({lo, hi}); };
+    const double chi_hi = chi2_quantile(nu, kZ95), chi_lo = chi2_quantile(nu, -kZ95);
+    auto spread = [&](double s) { return pair(s * std::sqrt(nu / chi_hi), s * std::sqrt(nu / std::max(chi_lo, 1e-300))); };
+    u["mean_rad"] = pair(mu - kZ95 * sigma / std::sqrt(nu), mu + kZ95 * sigma / std::sqrt(nu));
+    u["std_rad"] = spread(sigma);
+    // rms^2 = mu^2 + sigma^2; var(rms^2) ~ (2 sigma^4 + 4 mu^2 sigma^2) / nu
+    const double r2 = m.rms_rad * m.rms_rad, sd_r2 = std::sqrt((2 * sigma * sigma * sigma * sigma + 4 * mu * mu * sigma * sigma) / nu);
+    u["rms_rad"] = pair(std::sqrt(std::max(0.0, r2 - kZ95 * sd_r2)), std::sqrt(r2 + kZ95 * sd_r2));
+    if (!m.harmonics.empty()) {
+        u["broadband_rms_rad"] = spread(m.broadband_rms_rad);
+        // a least-squares cos/sin coefficient over nu independent samples of the residual: sd sigma_b sqrt(2/nu)
+        const double sd_a = m.broadband_rms_rad * std::sqrt(2.0 / nu);
+        json h = json::array();
+        for (const auto& x : m.harmonics)
+            h.push_back({{"order", x.order}, {"amplitude_rad", pair(std::max(0.0, x.amplitude_rad - kZ95 * sd_a), x.amplitude_rad + kZ95 * sd_a)}});
+        u["harmonics"] = h;
+    }
+    return u;
 }
 
 nlohmann::json to_json(const ErrorMetrics& m, int lines) {
@@ -279,6 +401,7 @@ nlohmann::json to_json(const ErrorMetrics& m, int lines) {
     if (m.omega_nonfinite) j["omega_nonfinite_samples"] = m.omega_nonfinite;
     j["lag_s"] = m.lag_s ? json(*m.lag_s) : json();
     j["lock_time_s"] = m.lock_time_s ? json(*m.lock_time_s) : json();
+    j["uncertainty"] = uncertainty_json(m);
     return j;
 }
 

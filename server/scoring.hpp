@@ -48,13 +48,20 @@ struct ErrorMetrics {
     std::string harmonics_note;
     int harmonics_requested = 0;        // max_harmonic asked for
     double harmonic_power_fraction = 0; // share of the error variance the fitted harmonics explain
-    double broadband_rms_rad = 0;       // rms of what is left: sqrt(variance - harmonic power)
+    double broadband_rms_rad = 0;       // rms of the least-squares residual of [mean + harmonics 1..K] (rad)
     bool have_rate = false;
     double omega_error_mean_rad_s = 0, omega_error_std_rad_s = 0;
     std::uint64_t omega_nonfinite = 0;  // scored samples whose rate estimate was NaN/inf
     std::optional<double> lag_s;        // mean phase error / mean true rate (moving runs only)
     std::optional<double> lock_time_s;  // after the last sample with |wrap(e)| > lock threshold or invalid
     double mean_abs_omega_true_rad_s = 0;  // electrical, over scored samples with rate truth
+    // The error's correlation time (samples): tau = S(0) / sigma^2 with S(0) its two-sided
+    // spectral density at zero frequency (per sample), estimated by batch means (Bartlett):
+    // tau_B = B var(batch means of B samples) / sigma^2 at the largest B with >= 32 batches
+    // (>= 4 of 64 samples on short runs).
+    // nullopt when fewer than 4 batches of 64 were scored. independent = scored / tau.
+    std::optional<double> correlation_samples;
+    std::uint64_t correlation_batch = 0;  // B used
 
     // valid share of the samples after the settle time; nullopt when there were none.
     std::optional<double> valid_fraction() const {
@@ -100,12 +107,20 @@ private:
     std::uint64_t om_n_ = 0;
     double sum_omega_true_ = 0, sum_abs_omega_true_ = 0;
     std::uint64_t n_omega_true_ = 0;
+    // Batch means for the correlation time: level l holds batches of 64 * 2^l scored samples.
+    struct BatchLevel { double partial = 0; int parts = 0; double s1 = 0, s2 = 0; std::uint64_t n = 0; };
+    static constexpr int kBatchLevels = 11;  // 64 .. 65536
+    static constexpr int kBatch0 = 64;
+    BatchLevel batches_[kBatchLevels];
+    double batch0_sum_ = 0;
+    int batch0_n_ = 0;
+    void batch_done(double sum);
     bool have_last_th_ = false;
     double last_th_ = 0;
     // Harmonic least squares on rows [1, cos k th, sin k th], k = 1..K: the normal equations
     // need only sums of cos(m th), sin(m th) for m = 0..2K and of e*cos(k th), e*sin(k th).
     std::vector<double> sum_cos_, sum_sin_, sum_ecos_, sum_esin_;
-    double sum_e_ = 0;
+    double sum_e_ = 0, sum_e2_ = 0;
     std::vector<std::uint32_t> bins_;
     // block scratch
     std::vector<double> cm_, sm_, c1_, s1_, e_;
@@ -114,8 +129,11 @@ private:
 };
 
 // Signs that an estimator's output does not follow fringe's conventions (theta unwrapped, in
-// radians): jumps of 2*pi between consecutive samples (wrapped output) or a rate 180/pi times
-// the truth's (degrees). Fed every sample with valid estimates and known truth.
+// radians): jumps of 2*pi between consecutive samples while the truth moves smoothly (radians,
+// wrapped), or a rate 180/pi times the truth's (degrees), with or without jumps of 360 (degrees
+// wrapped to [0, 360) or (-180, 180]). Fed every sample with valid estimates and known truth.
+// A finding is an evidence check of the run (docs/model.md "Output conventions"): a lane with
+// one never PASSes.
 class ConventionCheck {
 public:
     void add(std::size_t n, const double* theta_true, const double* theta_hat, const std::uint8_t* valid);
@@ -127,11 +145,20 @@ private:
     double last_true_ = 0, last_hat_ = 0;
     std::uint64_t pairs_ = 0, wrap_jumps_ = 0;
     double sum_abs_dtrue_ = 0, sum_abs_dhat_ = 0;
+    // Degrees: pairs whose output step is beyond 180 (no valid degree output moves half a turn
+    // between two samples, since the truth moves less than pi rad) are wrap jumps of 360; the
+    // rate ratio is measured over the other pairs.
+    std::uint64_t deg_pairs_ = 0, deg_jumps_ = 0;
+    double deg_sum_abs_dtrue_ = 0, deg_sum_abs_dhat_ = 0;
+    double min_hat_ = 1e300, max_hat_ = -1e300;
 };
 
 // Angles in the report's three units (DESIGN.md): electrical rad, % of a signal period,
 // mechanical arcsec.
 nlohmann::json angle_units(double rad, int lines_per_rev);
 nlohmann::json to_json(const ErrorMetrics& m, int lines_per_rev);
+// 95 % intervals of the error figures from the number of independent samples they rest on
+// (metrics "uncertainty"; docs/model.md#uncertainty).
+nlohmann::json uncertainty_json(const ErrorMetrics& m);
 
 }  // namespace fringe

@@ -18,12 +18,12 @@ r = json.load(open(d + "/r.json"))
 assert r["schema"] == "fringe.report" and r["verdict"] == "PASS", r["verdict"]
 suite = ET.parse(d + "/r.xml").getroot().find("testsuite")
 cases = suite.findall("testcase")
-# 4 limits, and the 3 evidence checks of each of the 3 estimators first
+# 4 limits, and the 5 evidence checks of each of the 3 estimators first
 assert r["schema_version"] == 2
-assert len(cases) == len(r["measurements"]) == 13, len(cases)
+assert len(cases) == len(r["measurements"]) == 19, len(cases)  # five evidence checks for each of three estimators, and four limits
 props = {p.get("name"): p.get("value") for p in cases[0].find("properties")}
 assert props["unit"] == "samples" and props["evidence"] == "true" and props["outcome"] == "PASS", props
-props = {p.get("name"): p.get("value") for p in cases[9].find("properties")}
+props = {p.get("name"): p.get("value") for p in cases[15].find("properties")}
 assert props["unit"] == "rad" and "max" in props and props["outcome"] == "PASS", props
 html = open(d + "/r.html").read()
 assert html.count("<svg") >= 4 and "PASS" in html

@@ -16,7 +16,7 @@ PY
 cd "$dir"
 "$FRINGE" run my-board.json --data "$dir/data" --html my-board.html > out.txt || { cat out.txt; echo "FAIL: the README's first run did not PASS"; exit 1; }
 grep -q "my-board PASS (done)" out.txt || { cat out.txt; echo "FAIL: verdict line"; exit 1; }
-grep -q "PASS     atan2 rms_rad = .* rad (limit <= 0.001)" out.txt || { cat out.txt; echo "FAIL: the limit line the README shows"; exit 1; }
+grep -q "PASS     atan2 rms_rad = .* rad (95 % .*) (limit <= 0.001)" out.txt || { cat out.txt; echo "FAIL: the limit line the README shows"; exit 1; }
 grep -q "samples per electrical cycle" out.txt || { cat out.txt; echo "FAIL: the preflight warning the README explains"; exit 1; }
 grep -qi "<html" my-board.html || { echo "FAIL: --html"; exit 1; }
 id=$("$FRINGE" runs --data "$dir/data" --json | /usr/bin/python3 -c 'import json,sys; print(json.load(sys.stdin)[0]["id"])')

@@ -6,6 +6,9 @@
 //   missing       never answers the last input frame (exits on EOF one short)
 //   wrapped       reports theta wrapped to (-pi, pi]
 //   degrees       reports theta and omega in degrees
+//   degrees-wrapped  theta in degrees wrapped to [0, 360) (VESC's enc_sincos_read_deg), omega in degrees/s
+//   degrees-signed   theta in degrees wrapped to (-180, 180]
+//   pll FN        a type-2 phase-locked loop of natural frequency FN Hz on atan2 (damping 0.707)
 //   nan-omega     a NaN rate on valid estimates from frame 5000 on
 //   env           exits 3 unless FRINGE_ENCODER_JSON names a readable file with "sample_rate_hz"
 #include <cmath>
@@ -30,6 +33,7 @@ int main(int argc, char** argv) {
     }
     const double two_pi = 6.283185307179586, pi = two_pi / 2;
     double prev = 0, acc = 0;
+    double pll_th = 0, pll_om = 0;  // "pll": phase (rad, unwrapped) and rate (rad/s)
     long k = 0;
     std::string pending;  // "missing": each answer is held until the next input arrives
     double s, c;
@@ -49,6 +53,20 @@ int main(int argc, char** argv) {
         if (mode == "invalid") valid = 0;
         if (mode == "wrapped") th = std::remainder(acc, two_pi);
         if (mode == "degrees") { th = acc * 180 / pi; om = om * 180 / pi; }
+        if (mode == "degrees-wrapped") { th = std::fmod(acc * 180 / pi, 360.0); if (th < 0) th += 360; om = om * 180 / pi; }
+        if (mode == "degrees-signed") { th = std::remainder(acc * 180 / pi, 360.0); om = om * 180 / pi; }
+        if (mode == "pll") {
+            const double T = 1 / fs, wn = two_pi * amp, kp = 2 * 0.7071 * wn * T, ki = wn * wn * T * T;
+            if (k == 0) { pll_th = a; pll_om = 0; }
+            else {
+                const double pred = pll_th + pll_om * T;
+                const double e = std::remainder(a - pred, two_pi);
+                pll_th = pred + kp * e;
+                pll_om += ki / T * e;
+            }
+            th = pll_th;
+            om = pll_om;
+        }
         if (mode == "nan-omega" && k >= 5000) om = std::nan("");
         char line[128];
         std::snprintf(line, sizeof line, "%.17g %.17g %g\n", th, om, valid);

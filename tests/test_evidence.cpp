@@ -190,7 +190,7 @@ TEST_CASE("bounds: the device's quantisation and noise are in the bound", "[evid
     // per-sample CRB is that / A.
     const double q = 2.5 / 256, sigma = 2e-4, n = 5e-3;
     const double white = std::sqrt(sigma * sigma + 2 * q * q / 12 + n * n);
-    Scenario sc = ideal_run(0.3, 0.05, "loopback:?dac_bits=8&adc_bits=8&range_v=1.25&noise_v=5e-3");
+    Scenario sc = ideal_run(0.3, 0.05, "loopback:?dac_bits=8&adc_bits=8&range_v=1.25&noise_v=5e-3&noise_lsb=0");
     sc.limits = {{"atan2", "efficiency", std::nullopt, 0.5, 0.0}};
     const json r = execute_run(sc);
     const auto& b = r["estimators"][0]["bounds"];
@@ -201,8 +201,12 @@ TEST_CASE("bounds: the device's quantisation and noise are in the bound", "[evid
     CHECK(eff > 0.8);
     CHECK(eff < 1.25);
     CHECK(r["verdict"] == "PASS");
-    // Without that noise the ADC re-reads the DAC's own grid (filter or not): one quantisation.
-    const json r1 = execute_run(ideal_run(0.3, 0.05, "loopback:?dac_bits=8&adc_bits=8&range_v=1.25&aa_cutoff_hz=40000"));
+    // By default the chain adds its own noise, one LSB of the finer converter, in quadrature.
+    const json rd = execute_run(ideal_run(0.3, 0.05, "loopback:?dac_bits=8&adc_bits=8&range_v=1.25&noise_v=5e-3"));
+    CHECK(rd["estimators"][0]["bounds"]["signal_as_delivered"]["white_noise_v"].get<double>() ==
+          Approx(std::sqrt(sigma * sigma + 2 * q * q / 12 + n * n + q * q)).epsilon(1e-9));
+    // Without any noise the ADC re-reads the DAC's own grid (filter or not): one quantisation.
+    const json r1 = execute_run(ideal_run(0.3, 0.05, "loopback:?dac_bits=8&adc_bits=8&range_v=1.25&aa_cutoff_hz=40000&noise_lsb=0"));
     const auto& b1 = r1["estimators"][0]["bounds"];
     CHECK(b1["signal_as_delivered"]["white_noise_v"].get<double>() == Approx(std::sqrt(sigma * sigma + q * q / 12)).epsilon(1e-9));
     CHECK(b1["efficiency"].get<double>() > 0.8);
@@ -329,6 +333,125 @@ TEST_CASE("external: the contract's violations are errors naming what happened",
     SECTION("the child gets the encoder and sampling as JSON") {
         const json r = run_with("env");
         CHECK(r["status"] == "done");
+    }
+}
+
+TEST_CASE("evidence: without user limits a lane that slipped or broke the conventions never PASSes", "[evidence][external]") {
+    auto run_without_limits = [](const std::string& mode) {
+        Scenario sc = ideal_run(0.3, 0.1);
+        sc.estimators[0] = {"external", "fw", {{"command", external(mode)}, {"timeout_s", 2.0}}, std::nullopt};
+        sc.limits.clear();
+        return execute_run(sc);
+    };
+    auto has_warning = [](const json& r, const std::string& code) {
+        for (const auto& w : r["warnings"])
+            if (w["code"] == code) return true;
+        return false;
+    };
+    SECTION("a plain atan2 child passes on evidence alone") {
+        const json r = run_without_limits("plain");
+        CHECK(r["verdict"] == "PASS");
+        REQUIRE(measurement(r, "fw", "convention_violations"));
+        CHECK(measurement(r, "fw", "convention_violations")->at("outcome") == "PASS");
+        CHECK(measurement(r, "fw", "slipped_samples")->at("outcome") == "PASS");
+    }
+    for (const std::string mode : {"degrees-wrapped", "degrees-signed", "degrees", "wrapped"}) {
+        SECTION("a child answering " + mode) {
+            const json r = run_without_limits(mode);
+            CHECK(r["verdict"] == "FAIL");
+            const json* cv = measurement(r, "fw", "convention_violations");
+            REQUIRE(cv);
+            CHECK(cv->at("outcome") == "FAIL");
+            CHECK(cv->at("implicit") == true);
+            const std::string code = mode == "wrapped" ? "estimates_wrapped" : mode == "degrees" ? "estimates_in_degrees" : "estimates_in_degrees_wrapped";
+            CHECK(has_warning(r, code));
+            if (mode == "degrees-wrapped") {
+                bool range = false;
+                for (const auto& w : r["warnings"]) range |= w["message"].get<std::string>().find("[0, 360)") != std::string::npos;
+                CHECK(range);
+            }
+        }
+    }
+}
+
+TEST_CASE("efficiency: a declared prior the estimator does not run is named, and an efficiency limit does not pass on it", "[evidence][external]") {
+    Scenario sc = ideal_run(0.5, 0.2);
+    // A 100 Hz loop that says it is a 1000 Hz one.
+    sc.estimators[0] = {"external", "fw", {{"command", external("pll 100")}, {"timeout_s", 2.0}, {"model", "tracker-cv"}, {"natural_freq_hz", 1000.0}}, std::nullopt};
+    sc.limits = {{"fw", "efficiency", std::nullopt, 0.5, 0.0}};
+    const json r = execute_run(sc);
+    REQUIRE(r["status"] == "done");
+    const json& b = r["estimators"][0]["bounds"];
+    INFO(b.dump());
+    CHECK(b["efficiency"].get<double>() > 2.0);
+    CHECK_THAT(b["efficiency_not_credible"].get<std::string>(), Catch::Contains("natural_freq_hz 1000"));
+    const json* m = measurement(r, "fw", "efficiency");
+    REQUIRE(m);
+    CHECK(m->at("outcome") == "FAIL");
+    CHECK_THAT(m->at("reason").get<std::string>(), Catch::Contains("not this estimator's"));
+    bool warned = false;
+    for (const auto& w : r["warnings"]) warned |= w["code"] == "efficiency_not_credible";
+    CHECK(warned);
+    // Told the truth about itself, the same loop is credible and passes.
+    sc.estimators[0].params["natural_freq_hz"] = 100.0;
+    const json ok = execute_run(sc);
+    CHECK(ok["estimators"][0]["bounds"]["efficiency"].get<double>() < 1.2);
+    CHECK_FALSE(ok["estimators"][0]["bounds"].contains("efficiency_not_credible"));
+    CHECK(measurement(ok, "fw", "efficiency")->at("outcome") == "PASS");
+}
+
+TEST_CASE("uncertainty: a limit inside the value's 95 % interval is MARGINAL, and each figure carries its interval", "[evidence][uncertainty]") {
+    Scenario sc = ideal_run(0.3, 0.1);  // atan2 on ideal quadrature: rms = sigma/A = 2e-4 rad
+    sc.limits.clear();
+    const json r0 = execute_run(sc);
+    const json& u = r0["estimators"][0]["metrics"]["uncertainty"];
+    INFO(u.dump());
+    const double rms = r0["estimators"][0]["metrics"]["rms"]["rad"].get<double>();
+    const double lo = u["rms_rad"][0].get<double>(), hi = u["rms_rad"][1].get<double>();
+    CHECK(lo < rms);
+    CHECK(rms < hi);
+    CHECK(lo < 2e-4);  // the truth is inside
+    CHECK(2e-4 < hi);
+    CHECK(u["independent_samples"].get<double>() > 1000);
+    // a limit just above the value, inside the interval: not a confident PASS
+    sc.limits = {{"atan2", "rms_rad", rms + 0.3 * (hi - rms), std::nullopt, 0.0}};
+    const json r1 = execute_run(sc);
+    const json* m = measurement(r1, "atan2", "rms_rad");
+    REQUIRE(m);
+    CHECK(m->at("outcome") == "MARGINAL");
+    CHECK_THAT(m->at("reason").get<std::string>(), Catch::Contains("95 % interval") && Catch::Contains("not a confident PASS"));
+    CHECK(m->at("interval_95").size() == 2);
+    // just below: not a confident FAIL
+    sc.limits = {{"atan2", "rms_rad", rms - 0.3 * (rms - lo), std::nullopt, 0.0}};
+    CHECK(measurement(execute_run(sc), "atan2", "rms_rad")->at("outcome") == "MARGINAL");
+    // well clear of it: confident both ways
+    sc.limits = {{"atan2", "rms_rad", 2 * hi, std::nullopt, 0.0}};
+    CHECK(measurement(execute_run(sc), "atan2", "rms_rad")->at("outcome") == "PASS");
+    sc.limits = {{"atan2", "rms_rad", lo / 2, std::nullopt, 0.0}};
+    CHECK(measurement(execute_run(sc), "atan2", "rms_rad")->at("outcome") == "FAIL");
+}
+
+TEST_CASE("loopback: an ideal encoder through common DAC/ADC bit pairs gets no offset of the chain's making", "[evidence][loopback]") {
+    // A noiseless ideal encoder; the loopback's own noise (1 LSB of the finer converter by
+    // default) is all there is. atan2's 1x harmonic (an offset's signature) must stay below a
+    // tenth of its rms. Before: 16-bit DAC into a 14-bit ADC gave 1x 2.7e-5 rad of rms 4.8e-5.
+    for (const auto& [dac, adc] : std::vector<std::pair<int, int>>{{16, 14}, {16, 12}, {14, 12}, {16, 16}, {12, 12}, {12, 16}, {18, 16}, {14, 16}, {10, 8}}) {
+        json j = {{"name", "ideal-loop"},
+                  {"encoder", {{"name", "ideal-1v"}, {"model", "ideal"}, {"lines_per_rev", 1024}, {"vmax_v", 1.0}, {"adc", {{"bits", 0}}}}},
+                  {"motion", {{"kind", "constant"}, {"electrical_freq_hz", 97.3}}},
+                  {"sample_rate_hz", 100000}, {"duration_s", 0.3}, {"settle_s", 0.05}, {"seed", 5},
+                  {"device", "loopback:?dac_bits=" + std::to_string(dac) + "&adc_bits=" + std::to_string(adc)},
+                  {"estimators", json::array({{{"name", "atan2"}}})}};
+        const json r = execute_run(scenario_from_json(j, src("fixtures/scenarios")));
+        REQUIRE(r["status"] == "done");
+        const json& m = r["estimators"][0]["metrics"];
+        const double rms = m["rms"]["rad"].get<double>();
+        double h1 = 0;
+        for (const auto& h : m["harmonics"])
+            if (h["order"] == 1) h1 = h["amplitude"]["rad"].get<double>();
+        INFO("DAC " << dac << " bit, ADC " << adc << " bit: rms " << rms << " rad, 1x " << h1 << " rad");
+        CHECK(rms > 0);
+        CHECK(h1 < rms / 10);
     }
 }
 

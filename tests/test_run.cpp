@@ -56,7 +56,7 @@ TEST_CASE("loopback: transparent when ideal, exact latency, quantised on the ADC
         CHECK(d->info().latency_samples == 7);
     }
     {
-        auto d = dev::open("loopback:?dac_bits=0&adc_bits=10&range_v=1.25");
+        auto d = dev::open("loopback:?dac_bits=0&adc_bits=10&range_v=1.25&noise_lsb=0");
         d->start(fs);
         d->write(s, c);
         std::vector<double> rs(1000), rc(1000);
@@ -151,15 +151,17 @@ TEST_CASE("run: PASS, MARGINAL and FAIL from limits, and exit codes", "[run]") {
     r = run_with(l);
     CHECK(r["verdict"] == "MARGINAL");
     CHECK(exit_code(r) == 0);
-    l.max = rms * 0.95;
+    // Below the value's 95 % interval: a confident FAIL (inside it, MARGINAL: [uncertainty] tests).
+    const double lo = r["estimators"][0]["metrics"]["uncertainty"]["rms_rad"][0].get<double>();
+    l.max = lo * 0.9;
     r = run_with(l);
     CHECK(r["verdict"] == "FAIL");
     CHECK(exit_code(r) == 1);
-    // the limit's measurement follows the estimator's three implicit evidence checks
-    REQUIRE(r["measurements"].size() == 4);
-    CHECK(r["measurements"][3]["outcome"] == "FAIL");
-    CHECK(r["measurements"][3]["value"].get<double>() == rms);  // same seed: bit for bit
-    for (int k = 0; k < 3; ++k) CHECK(r["measurements"][k]["implicit"] == true);
+    // the limit's measurement follows the estimator's five implicit evidence checks
+    REQUIRE(r["measurements"].size() == 6);
+    CHECK(r["measurements"][5]["outcome"] == "FAIL");
+    CHECK(r["measurements"][5]["value"].get<double>() == rms);  // same seed: bit for bit
+    for (int k = 0; k < 5; ++k) CHECK(r["measurements"][k]["implicit"] == true);
     l = {};
     l.metric = "efficiency";
     l.min = 0.5;
@@ -244,7 +246,7 @@ TEST_CASE("report renderings: JUnit testcases per measurement, HTML with plots",
     const auto r = execute_run(sc);
     const std::string x = junit_xml(r);
     // 4 limits plus 3 evidence checks for each of the 3 estimators
-    CHECK_THAT(x, Catch::Contains("<testsuite name=\"fig10c-loopback\" tests=\"13\" failures=\"0\""));
+    CHECK_THAT(x, Catch::Contains("<testsuite name=\"fig10c-loopback\" tests=\"19\" failures=\"0\""));
     CHECK_THAT(x, Catch::Contains("name=\"rms_rad\""));
     CHECK_THAT(x, Catch::Contains("<property name=\"unit\" value=\"rad\"/>"));
     const std::string h = report_html(r);

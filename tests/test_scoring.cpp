@@ -8,6 +8,8 @@
 
 #include <catch2/catch.hpp>
 
+#include <Eigen/Dense>
+
 #include <random>
 
 using namespace fringe;
@@ -146,5 +148,125 @@ TEST_CASE("tracking bound: DARE solver against Kalata's closed form and the cont
         const auto b = tracking_bound(est::Kinematics::CA, q, r, T);
         CHECK(b.pcrb_rad2 == Approx(2 * wn * N).epsilon(0.01));
         CHECK(b.noise_only_rad2 == Approx(5.0 / 3.0 * wn * N).epsilon(0.02));
+    }
+}
+
+TEST_CASE("scorer: the broadband rest is the least-squares residual over a non-integer number of cycles", "[scoring]") {
+    // Strong 1x and 3x harmonics plus white noise over 7.37 electrical cycles: the harmonics are
+    // not orthogonal over that span, so var - sum(A_k^2)/2 is not the residual.
+    std::mt19937_64 rng(11);
+    std::normal_distribution<double> noise(0.0, 2e-4);
+    const double fs = 10000, w = kTwoPi * 50;  // 200 samples per cycle
+    const std::size_t n = static_cast<std::size_t>(7.37 * 200);
+    std::vector<double> e_true(n);
+    const Synthetic s = make(n, fs, w, [&](double th, std::size_t i) {
+        const double e = 3e-3 * std::cos(th - 0.4) + 1e-3 * std::cos(3 * th + 1.1) + 5e-4 + noise(rng);
+        e_true[i] = e;
+        return e;
+    });
+    Scorer sc(ScoringOptions{0.0, 0.1, 4});
+    sc.add(n, s.t.data(), s.th.data(), s.om.data(), s.est.data(), nullptr, s.valid.data());
+    const ErrorMetrics m = sc.finish();
+    REQUIRE(m.harmonics.size() == 4);
+    // The independent fit: QR on the samples themselves, columns 1, cos k th, sin k th (k = 1..4).
+    Eigen::MatrixXd A(n, 9);
+    Eigen::VectorXd y(n);
+    for (std::size_t i = 0; i < n; ++i) {
+        A(i, 0) = 1;
+        for (int k = 1; k <= 4; ++k) { A(i, 2 * k - 1) = std::cos(k * s.th[i]); A(i, 2 * k) = std::sin(k * s.th[i]); }
+        y(i) = e_true[i];
+    }
+    const Eigen::VectorXd b = A.colPivHouseholderQr().solve(y);
+    const Eigen::VectorXd r = y - A * b;
+    const double resid_rms = std::sqrt(r.squaredNorm() / static_cast<double>(n));
+    const double var = (y.array() - y.mean()).square().sum();
+    CHECK(m.broadband_rms_rad == Approx(resid_rms).epsilon(1e-6));
+    CHECK(m.harmonic_power_fraction == Approx(1.0 - r.squaredNorm() / var).epsilon(1e-9));
+    CHECK(m.broadband_rms_rad == Approx(2e-4).epsilon(0.1));  // the noise it was made of
+    CHECK(m.harmonics[0].amplitude_rad == Approx(std::hypot(b(1), b(2))).epsilon(1e-9));
+}
+
+TEST_CASE("output conventions: radians wrapped, degrees, and degrees wrapped either way are named", "[scoring]") {
+    const std::size_t n = 20000;
+    const double fs = 100000, w = kTwoPi * 137;  // 730 samples per cycle
+    auto run = [&](auto out) {
+        ConventionCheck c;
+        std::vector<double> th(n), hat(n);
+        std::vector<std::uint8_t> ok(n, 1);
+        for (std::size_t i = 0; i < n; ++i) {
+            th[i] = 5.0 + w * static_cast<double>(i) / fs;
+            hat[i] = out(th[i] + 1e-4 * std::sin(0.37 * static_cast<double>(i)));
+        }
+        c.add(n, th.data(), hat.data(), ok.data());
+        return c.findings();
+    };
+    const double deg = 180.0 / kPi;
+    auto code = [](const std::vector<ConventionCheck::Finding>& f) { return f.empty() ? std::string("none") : f[0].code; };
+    CHECK(code(run([](double x) { return x; })) == "none");
+    CHECK(code(run([](double x) { return std::remainder(x, kTwoPi); })) == "estimates_wrapped");
+    CHECK(code(run([&](double x) { return x * deg; })) == "estimates_in_degrees");
+    const auto wrapped360 = run([&](double x) { const double d = std::fmod(x * deg, 360.0); return d < 0 ? d + 360 : d; });
+    CHECK(code(wrapped360) == "estimates_in_degrees_wrapped");
+    CHECK_THAT(wrapped360[0].message, Catch::Contains("[0, 360)"));
+    const auto wrapped180 = run([&](double x) { return std::remainder(x * deg, 360.0); });
+    CHECK(code(wrapped180) == "estimates_in_degrees_wrapped");
+    CHECK_THAT(wrapped180[0].message, Catch::Contains("(-180, 180]"));
+    // Backwards motion too.
+    CHECK(code(run([&](double x) { return std::remainder(-x * deg, 360.0); })) != "none");
+}
+
+TEST_CASE("uncertainty: the correlation time and the 95 % intervals against closed forms", "[scoring][uncertainty]") {
+    const double fs = 100000, w = kTwoPi * 100;
+    SECTION("white noise: tau = 1, and the rms interval covers the true sigma 95 % of the time") {
+        int covered_rms = 0, covered_mean = 0, covered_std = 0, trials = 200;
+        double tau_sum = 0;
+        for (int seed = 0; seed < trials; ++seed) {
+            std::mt19937_64 rng(static_cast<std::uint64_t>(seed) + 100);
+            std::normal_distribution<double> noise(0.0, 1e-3);
+            const Synthetic s = make(8192, fs, w, [&](double, std::size_t) { return noise(rng); });
+            Scorer sc(ScoringOptions{0.0, 0.1, 1});
+            sc.add(s.t.size(), s.t.data(), s.th.data(), s.om.data(), s.est.data(), nullptr, s.valid.data());
+            const ErrorMetrics m = sc.finish();
+            REQUIRE(m.correlation_samples);
+            tau_sum += *m.correlation_samples;
+            const auto u = uncertainty_json(m);
+            covered_rms += u["rms_rad"][0].get<double>() <= 1e-3 && 1e-3 <= u["rms_rad"][1].get<double>();
+            covered_std += u["std_rad"][0].get<double>() <= 1e-3 && 1e-3 <= u["std_rad"][1].get<double>();
+            covered_mean += u["mean_rad"][0].get<double>() <= 0 && 0 <= u["mean_rad"][1].get<double>();
+        }
+        CHECK(tau_sum / trials == Approx(1.0).epsilon(0.15));
+        // Binomial(200, 0.95): 95 % of such counts lie in [184, 196]; the clamp tau >= 1 widens a little.
+        CHECK(covered_rms >= 180);
+        CHECK(covered_std >= 180);
+        CHECK(covered_mean >= 180);
+        CHECK(covered_mean <= 200);
+    }
+    SECTION("AR(1) noise: tau = (1 + rho) / (1 - rho), and the mean's interval covers 0 about 95 % of the time") {
+        const double rho = 0.9;  // tau = 19 samples
+        int covered = 0, trials = 60;
+        double tau_sum = 0;
+        for (int seed = 0; seed < trials; ++seed) {
+            std::mt19937_64 rng(static_cast<std::uint64_t>(seed) + 7000);
+            std::normal_distribution<double> noise(0.0, 1e-3);
+            double x = 0;
+            const Synthetic s = make(32768, fs, w, [&](double, std::size_t) { x = rho * x + noise(rng); return x; });
+            Scorer sc(ScoringOptions{0.0, 0.1, 1});
+            sc.add(s.t.size(), s.t.data(), s.th.data(), s.om.data(), s.est.data(), nullptr, s.valid.data());
+            const ErrorMetrics m = sc.finish();
+            REQUIRE(m.correlation_samples);
+            tau_sum += *m.correlation_samples;
+            const auto u = uncertainty_json(m);
+            covered += u["mean_rad"][0].get<double>() <= 0 && 0 <= u["mean_rad"][1].get<double>();
+        }
+        CHECK(tau_sum / trials == Approx((1 + rho) / (1 - rho)).epsilon(0.15));
+        CHECK(covered >= 51);  // 85 %: tau from 32 batches scatters by about 25 %
+    }
+    SECTION("too little to go on: no interval, and it says why") {
+        const Synthetic s = make(200, fs, w, [&](double th, std::size_t) { return 1e-3 * std::cos(th); });
+        Scorer sc(0.0);
+        sc.add(s.t.size(), s.t.data(), s.th.data(), s.om.data(), s.est.data(), nullptr, s.valid.data());
+        const auto u = uncertainty_json(sc.finish());
+        CHECK_FALSE(u.contains("rms_rad"));
+        CHECK_THAT(u["note"].get<std::string>(), Catch::Contains("correlation time"));
     }
 }

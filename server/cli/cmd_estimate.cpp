@@ -57,10 +57,18 @@ void print_harmonics(const json& m) {
         if (ha["note"].is_string()) std::printf("harmonics: not reported: %s\n", ha["note"].get<std::string>().c_str());
         return;
     }
-    std::printf("harmonics (rad):");
-    for (const auto& h : m["harmonics"]) std::printf(" %dx %.2e", h["order"].get<int>(), h["amplitude"]["rad"].get<double>());
-    std::printf("\n  1x..%dx hold %.1f %% of the error variance; broadband rest %.3e rad rms\n", static_cast<int>(m["harmonics"].size()),
-                100.0 * ha["power_fraction"].get<double>(), ha["broadband_rms_rad"].get<double>());
+    // Each amplitude with the half-width of its 95 % interval (metrics "uncertainty").
+    const json unc = m.value("uncertainty", json::object());
+    std::printf("harmonics (rad, +- 95 %%):");
+    for (const auto& h : m["harmonics"]) {
+        std::printf(" %dx %.2e", h["order"].get<int>(), h["amplitude"]["rad"].get<double>());
+        for (const auto& u : unc.value("harmonics", json::array()))
+            if (u.value("order", 0) == h["order"].get<int>() && u["amplitude_rad"].is_array())
+                std::printf("+-%.1e", (u["amplitude_rad"][1].get<double>() - u["amplitude_rad"][0].get<double>()) / 2);
+    }
+    std::printf("\n  1x..%dx hold %.1f %% of the error variance; broadband rest %.3e rad rms%s\n", static_cast<int>(m["harmonics"].size()),
+                100.0 * ha["power_fraction"].get<double>(), ha["broadband_rms_rad"].get<double>(),
+                interval_text(unc.value("broadband_rms_rad", json())).c_str());
     if (ha["note"].is_string()) std::printf("  (%s)\n", ha["note"].get<std::string>().c_str());
 }
 
@@ -117,9 +125,10 @@ int run_estimate(const EstimateOptions& o) {
         } else {
             const auto& m = r["metrics"];
             const auto& ev = m["evidence"];
-            std::printf("error after %.3g s settle (%llu samples, %.1f electrical cycles, valid %.1f %%): rms %.3e rad (%.4f %% of a period), std %.3e, mean %.3e, max|e| %.3e rad, slipped %llu\n",
+            const json unc = m.value("uncertainty", json::object());
+            std::printf("error after %.3g s settle (%llu samples, %.1f electrical cycles, valid %.1f %%): rms %.3e rad%s (%.4f %% of a period), std %.3e, mean %.3e, max|e| %.3e rad, slipped %llu\n",
                         o.settle_s, static_cast<unsigned long long>(m["scored"].get<std::uint64_t>()), ev["scored_cycles"].get<double>(),
-                        100.0 * ev["valid_fraction"].get<double>(), m["rms"]["rad"].get<double>(),
+                        100.0 * ev["valid_fraction"].get<double>(), m["rms"]["rad"].get<double>(), interval_text(unc.value("rms_rad", json())).c_str(),
                         m["rms"]["percent_period"].get<double>(), m["std"]["rad"].get<double>(), m["mean"]["rad"].get<double>(),
                         m["max_abs"]["rad"].get<double>(), static_cast<unsigned long long>(m["slipped_samples"].get<std::uint64_t>()));
             print_harmonics(m);

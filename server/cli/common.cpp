@@ -114,6 +114,13 @@ std::string state_notes(const json& state) {
     return out;
 }
 
+std::string interval_text(const json& iv) {
+    if (!iv.is_array() || iv.size() != 2 || !iv[0].is_number() || !iv[1].is_number()) return "";
+    char b[80];
+    std::snprintf(b, sizeof b, " (95 %% %.3e..%.3e)", iv[0].get<double>(), iv[1].get<double>());
+    return b;
+}
+
 void print_run_summary(const json& r, const std::string& name) {
     std::printf("run %s: %s %s (%s)\n", r["id"].get<std::string>().c_str(), name.c_str(), r["verdict"].get<std::string>().c_str(),
                 r["status"].get<std::string>().c_str());
@@ -128,8 +135,9 @@ void print_run_summary(const json& r, const std::string& name) {
                         ev.value("valid_fraction", json()).is_number() ? (std::to_string(100.0 * ev["valid_fraction"].get<double>()).substr(0, 5) + " %").c_str() : "-");
             continue;
         }
-        std::printf("  %-20s rms %.3e rad, max|e| %.3e rad, slipped %llu; scored %llu samples, %.1f cycles, valid %.1f %%\n",
-                    e["label"].get<std::string>().c_str(), m["rms"]["rad"].get<double>(), m["max_abs"]["rad"].get<double>(),
+        const std::string rms_iv = interval_text(m.value("uncertainty", json::object()).value("rms_rad", json()));
+        std::printf("  %-20s rms %.3e rad%s, max|e| %.3e rad, slipped %llu; scored %llu samples, %.1f cycles, valid %.1f %%\n",
+                    e["label"].get<std::string>().c_str(), m["rms"]["rad"].get<double>(), rms_iv.c_str(), m["max_abs"]["rad"].get<double>(),
                     static_cast<unsigned long long>(m["slipped_samples"].get<std::uint64_t>()),
                     static_cast<unsigned long long>(ev.value("scored_samples", std::uint64_t{0})), ev.value("scored_cycles", 0.0),
                     100.0 * ev.value("valid_fraction", 0.0));
@@ -154,8 +162,8 @@ void print_run_summary(const json& r, const std::string& name) {
         char val[32];
         std::snprintf(val, sizeof val, "%s", fmt(m["value"]).c_str());
         const std::string unit = m["value"].is_number() && !m["unit"].get<std::string>().empty() ? " " + m["unit"].get<std::string>() : "";
-        std::printf("  %-8s %s %s = %s%s (limit %s%s)%s\n", m["outcome"].get<std::string>().c_str(), m["estimator"].get<std::string>().c_str(),
-                    m["metric"].get<std::string>().c_str(), val, unit.c_str(), lim.c_str(),
+        std::printf("  %-8s %s %s = %s%s%s (limit %s%s)%s\n", m["outcome"].get<std::string>().c_str(), m["estimator"].get<std::string>().c_str(),
+                    m["metric"].get<std::string>().c_str(), val, unit.c_str(), interval_text(m.value("interval_95", json())).c_str(), lim.c_str(),
                     m.value("implicit", false) ? ", evidence" : "", m.contains("reason") ? ("; " + m["reason"].get<std::string>()).c_str() : "");
     }
 }

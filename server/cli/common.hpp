@@ -67,6 +67,8 @@ void install_cancel_handlers();
 // measurement with its limit and outcome (fringe run, fringe runs --show).
 // The estimator state's loss-of-lock count and message, as one line (empty: nothing to say).
 std::string state_notes(const nlohmann::json& state);
+// " (95 % lo..hi)" for a [lo, hi] interval, "" for anything else.
+std::string interval_text(const nlohmann::json& interval);
 void print_run_summary(const nlohmann::json& report, const std::string& name);
 
 }  // namespace fringe::cli
