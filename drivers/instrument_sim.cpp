@@ -20,6 +20,7 @@
 #include <optional>
 #include <random>
 #include <stdexcept>
+#include <thread>
 #include <vector>
 
 namespace fringe::dev {
@@ -133,6 +134,13 @@ bool match_from(const std::vector<Node>& h, std::size_t i, const std::vector<Pat
         return false;
     }
     return match_from(h, i + 1, p, j + 1, ch);
+}
+
+bool starts_with_ci(std::string_view s, std::string_view prefix) {
+    if (prefix.empty() || s.size() < prefix.size()) return false;
+    for (std::size_t i = 0; i < prefix.size(); ++i)
+        if (std::toupper(static_cast<unsigned char>(s[i])) != std::toupper(static_cast<unsigned char>(prefix[i]))) return false;
+    return true;
 }
 
 std::string upper(std::string s) {
@@ -286,12 +294,16 @@ public:
         ports_[0]->gen = true;
         ports_[0]->dig = rp_pair;
         ports_[0]->port = o.generator_port;
-        ports_[0]->idn = idn_for(o.generator);
+        if (!o.fault.empty() && o.fault != "drop" && o.fault != "freeze" && o.fault != "truncate")
+            throw std::runtime_error("instrument-sim: unknown fault '" + o.fault + "' (known: drop|freeze|truncate)");
+        if (!o.fault.empty() && o.fault_on.empty()) throw std::runtime_error("instrument-sim: a fault needs the command it happens at (fault_on)");
+        ports_[0]->idn = o.generator_idn.empty() ? idn_for(o.generator) : o.generator_idn;
+        if (ports_[0]->idn.size() < o.idn_bytes) ports_[0]->idn.resize(o.idn_bytes, 'x');
         if (!rp_pair) {
             ports_.push_back(std::make_unique<Port>());
             ports_[1]->dig = true;
             ports_[1]->port = o.digitizer_port;
-            ports_[1]->idn = idn_for(o.digitizer);
+            ports_[1]->idn = o.digitizer_idn.empty() ? idn_for(o.digitizer) : o.digitizer_idn;
         }
         for (auto& p : ports_) listen(*p);
     }
@@ -406,6 +418,7 @@ private:
             std::size_t from = 0;
             semis.push_back(msg.size());
             std::string reply;
+            bool cut = false;
             for (std::size_t s : semis) {
                 const bool binary_tail = std::find(block_ends.begin(), block_ends.end(), s) != block_ends.end();
                 const std::string_view raw = std::string_view(msg).substr(from, s - from);
@@ -417,16 +430,31 @@ private:
                     dropped_ = true;
                     return false;
                 }
+                const bool hit = !o_.fault.empty() && starts_with_ci(unit, o_.fault_on) && ++fault_seen_ == o_.fault_count;
+                if (hit && o_.fault == "drop") {
+                    dropped_ = true;
+                    return false;
+                }
+                if (hit && o_.fault == "freeze") frozen_ = true;
+                if (frozen_) continue;
                 if (o_.silent_after >= 0 && count_ > o_.silent_after) continue;
                 try {
                     if (auto r = execute(*c.port, unit)) reply += (reply.empty() ? "" : ";") + *r;
                 } catch (const SimError& e) {
                     push_error(*c.port, e);
                 }
+                if (!o_.error_on.empty() && starts_with_ci(unit, o_.error_on)) push_error(*c.port, {-200, o_.error_text});
+                if (hit && o_.fault == "truncate") cut = true;
                 ++answered_;
             }
+            if (!reply.empty() && o_.reply_delay_s > 0) std::this_thread::sleep_for(std::chrono::duration<double>(o_.reply_delay_s));
             if (!reply.empty()) {
-                reply += "\n";
+                if (cut) {  // half of it, then nothing more
+                    reply.resize(reply.size() / 2);
+                    frozen_ = true;
+                } else {
+                    reply += "\n";
+                }
                 std::size_t off = 0;
                 while (off < reply.size()) {
                     const ssize_t n = ::send(c.fd, reply.data() + off, reply.size() - off, MSG_NOSIGNAL);
@@ -1354,7 +1382,8 @@ private:
     std::vector<std::unique_ptr<Port>> ports_;
     std::vector<Client> clients_;
     long long count_ = 0, answered_ = 0;
-    bool dropped_ = false;
+    bool dropped_ = false, frozen_ = false;
+    long long fault_seen_ = 0;
 };
 
 }  // namespace

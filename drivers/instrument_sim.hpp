@@ -7,7 +7,9 @@
 // and a one-pole bandwidth; the digitizer samples it at its own clock with a Kaiser-windowed
 // sinc interpolator. The generator's sync output is wired to the digitizer's EXT trigger.
 // IEEE 488.2 behaviour: error queue (-113 "Undefined header", 0 "No error"), *IDN?, *OPC?,
-// *RST, *CLS, definite and indefinite blocks. Faults: go silent, drop the connections.
+// *RST, *CLS, definite and indefinite blocks. Faults: go silent, drop the connections, die,
+// freeze or cut a reply short at a named command (mid-acquisition), delay every reply, and
+// hostile text (an *IDN? of any length or content, error-queue text with escape sequences).
 #pragma once
 
 #include <atomic>
@@ -36,6 +38,16 @@ struct InstrumentSimOptions {
     long long silent_after = -1;  // then read and never answer
     long long drop_after = -1;    // then close every connection and return
     double exit_after_s = 0;      // 0: until *stop
+    // At the fault_count-th command that starts with fault_on (any case, e.g. ":WAV:DATA?"):
+    // "drop" closes every connection and returns (the instrument died), "freeze" reads and
+    // never answers again, "truncate" sends the first half of that reply and then freezes.
+    std::string fault, fault_on;
+    long long fault_count = 1;
+    double reply_delay_s = 0;     // every reply this late
+    // Hostile text: *IDN? answers (empty: the model's), the generator's padded to idn_bytes;
+    // after each command that starts with error_on, the error queue gets -200,"error_text".
+    std::string generator_idn, digitizer_idn, error_on, error_text;
+    std::size_t idn_bytes = 0;
     // role ("generator", "digitizer") and the URI a fringe scenario names it by.
     std::function<void(const std::string& role, const std::string& uri)> on_listening;
     const std::atomic<bool>* stop = nullptr;

@@ -1,6 +1,7 @@
 #include "scpi.hpp"
 
 #include "device.hpp"
+#include "server/text.hpp"
 
 #include <libusb.h>
 
@@ -448,7 +449,12 @@ void Session::fail(std::string_view what, const std::exception& e) {
     throw DeviceError(uri_, link_->describe() + ": " + std::string(what) + ": " + e.what());
 }
 
+void Session::check_usable() const {
+    if (!broken_.empty()) throw DeviceError(uri_, link_->describe() + ": the session is out of step (" + broken_ + "): reopen the instrument");
+}
+
 void Session::send(std::string_view command) {
+    check_usable();
     try {
         link_->write_message(command, timeout_s_);
     } catch (const std::exception& e) {
@@ -456,44 +462,64 @@ void Session::send(std::string_view command) {
     }
 }
 
-void Session::fill(std::string_view waited_for) {
+bool Session::fill(std::string_view waited_for, std::size_t max_n, Clock::time_point dl) {
     if (pos_ > 0 && pos_ * 2 > buf_.size()) {
         buf_.erase(0, pos_);
         pos_ = 0;
     }
     char tmp[65536];
     bool end = false;
+    const double left_s = std::chrono::duration<double>(dl - Clock::now()).count();
+    if (left_s <= 0) return false;
     try {
-        const std::size_t n = link_->read_some(tmp, sizeof tmp, timeout_s_, &end);
+        const std::size_t n = link_->read_some(tmp, std::clamp<std::size_t>(max_n, 1, sizeof tmp), left_s, &end);
         buf_.append(tmp, n);
         at_end_ = end;
+    } catch (const TimeoutError&) {
+        return false;
     } catch (const std::exception& e) {
         fail("the reply to " + cmd_quote(waited_for), e);
     }
+    return true;
 }
 
-std::string Session::read_line(std::string_view waited_for) {
+std::string Session::read_line(std::string_view waited_for, std::size_t max_bytes) {
+    check_usable();
+    if (max_bytes == 0) max_bytes = max_block_;
     const auto dl = deadline_after(timeout_s_);
+    const std::string what = "the reply to " + cmd_quote(waited_for);
+    auto too_long = [&] {
+        // The rest of the line is not read: the stream can no longer be framed.
+        broken_ = "the reply to " + cmd_quote(waited_for) + " was longer than " + std::to_string(max_bytes) + " bytes";
+        fail(what, std::runtime_error("reply longer than " + std::to_string(max_bytes) + " bytes; it began " + cmd_quote(std::string_view(buf_).substr(pos_, 60))));
+    };
     for (;;) {
         const auto nl = buf_.find('\n', pos_);
         if (nl != std::string::npos) {
             std::string line = buf_.substr(pos_, nl - pos_);
-            pos_ = nl + 1;
             if (!line.empty() && line.back() == '\r') line.pop_back();
+            if (line.size() > max_bytes) too_long();
+            pos_ = nl + 1;
             return line;
         }
-        if (link_->message_framed() && at_end_ && pos_ < buf_.size()) {  // EOM without a newline
+        const std::size_t pending = buf_.size() - pos_;
+        if (link_->message_framed() && at_end_ && pending > 0) {  // EOM without a newline
+            if (pending > max_bytes) too_long();
             std::string line = buf_.substr(pos_);
             pos_ = buf_.size();
             return line;
         }
-        if (buf_.size() - pos_ > max_block_) fail("the reply to " + cmd_quote(waited_for), std::runtime_error("a line longer than " + std::to_string(max_block_) + " bytes"));
-        if (Clock::now() > dl) fail("the reply to " + cmd_quote(waited_for), TimeoutError("no complete line within " + fmt_s(timeout_s_) + " s"));
-        fill(waited_for);
+        if (pending > max_bytes + 1) too_long();  // + 1: a "\r" before the "\n"
+        // Never more than the cap (and its "\r\n") is buffered for one line.
+        if (!fill(waited_for, max_bytes + 2 - pending, dl))
+            fail(what, TimeoutError(pending == 0 ? "no reply within " + fmt_s(timeout_s_) + " s"
+                                                 : "no complete line within " + fmt_s(timeout_s_) + " s (" + std::to_string(pending) +
+                                                       " bytes without a newline)"));
     }
 }
 
 std::string Session::read_block(std::string_view waited_for) {
+    check_usable();
     const auto dl = deadline_after(timeout_s_);
     const std::string what = "the block answering " + cmd_quote(waited_for);
     BlockHeader h;
@@ -506,16 +532,17 @@ std::string Session::read_block(std::string_view waited_for) {
             fail(what, std::runtime_error(h.error + "; the reply began " + cmd_quote(std::string_view(buf_).substr(pos_, nl == std::string::npos ? 60 : nl - pos_))));
         }
         if (h.status == BlockHeader::Status::Ok) break;
-        if (Clock::now() > dl) fail(what, TimeoutError("no block header within " + fmt_s(timeout_s_) + " s"));
-        fill(waited_for);
+        if (!fill(waited_for, 64, dl))
+            fail(what, TimeoutError(buf_.size() == pos_ ? "no reply within " + fmt_s(timeout_s_) + " s"
+                                                        : "truncated block header (" + std::to_string(buf_.size() - pos_) + " bytes) within " + fmt_s(timeout_s_) + " s"));
     }
     pos_ += h.header_bytes;
     if (h.indefinite) {  // to the end of the message: EOM (USBTMC) or the last newline (TCP)
         for (;;) {
             if (link_->message_framed() ? at_end_ : (!buf_.empty() && buf_.back() == '\n')) break;
             if (buf_.size() - pos_ > max_block_) fail(what, std::runtime_error("an indefinite block longer than " + std::to_string(max_block_) + " bytes"));
-            if (Clock::now() > dl) fail(what, TimeoutError("indefinite block not ended within " + fmt_s(timeout_s_) + " s"));
-            fill(waited_for);
+            if (!fill(waited_for, max_block_ + 1 - (buf_.size() - pos_), dl))
+                fail(what, TimeoutError("indefinite block not ended within " + fmt_s(timeout_s_) + " s (" + std::to_string(buf_.size() - pos_) + " bytes arrived)"));
         }
         std::string data = buf_.substr(pos_);
         if (!data.empty() && data.back() == '\n') data.pop_back();
@@ -524,12 +551,15 @@ std::string Session::read_block(std::string_view waited_for) {
     }
     if (h.data_bytes > 0) buf_.reserve(pos_ + h.data_bytes);
     while (buf_.size() - pos_ < h.data_bytes) {
-        if (Clock::now() > dl)
-            fail(what, TimeoutError("truncated block: " + std::to_string(buf_.size() - pos_) + " of " + std::to_string(h.data_bytes) + " bytes within " + fmt_s(timeout_s_) + " s"));
-        fill(waited_for);
+        // A block that stops arriving part way is truncated, not unanswered: say how much came.
+        // + 2: the "\r\n" that ends the message, usually in the same segment as the data.
+        if (!fill(waited_for, h.data_bytes - (buf_.size() - pos_) + 2, dl))
+            fail(what, TimeoutError("truncated block: " + std::to_string(buf_.size() - pos_) + " of " + std::to_string(h.data_bytes) +
+                                    " declared bytes arrived within " + fmt_s(timeout_s_) + " s"));
     }
     std::string data = buf_.substr(pos_, h.data_bytes);
     pos_ += h.data_bytes;
+    if (pos_ < buf_.size() && buf_[pos_] == '\r') ++pos_;
     if (pos_ < buf_.size() && buf_[pos_] == '\n') ++pos_;  // else skipped before the next read
     return data;
 }
@@ -539,7 +569,7 @@ void Session::check_errors(std::string_view after) {
     std::string errors;
     for (int k = 0; k < 32; ++k) {  // bounded: a queue that never empties is itself an error
         send("SYST:ERR?");
-        const std::string r = read_line("SYST:ERR?");
+        const std::string r = read_line("SYST:ERR?", kMaxErrorLineBytes);
         ErrorEntry e;
         try {
             e = parse_error_entry(r);
@@ -547,7 +577,9 @@ void Session::check_errors(std::string_view after) {
             throw DeviceError(uri_, link_->describe() + ": after " + cmd_quote(after) + ": SYST:ERR? answered " + cmd_quote(r) + " (" + ex.what() + ")");
         }
         if (e.code == 0) break;
-        errors += (errors.empty() ? "" : "; ") + std::to_string(e.code) + ",\"" + e.text + "\"";
+        // The instrument's own words, whole (a NUL no longer ends them) and escaped: they reach
+        // reports and terminals.
+        errors += (errors.empty() ? "" : "; ") + std::to_string(e.code) + ",\"" + term_escape(e.text) + "\"";
     }
     if (!errors.empty()) throw DeviceError(uri_, "instrument error after " + cmd_quote(after) + ": " + errors);
 }
@@ -557,9 +589,9 @@ void Session::command(std::string_view cmd) {
     check_errors(cmd);
 }
 
-std::string Session::query(std::string_view q) {
+std::string Session::query(std::string_view q, std::size_t max_bytes) {
     send(q);
-    std::string r = read_line(q);
+    std::string r = read_line(q, max_bytes);
     check_errors(q);
     return r;
 }
@@ -576,7 +608,7 @@ void Session::sync(double timeout_s) {
     timeout_s_ = timeout_s;
     try {
         send("*OPC?");
-        const std::string r = read_line("*OPC?");
+        const std::string r = read_line("*OPC?", kMaxReplyBytes);
         timeout_s_ = saved;
         if (r != "1" && r != "+1") throw DeviceError(uri_, link_->describe() + ": *OPC? answered " + cmd_quote(r) + " (expected 1)");
     } catch (...) {
@@ -587,7 +619,7 @@ void Session::sync(double timeout_s) {
 
 std::string Session::identify() {
     send("*IDN?");
-    return read_line("*IDN?");
+    return term_escape(read_line("*IDN?", kMaxIdnBytes));
 }
 
 }  // namespace fringe::dev::scpi

@@ -9,6 +9,7 @@
 #include "device.hpp"
 
 #include <array>
+#include <chrono>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -91,6 +92,12 @@ public:
 std::unique_ptr<Link> connect_tcp(const std::string& host, int port, double timeout_s);
 std::unique_ptr<Link> open_usbtmc(std::uint16_t vid, std::uint16_t pid, const std::string& serial, double timeout_s);
 
+// Caps on text an instrument sends (a reply longer than its cap is an error, "reply longer than
+// N bytes", and no more than the cap is ever buffered for it).
+constexpr std::size_t kMaxIdnBytes = 256;         // *IDN?
+constexpr std::size_t kMaxErrorLineBytes = 1024;  // one SYST:ERR? entry
+constexpr std::size_t kMaxReplyBytes = 64 * 1024; // any other line (query()); data lines name their own
+
 // A Session's read or write ran past its deadline (the instrument is silent or busy).
 class InstrumentTimeout : public DeviceError {
 public:
@@ -105,27 +112,31 @@ public:
     double timeout_s() const { return timeout_s_; }
     void set_timeout_s(double t) { timeout_s_ = t; }
 
-    // Raw: no error check.
+    // Raw: no error check. read_line refuses a line longer than max_bytes (0: the block cap).
     void send(std::string_view command);
-    std::string read_line(std::string_view waited_for);
+    std::string read_line(std::string_view waited_for, std::size_t max_bytes = 0);
     std::string read_block(std::string_view waited_for);
 
     // Commands that can fail: send, then drain the error queue; a non-zero entry throws
     // DeviceError "instrument error after 'CMD': -222,"Data out of range"".
     void command(std::string_view cmd);
-    std::string query(std::string_view q);        // a line (checked)
+    std::string query(std::string_view q, std::size_t max_bytes = kMaxReplyBytes);  // a line (checked)
     std::string query_block(std::string_view q);  // a block (checked)
     void check_errors(std::string_view after);
     // *OPC?: waits (up to timeout) until pending operations are done.
     void sync(double timeout_s);
-    std::string identify();  // *IDN?
+    // *IDN?, at most kMaxIdnBytes, its control characters and bytes that are not UTF-8 escaped
+    // (\x1b, \xff): it becomes the run's DUT and device description.
+    std::string identify();
 
     // Checks the error queue after each command (default); off for instruments without one.
     bool error_queue = true;
 
 private:
     [[noreturn]] void fail(std::string_view what, const std::exception& e);
-    void fill(std::string_view waited_for);
+    // Reads at most max_n more bytes before deadline; false on the deadline.
+    bool fill(std::string_view waited_for, std::size_t max_n, std::chrono::steady_clock::time_point deadline);
+    void check_usable() const;
     std::unique_ptr<Link> link_;
     std::string uri_;
     double timeout_s_;
@@ -133,6 +144,7 @@ private:
     std::string buf_;  // bytes read and not yet consumed
     std::size_t pos_ = 0;
     bool at_end_ = false;  // USBTMC: the buffered bytes end a message
+    std::string broken_;   // why the reply stream lost its framing (a reply over its cap): no more I/O
 };
 
 }  // namespace fringe::dev::scpi

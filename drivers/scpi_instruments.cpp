@@ -12,6 +12,7 @@
 // digitizer fringe does not drive.
 #include "device.hpp"
 #include "scpi.hpp"
+#include "server/text.hpp"
 #include "signal_gen/config.hpp"
 
 #include <algorithm>
@@ -136,11 +137,13 @@ public:
         memory_ = p.integer("memory_samples") > 0 ? static_cast<std::size_t>(p.integer("memory_samples")) : model_->memory_samples;
         io_->command("*CLS");
     }
+    // Never throws: it runs while a failure unwinds. The frame source has already tried to stop
+    // the output and logged why it could not; this is the last, silent attempt.
     ~ScpiInstrument() override {
-        disarm();
         try {
+            disarm();
             if (playing_) stop_output();
-        } catch (const std::exception&) {  // the instrument may be gone: nothing to do
+        } catch (...) {  // the instrument may be gone: nothing more to do
         }
     }
 
@@ -422,7 +425,7 @@ private:
         std::string st;
         if (!poll_until(timeout_s, [&] { return (st = io_->query(":TRIG:STAT?")) == "STOP"; }))
             return {StreamStatus::Timeout, 0, 0, 0,
-                    "no complete acquisition within " + num(timeout_s) + " s (trigger state " + st + ")" +
+                    "no complete acquisition within " + num(timeout_s) + " s (trigger state " + term_escape(st.substr(0, 60)) + ")" +
                         (ext ? ": no trigger on EXT? wire the generator's sync/marker output to the digitizer's external trigger input" : "")};
         const bool word = scope_format_ == "word";
         for (int ch = 1; ch <= 2; ++ch) {
@@ -465,9 +468,9 @@ private:
             p = end;
             while (*p == ',' || *p == ' ') ++p;
         }
-        if (f.size() != 10 || *p) throw DeviceError(uri_, ":WAV:PRE? answered '" + r.substr(0, 120) + "': expected 10 comma-separated numbers");
+        if (f.size() != 10 || *p) throw DeviceError(uri_, ":WAV:PRE? answered '" + term_escape(r.substr(0, 120)) + "': expected 10 comma-separated numbers");
         for (double v : f)
-            if (!std::isfinite(v)) throw DeviceError(uri_, ":WAV:PRE? has a non-finite field: '" + r.substr(0, 120) + "'");
+            if (!std::isfinite(v)) throw DeviceError(uri_, ":WAV:PRE? has a non-finite field: '" + term_escape(r.substr(0, 120)) + "'");
         if (f[2] < static_cast<double>(M)) throw DeviceError(uri_, ":WAV:PRE? holds " + num(f[2]) + " points, fewer than the " + std::to_string(M) + " asked for");
         if (!(f[7] > 0)) throw DeviceError(uri_, ":WAV:PRE? yincrement " + num(f[7]) + " is not positive");
         if (std::fabs(f[4] * fs - 1) > 1e-6) throw DeviceError(uri_, ":WAV:PRE? xincrement " + num(f[4]) + " s does not match " + num(fs) + " Sa/s");
@@ -496,12 +499,13 @@ private:
         fire_armed();
         std::string st;
         if (!poll_until(timeout_s, [&] { return (st = io_->query("ACQ:TRIG:STAT?")) == "TD"; }))
-            return {StreamStatus::Timeout, 0, 0, 0, "no trigger (" + src + ") within " + num(timeout_s) + " s (ACQ:TRIG:STAT? " + st + ")"};
+            return {StreamStatus::Timeout, 0, 0, 0, "no trigger (" + src + ") within " + num(timeout_s) + " s (ACQ:TRIG:STAT? " + term_escape(st.substr(0, 60)) + ")"};
         if (!poll_until(timeout_s, [&] { return io_->query("ACQ:TRIG:FILL?") == "1"; }))
             return {StreamStatus::Timeout, 0, 0, 0, "the acquisition buffer did not fill within " + num(timeout_s) + " s"};
         for (int ch = 1; ch <= 2; ++ch) {
             auto out = ch == 1 ? s : c;
-            const std::string r = io_->query("ACQ:SOUR" + std::to_string(ch) + ":DATA?");
+            // 16384 ASCII volts: a few hundred KiB; 4 MiB is the most this reply may be.
+            const std::string r = io_->query("ACQ:SOUR" + std::to_string(ch) + ":DATA?", 4u << 20);
             // {v,v,...}: the buffer from the oldest sample, trigger at 8192 - DLY.
             std::size_t k = 0;
             const char* p = r.c_str();

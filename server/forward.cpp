@@ -166,7 +166,15 @@ void ForwardingStore::start() {
         double backoff_s = 0.5;
         bool was_down = false;
         for (;;) {
-            const Pass p = forward_pending();
+            // No exception leaves this thread (it would end the service): what the pass could
+            // not do is reported like an unreachable store, and retried with backoff.
+            Pass p;
+            try {
+                p = forward_pending();
+            } catch (const std::exception& e) {
+                p.error = e.what();
+                p.pending = 1;
+            }
             if (!p.error.empty() && !was_down) spdlog::warn("forwarding to the shared store paused ({} run(s) pending, retrying): {}", p.pending, p.error);
             if (p.error.empty() && was_down) spdlog::info("shared store {} reachable again: {} run(s) forwarded", shown_, p.forwarded);
             was_down = !p.error.empty();

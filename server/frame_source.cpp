@@ -12,11 +12,26 @@
 #include <limits>
 #include <optional>
 
+#include <spdlog/spdlog.h>
+
 namespace fringe {
 
 namespace {
 
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+// Device teardown from a destructor runs while a failure may be unwinding (an instrument lost
+// mid-run): best effort, logged, never thrown (a throw there ends the process).
+template <class F>
+void teardown(const char* what, F&& f) noexcept {
+    try {
+        f();
+    } catch (const std::exception& e) {
+        try { spdlog::warn("{} after the run failed: {}", what, e.what()); } catch (...) {}
+    } catch (...) {
+        try { spdlog::warn("{} after the run failed: unknown exception", what); } catch (...) {}
+    }
+}
 
 class StepSource final : public FrameSource {
 public:
@@ -60,7 +75,7 @@ public:
         dev_.start(sc.sample_rate_hz);
         started_ = true;
     }
-    ~StreamSource() override { stop(); }
+    ~StreamSource() override { teardown("stopping the device's streams", [&] { stop(); }); }
     void stop() override {
         if (started_) {
             started_ = false;
@@ -134,7 +149,7 @@ public:
         dev_.start(sc.sample_rate_hz);
         started_ = true;
     }
-    ~ReplaySource() override { stop(); }
+    ~ReplaySource() override { teardown("stopping the device's input", [&] { stop(); }); }
     void stop() override {
         if (started_) {
             started_ = false;
@@ -190,7 +205,7 @@ class InstrumentSource final : public FrameSource {
 public:
     InstrumentSource(const Scenario& sc, dev::Device& out, dev::Device& in, const dev::DeviceInfo& oi)
         : sc_(sc), out_(out), in_(in), max_play_(oi.max_play_samples) {}
-    ~InstrumentSource() override { stop(); }
+    ~InstrumentSource() override { teardown("stopping the generator's output", [&] { stop(); }); }
     void stop() override {
         if (playing_) {
             playing_ = false;
@@ -287,14 +302,29 @@ private:
         const std::uint64_t M = N + pad;
         info_ = {{"playback", {{"mode", cyclic ? "cyclic" : "once"}, {"samples", L}, {"lead_samples", kLead}, {"rate_hz", play_fs}, {"record_samples", M}, {"record_rate_hz", fs}}}};
         if (cyclic) info_["playback"]["periods"] = periods;
-        out_.play(ps_, pc_, play_fs, cyclic);
-        playing_ = true;
-        rs_.resize(M);
-        rc_.resize(M);
-        const dev::StreamResult r = in_.record(rs_, rc_, fs, static_cast<double>(M) / fs * 1.5 + 10.0);
-        stop();
-        if (r.status != dev::StreamStatus::Ok || r.dropped)
+        // An instrument lost here (gone, frozen) ends the run as an error with this reason and
+        // the playback above in its report; the output is switched off as far as it still can be.
+        dev::StreamResult r;
+        try {
+            out_.play(ps_, pc_, play_fs, cyclic);
+            playing_ = true;
+            rs_.resize(M);
+            rc_.resize(M);
+            r = in_.record(rs_, rc_, fs, static_cast<double>(M) / fs * 1.5 + 10.0);
+        } catch (const std::exception& e) {
+            const std::string why = std::string(playing_ ? "record: " : "play: ") + e.what();
+            teardown("stopping the generator's output", [&] { stop(); });
+            return fail(why);
+        }
+        if (r.status != dev::StreamStatus::Ok || r.dropped) {
+            teardown("stopping the generator's output", [&] { stop(); });
             return fail(std::string("record ") + dev::to_string(r.status) + ": " + r.message);
+        }
+        try {
+            stop();
+        } catch (const std::exception& e) {
+            return fail(std::string("the record is complete but the generator's output could not be stopped: ") + e.what());
+        }
         if (r.frames < M) return fail("record returned " + std::to_string(r.frames) + " of " + std::to_string(M) + " samples");
 
         AlignInput ai;

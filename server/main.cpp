@@ -7,6 +7,9 @@
 #include <cstring>
 #endif
 
+#include "server/text.hpp"
+
+#include <spdlog/pattern_formatter.h>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
@@ -16,6 +19,19 @@
 #include <vector>
 
 using namespace fringe;
+
+namespace {
+// Errors and warnings carry text from devices, files and clients (instrument error queues,
+// *IDN?, scenario names): escaped for the terminal, so none of it acts on the operator's screen.
+class TerminalPayload : public spdlog::custom_flag_formatter {
+public:
+    void format(const spdlog::details::log_msg& msg, const std::tm&, spdlog::memory_buf_t& dest) override {
+        const std::string e = term_escape(std::string_view(msg.payload.data(), msg.payload.size()));
+        dest.append(e.data(), e.data() + e.size());
+    }
+    std::unique_ptr<custom_flag_formatter> clone() const override { return std::make_unique<TerminalPayload>(); }
+};
+}  // namespace
 
 int main(int argc, char** argv) {
 #ifdef FRINGE_WITH_USB_EMULATOR
@@ -35,13 +51,15 @@ int main(int argc, char** argv) {
         const char* spec = std::getenv("FRINGE_USB_EMULATOR");
         usb_emulator = std::make_unique<dev::UsbEmulator>(dev::parse_usb_emulator_options(spec ? spec : ""));
     } catch (const std::exception& e) {
-        std::fprintf(stderr, "error: %s\n", e.what());
+        std::fprintf(stderr, "error: %s\n", term_escape(e.what()).c_str());
         return 2;
     }
 #endif
     auto logger = spdlog::stderr_color_mt("fringe");
     spdlog::set_default_logger(logger);
-    spdlog::set_pattern("%^%l%$: %v");
+    auto formatter = std::make_unique<spdlog::pattern_formatter>();
+    formatter->add_flag<TerminalPayload>('*').set_pattern("%^%l%$: %*");
+    logger->set_formatter(std::move(formatter));
 
     CLI::App app{"fringe: hardware-in-the-loop test bench for sin/cos encoder interpolation"};
     app.set_version_flag("--version", std::string("fringe ") + FRINGE_VERSION);

@@ -396,6 +396,9 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
     } catch (const std::exception& e) {  // device, estimator and capture faults, and anything unforeseen
         status = RunStatus::Error;
         error = e.what();
+    } catch (...) {
+        status = RunStatus::Error;
+        error = "the run failed with an unknown exception";
     }
 
     json estimators;

@@ -151,9 +151,11 @@ void RunManager::worker() {
         job->snap.updated_unix_ms = unix_ms();
         }
         changed_.notify_all();
-        {
+        try {
             std::lock_guard<std::mutex> sl(store_mu_);
             store_.set_status(job->snap.id, "running");
+        } catch (const std::exception& e) {  // the store is away: the run goes on, its report is stored at the end
+            spdlog::warn("run {}: could not mark it running: {}", job->snap.id, e.what());
         }
         RunOptions ro;
         ro.run_id = job->snap.id;
@@ -174,6 +176,8 @@ void RunManager::worker() {
             report = execute_run(job->sc, ro);
         } catch (const std::exception& e) {  // validation passed at submit; anything here is a bug or the environment
             report = unstarted_report(job->sc, job->snap.id, job->snap.created_at, "error", "ERROR", e.what(), job->provenance);
+        } catch (...) {  // a worker never dies with a run
+            report = unstarted_report(job->sc, job->snap.id, job->snap.created_at, "error", "ERROR", "the run failed with an unknown exception", job->provenance);
         }
         bool interrupted;
         {
@@ -228,7 +232,11 @@ void RunManager::worker() {
         }
         changed_.notify_all();
         cv_.notify_all();  // a board may be free for a queued run
-        if (on_finished) on_finished(report);
+        try {
+            if (on_finished) on_finished(report);
+        } catch (const std::exception& e) {
+            spdlog::error("run {}: after the run: {}", job->snap.id, e.what());
+        }
         spdlog::info("run {} ({}): {} {}", job->snap.id, job->snap.scenario, job->snap.status, job->snap.verdict);
     }
 }

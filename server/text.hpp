@@ -1,5 +1,5 @@
-// Text from outside (requests, files, device messages) on its way into JSON, XML and logs:
-// UTF-8 validation, replacement of what is not UTF-8, and escaping of control characters.
+// Text from outside (requests, files, device messages) on its way into JSON, XML, logs and
+// terminals: UTF-8 validation, replacement of what is not UTF-8, and escaping of control characters.
 #pragma once
 
 #include <cstddef>
@@ -62,24 +62,39 @@ inline std::string sanitize_utf8(std::string_view s) {
     return o;
 }
 
-// One log line per event: CR, LF, other control characters and bytes that are not UTF-8
-// are written as \r, \n, \t, \xNN, so a request cannot forge or split log lines.
-inline std::string log_escape(std::string_view s) {
+namespace text_detail {
+// Shared by log_escape and term_escape: C0 controls, DEL, bytes that are not UTF-8, the C1
+// controls (U+0080..U+009F: some terminals act on them even UTF-8 encoded) and the
+// bidirectional overrides (U+202A..U+202E, U+2066..U+2069: they reorder what follows) are
+// written visibly; everything else is copied.
+inline std::string escape(std::string_view s, bool backslash, bool keep_newlines) {
     std::string o;
     o.reserve(s.size());
-    char hex[5];
+    char hex[8];
     for (std::size_t i = 0; i < s.size();) {
         const auto c = static_cast<unsigned char>(s[i]);
         const std::size_t n = utf8_sequence(s, i);
-        if (c == '\n') o += "\\n";
+        if (c == '\n' && keep_newlines) o += '\n';
+        else if (c == '\n') o += "\\n";
         else if (c == '\r') o += "\\r";
         else if (c == '\t') o += "\\t";
-        else if (c == '\\') o += "\\\\";
+        else if (c == '\\' && backslash) o += "\\\\";
         else if (n == 0 || c < 0x20 || c == 0x7f) {
             std::snprintf(hex, sizeof hex, "\\x%02x", c);
             o += hex;
+        } else if (n == 1) {
+            o += static_cast<char>(c);
         } else {
-            o.append(s.substr(i, n));
+            // Code point of a 2- or 3-byte sequence (the only lengths the ranges above use).
+            unsigned cp = 0;
+            if (n == 2) cp = ((c & 0x1fu) << 6) | (static_cast<unsigned char>(s[i + 1]) & 0x3fu);
+            else if (n == 3) cp = ((c & 0x0fu) << 12) | ((static_cast<unsigned char>(s[i + 1]) & 0x3fu) << 6) | (static_cast<unsigned char>(s[i + 2]) & 0x3fu);
+            if ((cp >= 0x80 && cp <= 0x9f) || (cp >= 0x202a && cp <= 0x202e) || (cp >= 0x2066 && cp <= 0x2069)) {
+                std::snprintf(hex, sizeof hex, "\\u%04x", cp);
+                o += hex;
+            } else {
+                o.append(s.substr(i, n));
+            }
             i += n;
             continue;
         }
@@ -87,5 +102,18 @@ inline std::string log_escape(std::string_view s) {
     }
     return o;
 }
+}  // namespace text_detail
+
+// One log line per event: CR, LF, other control characters and bytes that are not UTF-8
+// are written as \r, \n, \t, \xNN (C1 controls and bidi overrides as \uNNNN), so a request
+// cannot forge or split log lines.
+inline std::string log_escape(std::string_view s) { return text_detail::escape(s, true, false); }
+
+// Text from a device, a file or a client on its way to an operator's terminal (run summaries,
+// the run history, warnings, errors): ESC and every other control character (NUL included),
+// DEL, C1 controls and bidi overrides are shown visibly (\x1b, \x00, \u009b), bytes that are
+// not UTF-8 as \xNN; nothing the terminal would act on gets through, nothing is cut at a NUL.
+// keep_newlines: for multi-line blocks (a table) whose lines come from fringe itself.
+inline std::string term_escape(std::string_view s, bool keep_newlines = false) { return text_detail::escape(s, false, keep_newlines); }
 
 }  // namespace fringe

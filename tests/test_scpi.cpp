@@ -1,12 +1,16 @@
 // SCPI transport pieces without an instrument: IEEE 488.2 blocks (hostile input), the error
-// queue's entries, USBTMC Bulk-OUT/IN framing against USBTMC 1.0 tables 1-3 and 8-9, and the
-// emulator's interpolator against analytic truth.
+// queue's entries, USBTMC Bulk-OUT/IN framing against USBTMC 1.0 tables 1-3 and 8-9, the
+// emulator's interpolator against analytic truth, and a Session over a scripted link (reply
+// caps, escaped instrument text, truncated blocks).
 #include "drivers/instrument_sim.hpp"
 #include "drivers/scpi.hpp"
+#include "server/text.hpp"
 
 #include <catch2/catch.hpp>
 
 #include <cmath>
+#include <cstring>
+#include <functional>
 
 using namespace fringe::dev;
 using namespace fringe::dev::scpi;
@@ -98,4 +102,99 @@ TEST_CASE("scpi: the emulator's interpolator reproduces a band-limited tone betw
     CHECK(sim_interpolate(x, true, 40.0) == Approx(x[40]).margin(1e-12));  // integer positions hit the samples
     CHECK(sim_interpolate(x, false, -20.0) == 0.0);
     CHECK(sim_interpolate(x, false, 1020.0) == 0.0);  // played once: idle after the end
+}
+
+// ---- A Session over a scripted link: caps, escaping, truncated blocks (issue 21) ----
+namespace {
+// Answers each message from a script; "*IDN?" may be an endless line. Counts what it handed out.
+class ScriptLink final : public Link {
+public:
+    std::function<std::string(const std::string&)> answer;
+    bool endless_idn = false;
+    std::size_t delivered = 0, largest_read = 0;
+    void write_message(std::string_view bytes, double) override {
+        const std::string m(bytes);
+        if (m == "*IDN?" && endless_idn) endless_ = true;
+        else out_ += answer(m);
+    }
+    std::size_t read_some(char* buf, std::size_t n, double, bool* end) override {
+        *end = false;
+        largest_read = std::max(largest_read, n);
+        if (endless_) {
+            std::memset(buf, 'x', n);
+            delivered += n;
+            return n;
+        }
+        if (out_.empty()) throw TimeoutError("no reply within 0.1 s");
+        const std::size_t k = std::min(n, out_.size());
+        std::memcpy(buf, out_.data(), k);
+        out_.erase(0, k);
+        delivered += k;
+        return k;
+    }
+    std::string describe() const override { return "script"; }
+    bool message_framed() const override { return false; }
+
+private:
+    std::string out_;
+    bool endless_ = false;
+};
+}  // namespace
+
+TEST_CASE("scpi: an endless *IDN? line is refused at 256 bytes, never buffered beyond", "[scpi][hostile]") {
+    auto link = std::make_unique<ScriptLink>();
+    ScriptLink* l = link.get();
+    l->endless_idn = true;
+    l->answer = [](const std::string&) { return std::string("0,\"No error\"\n"); };
+    Session s(std::move(link), "scpi+tcp://script", 0.1, 1 << 20);
+    std::string msg;
+    try {
+        s.identify();
+    } catch (const fringe::dev::DeviceError& e) {
+        msg = e.what();
+    }
+    CHECK_THAT(msg, Catch::Contains("reply longer than 256 bytes"));
+    CHECK(msg.size() < 600);  // the error quotes 60 bytes of it, not all
+    CHECK(l->delivered <= kMaxIdnBytes + 2);
+    // The rest of that line is still on the wire: the session refuses to go on out of step.
+    CHECK_THROWS_WITH(s.command("*CLS"), Catch::Contains("out of step"));
+}
+
+TEST_CASE("scpi: error-queue text is kept whole past a NUL and escaped, capped at 1 KiB", "[scpi][hostile]") {
+    auto link = std::make_unique<ScriptLink>();
+    int n = 0;
+    link->answer = [&](const std::string& m) {
+        if (m != "SYST:ERR?") return std::string();
+        return ++n == 1 ? std::string("-200,\"bad \x1b[2J\x1b]0;t\x07 red\0kept\xff\"\n", 32) : std::string("0,\"No error\"\n");
+    };
+    Session s(std::move(link), "scpi+tcp://script", 0.1, 1 << 20);
+    std::string msg;
+    try {
+        s.command("X");
+    } catch (const fringe::dev::DeviceError& e) {
+        msg = e.what();
+    }
+    CHECK_THAT(msg, Catch::Contains("-200,\"bad \\x1b[2J\\x1b]0;t\\x07 red\\x00kept\\xff\""));
+    CHECK(msg.find('\x1b') == std::string::npos);
+
+    auto link2 = std::make_unique<ScriptLink>();
+    link2->answer = [](const std::string& m) { return m == "SYST:ERR?" ? "-200,\"" + std::string(5000, 'e') + "\"\n" : std::string(); };
+    Session s2(std::move(link2), "scpi+tcp://script", 0.1, 1 << 20);
+    CHECK_THROWS_WITH(s2.command("X"), Catch::Contains("reply longer than 1024 bytes"));
+}
+
+TEST_CASE("scpi: a block that stops part way is reported truncated with its counts", "[scpi][hostile]") {
+    auto link = std::make_unique<ScriptLink>();
+    link->answer = [](const std::string& m) { return m == ":WAV:DATA?" ? std::string("#210abcd") : std::string(); };
+    Session s(std::move(link), "scpi+tcp://script", 0.1, 1 << 20);
+    s.send(":WAV:DATA?");
+    CHECK_THROWS_WITH(s.read_block(":WAV:DATA?"), Catch::Contains("truncated block: 4 of 10 declared bytes arrived within 0.1 s"));
+}
+
+TEST_CASE("text: term_escape shows every control visibly and keeps the rest", "[scpi][text]") {
+    CHECK(fringe::term_escape("plain UTF-8: \xc3\xa9\xe2\x82\xac \\path") == "plain UTF-8: \xc3\xa9\xe2\x82\xac \\path");
+    CHECK(fringe::term_escape(std::string("a\x1b[2Jb\0c\x7f\xff\r\n\t", 13)) == "a\\x1b[2Jb\\x00c\\x7f\\xff\\r\\n\\t");
+    CHECK(fringe::term_escape("C1 \xc2\x9b" "2J bidi \xe2\x80\xae!") == "C1 \\u009b2J bidi \\u202e!");
+    CHECK(fringe::term_escape("two\nlines", true) == "two\nlines");
+    CHECK(fringe::log_escape("x\\y\xc2\x85") == "x\\\\y\\u0085");
 }

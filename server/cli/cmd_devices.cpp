@@ -2,6 +2,7 @@
 #include "server/cli/commands.hpp"
 #include "drivers/device.hpp"
 #include "drivers/modbus_board.hpp"
+#include "server/text.hpp"
 
 #include <cstdio>
 
@@ -58,13 +59,15 @@ int run_devices(const DevicesOptions& o) {
     }
     std::printf("board profiles (%s):\n", dev::boards_dir().c_str());
     for (const auto& b : out["boards"])
-        std::printf("  %-20s %s\n", b["name"].get<std::string>().c_str(), b.contains("problem") ? b["problem"].get<std::string>().c_str() : b["description"].get<std::string>().c_str());
+        std::printf("  %-20s %s\n", term_escape(b["name"].get<std::string>()).c_str(),
+                    term_escape(b.contains("problem") ? b["problem"].get<std::string>() : b["description"].get<std::string>()).c_str());
     std::printf("reachable:\n");
+    // A board's id may be an instrument's *IDN?: escaped for the terminal, like the errors.
     for (const auto& r : out["reachable"])
-        std::printf("  %-40s %s\n", r["uri"].get<std::string>().c_str(),
-                    r["ok"].get<bool>() ? (r.contains("info") ? r["info"]["board_id"].get<std::string>().c_str()
-                                                             : r.contains("board_id") ? r["board_id"].get<std::string>().c_str() : "ok")
-                                        : r["error"].get<std::string>().c_str());
+        std::printf("  %-40s %s\n", term_escape(r["uri"].get<std::string>()).c_str(),
+                    term_escape(r["ok"].get<bool>() ? (r.contains("info") ? r["info"]["board_id"].get<std::string>()
+                                                                          : r.contains("board_id") ? r["board_id"].get<std::string>() : "ok")
+                                                    : r["error"].get<std::string>()).c_str());
     return rc;
 }
 

@@ -4,6 +4,7 @@
 #include "drivers/capture_file.hpp"
 #include "server/evaluate.hpp"
 #include "server/scenario.hpp"
+#include "server/text.hpp"
 
 #include <cmath>
 #include <cstdio>
@@ -121,7 +122,7 @@ int run_estimate(const EstimateOptions& o) {
                 std::printf("warning: the estimator marked %.1f %% of the samples invalid: read its notes below before using the estimates\n",
                             100.0 * (1.0 - vf));
         } else if (r["metrics"]["scored"].get<std::uint64_t>() == 0) {
-            std::printf("%s\n", r["note"].get<std::string>().c_str());
+            std::printf("%s\n", term_escape(r["note"].get<std::string>()).c_str());
         } else {
             const auto& m = r["metrics"];
             const auto& ev = m["evidence"];
@@ -144,9 +145,9 @@ int run_estimate(const EstimateOptions& o) {
                 if (!b["efficiency"].is_null()) std::printf(", efficiency %.3g vs %s", b["efficiency"].get<double>(), b["efficiency_against"].get<std::string>().c_str());
                 std::printf("\n");
             }
-            for (const auto& d : r["diagnosis"]) std::printf("warning: %s\n", d["message"].get<std::string>().c_str());
+            for (const auto& d : r["diagnosis"]) std::printf("warning: %s\n", term_escape(d["message"].get<std::string>()).c_str());
         }
-        if (const std::string n = state_notes(r["estimator"].value("state", json())); !n.empty()) std::printf("%s: %s\n", o.estimator.c_str(), n.c_str());
+        if (const std::string n = state_notes(r["estimator"].value("state", json())); !n.empty()) std::printf("%s: %s\n", o.estimator.c_str(), term_escape(n).c_str());
         if (r.contains("dut")) {
             const auto& ro = r["dut"]["readout"];
             const auto& m = r["dut"]["metrics"];

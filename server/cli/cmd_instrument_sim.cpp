@@ -4,6 +4,7 @@
 #include "drivers/instrument_sim.hpp"
 
 #include <atomic>
+#include <cctype>
 #include <csignal>
 #include <cstdio>
 
@@ -17,6 +18,24 @@ struct InstrumentSimCli {
     int port = -1;
     CLI::App* app = nullptr;
 };
+
+// Hostile text given on the command line: \xNN is that byte (NUL included), \\ a backslash.
+std::string decode_escapes(const std::string& s) {
+    std::string o;
+    for (std::size_t i = 0; i < s.size(); ++i) {
+        if (s[i] == '\\' && i + 1 < s.size() && s[i + 1] == '\\') {
+            o += '\\';
+            ++i;
+        } else if (s[i] == '\\' && i + 3 < s.size() && s[i + 1] == 'x' && std::isxdigit(static_cast<unsigned char>(s[i + 2])) &&
+                   std::isxdigit(static_cast<unsigned char>(s[i + 3]))) {
+            o += static_cast<char>(std::stoi(s.substr(i + 2, 2), nullptr, 16));
+            i += 3;
+        } else {
+            o += s[i];
+        }
+    }
+    return o;
+}
 
 std::atomic<bool> g_isim_stop{false};
 void on_isim_signal(int) { g_isim_stop = true; }
@@ -34,6 +53,9 @@ int run_instrument_sim_cli(InstrumentSimCli& c) {
         if (unset("--offset-v")) c.o.offset_v = 0.002;
         if (unset("--noise-v")) c.o.noise_v = 1e-4;
     }
+    c.o.generator_idn = decode_escapes(c.o.generator_idn);
+    c.o.digitizer_idn = decode_escapes(c.o.digitizer_idn);
+    c.o.error_text = decode_escapes(c.o.error_text);
     c.o.stop = &g_isim_stop;
     std::signal(SIGINT, on_isim_signal);
     std::signal(SIGTERM, on_isim_signal);
@@ -72,6 +94,17 @@ Command add_instrument_sim(CLI::App& app) {
     s->add_option("--silent-after", c->o.silent_after, "Fault: after N commands read and never answer");
     s->add_option("--drop-after", c->o.drop_after, "Fault: after N commands close every connection and exit");
     s->add_option("--exit-after", c->o.exit_after_s, "Exit after S seconds (0: at SIGTERM/SIGINT)");
+    s->add_option("--fault", c->o.fault, "Fault at --fault-on: drop (close every connection and exit: the instrument died), freeze (never answer again), "
+                                         "truncate (send half of that reply, then freeze)")
+        ->check(CLI::IsMember({"drop", "freeze", "truncate"}));
+    s->add_option("--fault-on", c->o.fault_on, "The command the fault happens at, by its start (any case): ':WAV:DATA?' is mid-acquisition");
+    s->add_option("--fault-count", c->o.fault_count, "At its Nth occurrence")->capture_default_str()->check(CLI::PositiveNumber);
+    s->add_option("--reply-delay-s", c->o.reply_delay_s, "Fault: every reply this many seconds late")->capture_default_str()->check(CLI::NonNegativeNumber);
+    s->add_option("--generator-idn", c->o.generator_idn, "The generator's *IDN? answer (\\xNN: any byte)");
+    s->add_option("--digitizer-idn", c->o.digitizer_idn, "The digitizer's *IDN? answer (\\xNN: any byte)");
+    s->add_option("--idn-bytes", c->o.idn_bytes, "Pad the generator's *IDN? answer to this many bytes");
+    s->add_option("--error-on", c->o.error_on, "After each command starting with this, queue the error -200,\"--error-text\"");
+    s->add_option("--error-text", c->o.error_text, "Text of that error (\\xNN: any byte)");
     return {s, [c] { return run_instrument_sim_cli(*c); }};
 }
 

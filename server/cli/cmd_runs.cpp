@@ -6,6 +6,7 @@
 #include "server/scenario.hpp"
 #include "server/service.hpp"
 #include "server/store.hpp"
+#include "server/text.hpp"
 #include "server/verdict.hpp"
 
 #include <array>
@@ -35,7 +36,7 @@ int run_runs(const RunsOptions& o) {
             throw ConfigError("id", "no run '" + o.show + "' in this history (fringe runs lists them)");
         }
         if (o.as_json) std::printf("%s\n", r->dump(2, ' ', false, json::error_handler_t::replace).c_str());
-        else print_run_summary(*r, (*r)["scenario"].value("name", std::string("run")));
+        else print_run_summary(*r, (*r)["scenario"].is_object() ? (*r)["scenario"].value("name", std::string("run")) : std::string("run"));
         return kExitOk;
     }
     RunFilter f;
@@ -59,10 +60,13 @@ int run_runs(const RunsOptions& o) {
         std::printf("%s\n", a.dump(2, ' ', false, json::error_handler_t::replace).c_str());
         return kExitOk;
     }
-    // Columns as wide as their widest cell.
+    // Columns as wide as their widest cell; names, DUTs (an instrument's *IDN?) and benches come
+    // from clients and devices: escaped for the terminal (a NUL no longer cuts the row).
     constexpr std::size_t kCols = 7;
     std::vector<std::array<std::string, kCols>> cells{{"id", "started", "bench", "scenario", "dut", "status", "verdict"}};
-    for (const auto& r : rows) cells.push_back({r.id, r.created_at, r.bench, r.scenario, r.dut, r.status, r.verdict});
+    for (const auto& r : rows)
+        cells.push_back({term_escape(r.id), term_escape(r.created_at), term_escape(r.bench), term_escape(r.scenario), term_escape(r.dut), term_escape(r.status),
+                         term_escape(r.verdict)});
     std::array<std::size_t, kCols> w{};
     for (const auto& c : cells)
         for (std::size_t k = 0; k < kCols; ++k) w[k] = std::max(w[k], c[k].size());

@@ -1,5 +1,6 @@
 // What the fringe commands share (common.hpp).
 #include "common.hpp"
+#include "server/text.hpp"
 
 #include "signal_gen/config.hpp"
 
@@ -121,30 +122,31 @@ std::string interval_text(const json& iv) {
     return b;
 }
 
+// Every string here comes from a report: a scenario file, a client or a device wrote it.
 void print_run_summary(const json& r, const std::string& name) {
-    std::printf("run %s: %s %s (%s)\n", r["id"].get<std::string>().c_str(), name.c_str(), r["verdict"].get<std::string>().c_str(),
-                r["status"].get<std::string>().c_str());
-    if (r["error"].is_string()) std::printf("error: %s\n", r["error"].get<std::string>().c_str());
-    for (const auto& w : r.value("warnings", json::array())) std::printf("warning: %s\n", w.value("message", "").c_str());
+    const auto str = [](const json& v) { return term_escape(v.is_string() ? v.get<std::string>() : v.dump()); };
+    std::printf("run %s: %s %s (%s)\n", str(r["id"]).c_str(), term_escape(name).c_str(), str(r["verdict"]).c_str(), str(r["status"]).c_str());
+    if (r["error"].is_string()) std::printf("error: %s\n", str(r["error"]).c_str());
+    for (const auto& w : r.value("warnings", json::array())) std::printf("warning: %s\n", term_escape(w.value("message", "")).c_str());
     for (const auto& e : r["estimators"]) {
         const auto& m = e["metrics"];
         const auto& ev = m.value("evidence", json::object());
         if (!m["rms"].is_object()) {
-            std::printf("  %-20s no scored samples (%llu after the settle time, valid %s)\n", e["label"].get<std::string>().c_str(),
+            std::printf("  %-20s no scored samples (%llu after the settle time, valid %s)\n", str(e["label"]).c_str(),
                         static_cast<unsigned long long>(ev.value("samples_after_settle", std::uint64_t{0})),
                         ev.value("valid_fraction", json()).is_number() ? (std::to_string(100.0 * ev["valid_fraction"].get<double>()).substr(0, 5) + " %").c_str() : "-");
             continue;
         }
         const std::string rms_iv = interval_text(m.value("uncertainty", json::object()).value("rms_rad", json()));
         std::printf("  %-20s rms %.3e rad%s, max|e| %.3e rad, slipped %llu; scored %llu samples, %.1f cycles, valid %.1f %%\n",
-                    e["label"].get<std::string>().c_str(), m["rms"]["rad"].get<double>(), rms_iv.c_str(), m["max_abs"]["rad"].get<double>(),
+                    str(e["label"]).c_str(), m["rms"]["rad"].get<double>(), rms_iv.c_str(), m["max_abs"]["rad"].get<double>(),
                     static_cast<unsigned long long>(m["slipped_samples"].get<std::uint64_t>()),
                     static_cast<unsigned long long>(ev.value("scored_samples", std::uint64_t{0})), ev.value("scored_cycles", 0.0),
                     100.0 * ev.value("valid_fraction", 0.0));
     }
     for (const auto& e : r["estimators"])
         if (const std::string n = state_notes(e.value("state", json())); !n.empty())
-            std::printf("  %-20s %s\n", e["label"].get<std::string>().c_str(), n.c_str());
+            std::printf("  %-20s %s\n", str(e["label"]).c_str(), term_escape(n).c_str());
     // Counts as integers, everything else to 4 significant digits.
     auto fmt = [](const json& v) {
         if (!v.is_number()) return std::string("not measured");
@@ -162,9 +164,9 @@ void print_run_summary(const json& r, const std::string& name) {
         char val[32];
         std::snprintf(val, sizeof val, "%s", fmt(m["value"]).c_str());
         const std::string unit = m["value"].is_number() && !m["unit"].get<std::string>().empty() ? " " + m["unit"].get<std::string>() : "";
-        std::printf("  %-8s %s %s = %s%s%s (limit %s%s)%s\n", m["outcome"].get<std::string>().c_str(), m["estimator"].get<std::string>().c_str(),
-                    m["metric"].get<std::string>().c_str(), val, unit.c_str(), interval_text(m.value("interval_95", json())).c_str(), lim.c_str(),
-                    m.value("implicit", false) ? ", evidence" : "", m.contains("reason") ? ("; " + m["reason"].get<std::string>()).c_str() : "");
+        std::printf("  %-8s %s %s = %s%s%s (limit %s%s)%s\n", str(m["outcome"]).c_str(), str(m["estimator"]).c_str(),
+                    str(m["metric"]).c_str(), val, unit.c_str(), interval_text(m.value("interval_95", json())).c_str(), lim.c_str(),
+                    m.value("implicit", false) ? ", evidence" : "", m.contains("reason") ? ("; " + str(m["reason"])).c_str() : "");
     }
 }
 
