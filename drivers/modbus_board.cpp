@@ -1,6 +1,7 @@
 #include "modbus_board.hpp"
 
 #include "signal_gen/config.hpp"
+#include "signal_gen/json_bounded.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -8,6 +9,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 
 namespace fringe::dev {
 
@@ -188,9 +190,11 @@ BoardProfile load_board(const std::string& name_or_path) {
     }
     json j;
     try {
-        j = json::parse(f);
-    } catch (const json::parse_error& e) {
-        throw ConfigError("device.board", p.string() + ": " + e.what());
+        std::ostringstream text;
+        text << f.rdbuf();
+        j = parse_json_bounded(text.str(), p.string());
+    } catch (const ConfigError& e) {
+        throw ConfigError("device.board", e.what());
     }
     BoardProfile b;
     try {

@@ -1,6 +1,7 @@
 #include "forward.hpp"
 
 #include "signal_gen/config.hpp"
+#include "signal_gen/json_bounded.hpp"
 
 #include <algorithm>
 #include <filesystem>
@@ -108,7 +109,11 @@ ForwardingStore::Pass ForwardingStore::pass_locked() {
             const auto batch = fwd_local_->pending_forward(64);
             if (batch.empty()) break;
             for (const auto& item : batch) {
-                json rep = json::parse(item.report, nullptr, false);
+                json rep = json(json::value_t::discarded);
+                try {
+                    rep = parse_json_bounded(item.report, "", kMaxStoredJsonDepth);
+                } catch (const ConfigError&) {
+                }
                 if (rep.is_discarded() || !rep.is_object()) {
                     fwd_local_->set_forwarded(item.id, "failed", "the stored report is not JSON");
                     continue;

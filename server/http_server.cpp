@@ -12,8 +12,9 @@
 #include <spdlog/spdlog.h>
 
 #include <atomic>
-#include <limits>
 #include <chrono>
+#include <limits>
+#include <map>
 #include <filesystem>
 #include <mutex>
 #include <optional>
@@ -56,7 +57,31 @@ struct Shared {
     net::thread_pool* work = nullptr;  // heavy requests
     std::atomic<std::size_t> pending_work{0};
     std::atomic<unsigned> sessions{0};  // connections being served (not the ones turned away)
+    std::mutex clients_mu{};
+    std::map<net::ip::address, unsigned> clients{};  // connections being served, per source address
+
+    // Counts a connection from a; false (nothing counted) if a already has its share.
+    bool admit(const net::ip::address& a) {
+        std::lock_guard<std::mutex> l(clients_mu);
+        auto& n = clients[a];
+        if (n >= opt.max_connections_per_client) {
+            if (n == 0) clients.erase(a);
+            return false;
+        }
+        ++n;
+        return true;
+    }
+    void release(const net::ip::address& a) {
+        std::lock_guard<std::mutex> l(clients_mu);
+        auto it = clients.find(a);
+        if (it != clients.end() && --it->second == 0) clients.erase(it);
+    }
 };
+
+// Headers a request may carry once: with two, one reader takes the first and another the last
+// (a wrong token then the right one; a body length the proxy and fringe read differently).
+constexpr http::field kSingleHeaders[] = {http::field::authorization, http::field::host, http::field::content_length,
+                                          http::field::transfer_encoding, http::field::cookie};
 
 bool disk_full(const beast::error_code& ec) {
     return ec == beast::errc::no_space_on_device || ec == beast::errc::file_too_large ||
@@ -68,6 +93,13 @@ public:
     Session(tcp::socket&& s, Shared& sh) : stream_(std::move(s)), sh_(sh), timer_(stream_.get_executor()) {}
     ~Session() {
         if (counted_) --sh_.sessions;
+        if (client_counted_) sh_.release(client_);
+    }
+
+    // This connection's share of its client's (admit() already counted it).
+    void count_client(const net::ip::address& a) {
+        client_ = a;
+        client_counted_ = true;
     }
 
     void start() {
@@ -77,10 +109,13 @@ public:
     }
 
     // Over the connection limit: answer 503 and close, without reading a request.
-    void reject() {
-        net::dispatch(stream_.get_executor(), [self = shared_from_this()] {
-            auto r = json_error(503, "too_many_connections",
-                                "this service serves " + std::to_string(self->sh_.opt.max_connections) + " connections at once; retry shortly");
+    void reject(bool per_client) {
+        net::dispatch(stream_.get_executor(), [self = shared_from_this(), per_client] {
+            auto r = per_client ? json_error(503, "too_many_connections",
+                                             "this service serves " + std::to_string(self->sh_.opt.max_connections_per_client) +
+                                                 " connections at once from one client address; close some or retry shortly")
+                                : json_error(503, "too_many_connections",
+                                             "this service serves " + std::to_string(self->sh_.opt.max_connections) + " connections at once; retry shortly");
             r.headers.emplace_back("Retry-After", "1");
             self->drain_ = true;
             self->respond(std::move(r), false);
@@ -92,7 +127,9 @@ private:
         head_.emplace();
         head_->header_limit(16 * 1024);
         head_->body_limit(std::numeric_limits<std::uint64_t>::max());  // decided in on_header
-        stream_.expires_after(std::chrono::seconds(sh_.opt.read_timeout_s));
+        // One deadline for the whole header (and the idle wait before it): a client trickling
+        // a byte at a time is cut off as surely as one that sends nothing.
+        stream_.expires_after(std::chrono::seconds(std::max(1, std::min(sh_.opt.read_timeout_s, sh_.opt.header_timeout_s))));
         http::async_read_header(stream_, buf_, *head_, beast::bind_front_handler(&Session::on_header, shared_from_this()));
     }
 
@@ -128,11 +165,20 @@ private:
         keep_alive_ = h.keep_alive();
         const auto len = head_->content_length();
         std::optional<HttpResponse> early;
+        for (const auto f : kSingleHeaders)
+            if (h.count(f) > 1) {
+                const std::string name(http::to_string(f));
+                std::string field = name;
+                for (auto& c : field) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+                early = json_error(400, f == http::field::host ? "bad_host" : "duplicate_header",
+                                   "the request has more than one " + name + " header", field);
+                keep_alive_ = false;
+                break;
+            }
         // HTTP/1.1 requires exactly one Host (RFC 9112 3.2); the service checks its value.
-        if (h.version() >= 11 && h.count(http::field::host) == 0)
+        if (early) {
+        } else if (h.version() >= 11 && h.count(http::field::host) == 0)
             early = json_error(400, "missing_host", "an HTTP/1.1 request needs a Host header", "host");
-        else if (h.count(http::field::host) > 1)
-            early = json_error(400, "bad_host", "the request has more than one Host header", "host");
         else
             early = sh_.svc.precheck(req_, len ? *len : 0, len.has_value());
         if (early) {
@@ -382,6 +428,8 @@ private:
     std::uint64_t last_seq_ = 0;
     std::chrono::steady_clock::time_point last_write_;
     bool counted_ = false;
+    net::ip::address client_;
+    bool client_counted_ = false;
     // body pace
     std::chrono::steady_clock::time_point body_start_;
     std::uint64_t body_bytes_ = 0, body_gen_ = 0;
@@ -442,9 +490,16 @@ struct HttpServer::Impl {
                 return;
             }
             s.set_option(tcp::no_delay(true), ec);
+            const auto peer = s.remote_endpoint(ec);
             auto session = std::make_shared<Session>(std::move(s), sh);
-            if (sh.sessions.load() >= sh.opt.max_connections) session->reject();
-            else session->start();
+            if (sh.sessions.load() >= sh.opt.max_connections) {
+                session->reject(false);
+            } else if (!ec && !sh.admit(peer.address())) {
+                session->reject(true);
+            } else {
+                if (!ec) session->count_client(peer.address());
+                session->start();
+            }
             accept();
         });
     }

@@ -2,7 +2,8 @@
 // HTTP/1.1 with keep-alive, one strand and a timeout per connection, body limits checked
 // from the headers before a body is read, slow bodies cut off (408), capture uploads
 // streamed to disk, heavy requests handed to a worker pool (the I/O threads only move
-// bytes), a bound on connections, server-sent progress events, and a clean shutdown on
+// bytes), a bound on connections (in all and per client address), a header deadline,
+// duplicate security-relevant headers refused, server-sent progress events, and a clean shutdown on
 // SIGINT/SIGTERM or stop().
 #pragma once
 
@@ -17,6 +18,10 @@ struct HttpServerOptions {
     std::string bind = "127.0.0.1:8080";  // host:port, [v6]:port; port 0 picks a free one
     unsigned threads = 2;
     int read_timeout_s = 30;     // per request (header + body), and idle keep-alive
+    // A request's whole header must arrive within this many seconds of the connection opening
+    // or of its last answer (trickling a byte at a time does not extend it): slow-header
+    // clients give their connection back quickly.
+    int header_timeout_s = 10;
     int event_poll_ms = 25;      // how often an events stream looks for progress
     bool handle_signals = true;  // SIGINT/SIGTERM stop the server
     // Slow bodies (408 body_timeout, then close): a JSON body must arrive within
@@ -26,6 +31,9 @@ struct HttpServerOptions {
     double upload_min_bytes_per_s = 64 * 1024;
     // Connections served at once; one more gets 503 too_many_connections and is closed.
     unsigned max_connections = 256;
+    // Connections served at once from one source address; one more gets 503
+    // too_many_connections (client) and is closed, so one client cannot take every slot.
+    unsigned max_connections_per_client = 32;
     // Requests the service marks heavy (uploads, evaluations, first report reads) run on
     // this many pool threads, never on the I/O threads (0: the service's run workers);
     // beyond max_pending_work waiting, 503 busy.

@@ -2,6 +2,7 @@
 
 #include "report_formats.hpp"
 #include "signal_gen/config.hpp"
+#include "signal_gen/json_bounded.hpp"
 
 #include <boost/asio/connect.hpp>
 #include <boost/asio/ip/tcp.hpp>
@@ -100,7 +101,11 @@ HttpReply ServiceClient::request(const std::string& method, const std::string& p
 
 json ServiceClient::call(const std::string& method, const std::string& path, const json* body) {
     const HttpReply r = request(method, path, body ? body->dump() : std::string());
-    json j = json::parse(r.body, nullptr, false);
+    json j = json(json::value_t::discarded);
+    try {  // an answer nested without bound would recurse in every copy
+        j = parse_json_bounded(r.body, "", kMaxStoredJsonDepth);
+    } catch (const ConfigError&) {
+    }
     if (r.status >= 200 && r.status < 300 && !j.is_discarded()) return j;
     std::string what = "fringe serve at " + url_.text() + ": " + method + " " + path + ": HTTP " + std::to_string(r.status);
     if (!j.is_discarded() && j.contains("error") && j["error"].is_object()) {

@@ -43,6 +43,21 @@ RunManager::RunManager(RunStore& store, std::mutex& store_mu, unsigned workers) 
 RunManager::~RunManager() { shutdown(); }
 
 std::string RunManager::submit(Scenario sc) {
+    {
+        std::lock_guard<std::mutex> l(mu_);
+        if (stopping_) throw std::runtime_error("the service is shutting down");
+        if (max_queued > 0 && queue_.size() + submitting_ >= max_queued)
+            throw QueueFull(std::to_string(queue_.size() + submitting_) + " runs are already queued (at most " + std::to_string(max_queued) +
+                            ", --max-queued-runs); retry when some have started");
+        ++submitting_;
+    }
+    struct Admitted {  // the slot is given back however submit() ends
+        RunManager& m;
+        ~Admitted() {
+            std::lock_guard<std::mutex> l(m.mu_);
+            --m.submitting_;
+        }
+    } admitted{*this};
     auto job = std::make_shared<Job>();
     job->snap.id = new_run_id();
     job->snap.scenario = sc.name;

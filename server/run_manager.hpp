@@ -20,6 +20,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <stdexcept>
 #include <string>
 #include <thread>
 #include <vector>
@@ -39,6 +40,11 @@ void to_json(nlohmann::json& j, const RunSnapshot& s);
 // Runs on this device key exclude each other; "" means no exclusion (simulated devices).
 std::string device_key(const std::string& uri);
 
+// submit() when max_queued runs already wait: the client should retry later (429).
+struct QueueFull : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
+
 class RunManager {
 public:
     // store_mu guards every use of store (shared with the HTTP handlers).
@@ -47,7 +53,8 @@ public:
     RunManager(const RunManager&) = delete;
     RunManager& operator=(const RunManager&) = delete;
 
-    // Queues a validated scenario; returns its id. Throws std::runtime_error after shutdown.
+    // Queues a validated scenario; returns its id. Throws QueueFull when max_queued runs are
+    // already waiting (nothing stored), std::runtime_error after shutdown.
     std::string submit(Scenario sc);
     // Asks a queued or running run to stop (it ends ABORTED). False if unknown or finished.
     enum class CancelResult { Cancelled, Unknown, Finished };
@@ -66,6 +73,8 @@ public:
     // A report larger than this (serialised, bytes; 0: no bound) is not stored: the run ends
     // as an error whose report says how large it was.
     std::size_t max_report_bytes = 0;
+    // Runs waiting for a worker or their board (not yet running) at most; 0: no bound.
+    std::size_t max_queued = 0;
     // The service's bench, host, DUT and operator (a scenario's dut / dut_part win): each
     // run's report["provenance"] and row.
     ProvenanceDefaults provenance = provenance_defaults();
@@ -92,6 +101,7 @@ private:
     std::map<std::string, std::shared_ptr<Job>> jobs_;  // queued, running and the last finished
     std::deque<std::string> finished_order_;
     std::map<std::string, int> busy_keys_;
+    std::size_t submitting_ = 0;  // admitted by submit(), not yet in queue_ (their rows are being stored)
     bool stopping_ = false;
     std::vector<std::thread> threads_;
 };

@@ -1,10 +1,12 @@
 #include "scenario.hpp"
 
 #include "signal_gen/config.hpp"
+#include "signal_gen/json_bounded.hpp"
 
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <sstream>
 
 namespace fringe {
 
@@ -32,16 +34,37 @@ json load_json_file(const std::string& path) {
     // a scenario whose "encoder" is "" names its own folder)
     std::error_code ec;
     if (fs::is_directory(path, ec)) throw ConfigError("", "'" + path + "' is a directory, not a JSON file");
-    std::ifstream in(path);
+    std::ifstream in(path, std::ios::binary);
     if (!in) throw ConfigError("", "cannot open '" + path + "'");
+    std::ostringstream text;
     try {
-        return json::parse(in);
-    } catch (const json::exception& e) {
-        throw ConfigError("", path + ": malformed JSON: " + e.what());
+        text << in.rdbuf();
     } catch (const std::ios_base::failure& e) {
         throw ConfigError("", "cannot read '" + path + "': " + e.what());
     }
+    if (in.bad()) throw ConfigError("", "cannot read '" + path + "'");
+    // Nesting at most kMaxJsonDepth, no key twice: the error names the key and the file.
+    return parse_json_bounded(text.str(), path);
 }
+
+namespace {
+// Stored, listed and printed with every run: long enough for any real name, short enough
+// that a list of runs stays small.
+constexpr std::size_t kMaxNameChars = 200;
+constexpr std::size_t kMaxDescriptionChars = 10000;
+
+std::size_t utf8_chars(const std::string& s) {
+    std::size_t n = 0;
+    for (const char c : s) n += (static_cast<unsigned char>(c) & 0xC0) != 0x80;
+    return n;
+}
+
+std::string bounded(std::string v, const std::string& key, std::size_t max_chars) {
+    if (const auto n = utf8_chars(v); n > max_chars)
+        throw ConfigError(key, "too long: " + std::to_string(n) + " characters (at most " + std::to_string(max_chars) + ")");
+    return v;
+}
+}  // namespace
 
 json resolve_json_ref(const json& j, const std::string& base_dir, std::string* file_out) {
     if (file_out) file_out->clear();
@@ -57,8 +80,8 @@ EncoderProfile load_encoder(const std::string& path) { return encoder_from_json(
 Scenario scenario_from_json(const json& j, const std::string& base_dir) {
     JsonReader r(j, "");
     Scenario s;
-    s.name = r.string("name", s.name);
-    s.description = r.string("description", "");
+    s.name = bounded(r.string("name", s.name), "name", kMaxNameChars);
+    s.description = bounded(r.string("description", ""), "description", kMaxDescriptionChars);
     const json& enc = r.raw("encoder");
     if (!enc.is_string() && !enc.is_object()) throw ConfigError("encoder", "expected a profile object or a file name");
     std::string file;
@@ -89,8 +112,8 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
         s.device = r.string("device", s.device);
     }
     s.settle_s = r.number("settle_s", s.settle_s, 0.0, 1e7);
-    s.dut = r.string("dut", "");
-    s.dut_part = r.string("dut_part", "");
+    s.dut = bounded(r.string("dut", ""), "dut", kMaxNameChars);
+    s.dut_part = bounded(r.string("dut_part", ""), "dut_part", kMaxNameChars);
     if (r.has("scoring")) {
         JsonReader sr = r.object("scoring");
         s.scoring.max_harmonic = static_cast<int>(sr.integer("max_harmonic", s.scoring.max_harmonic, 1, 64));
@@ -108,7 +131,7 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
             JsonReader er(arr[i], path);
             EstimatorSpec e;
             e.name = er.string("name");
-            e.label = er.string("label", e.name);
+            e.label = bounded(er.string("label", e.name), path + ".label", kMaxNameChars);
             if (er.has("params")) e.params = er.raw("params");
             if (er.has("encoder")) e.encoder = encoder_from_json(resolve_json_ref(er.raw("encoder"), base_dir), path + ".encoder");
             er.finish();

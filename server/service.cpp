@@ -71,6 +71,7 @@ Service::Service(ServiceConfig cfg) : cfg_(std::move(cfg)) {
     remove_stale_instance_locks(cfg_.data_dir);
     runs_ = std::make_unique<RunManager>(*store_, store_mu_, cfg_.workers);
     runs_->max_report_bytes = cfg_.max_report_bytes;
+    runs_->max_queued = cfg_.max_queued_runs;
     runs_->provenance = cfg_.provenance;
     if (auto* fwd = dynamic_cast<ForwardingStore*>(store_.get())) fwd->start();  // forwards what earlier runs left pending, too
     if (!cfg_.web_dir.empty() && fs::is_directory(cfg_.web_dir)) {
@@ -352,7 +353,14 @@ HttpResponse Service::create_run(const HttpRequest& req) {
     } catch (const ConfigError& e) {
         throw e.prefixed("scenario");
     }
-    const std::string id = runs_->submit(std::move(sc));
+    std::string id;
+    try {
+        id = runs_->submit(std::move(sc));
+    } catch (const QueueFull& e) {
+        auto r = json_error(429, "queue_full", e.what());
+        r.headers.emplace_back("Retry-After", "10");
+        return r;
+    }
     auto r = json_ok({{"id", id}, {"status", "queued"}, {"links", {{"self", "/api/v1/runs/" + id}, {"events", "/api/v1/runs/" + id + "/events"}}}}, 201);
     r.headers.emplace_back("Location", "/api/v1/runs/" + id);
     return r;

@@ -52,6 +52,8 @@ struct ServiceConfig {
     std::size_t max_estimators = 16;
     std::size_t max_limits = 64;
     std::size_t max_report_bytes = 64u << 20;
+    // Runs waiting to start, all together (429 queue_full with Retry-After beyond it; 0: no bound).
+    std::size_t max_queued_runs = 64;
     // Uploaded captures on disk, all together (507 quota_exceeded beyond it).
     std::uint64_t upload_quota_bytes = 4ull << 30;
 };

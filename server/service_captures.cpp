@@ -104,8 +104,10 @@ json Service::captures() const {
     }
     std::sort(infos.rbegin(), infos.rend());
     for (const auto& p : infos) {
-        const json j = json::parse(read_file(p), nullptr, false);
-        if (!j.is_discarded()) list.push_back(j);
+        try {
+            list.push_back(parse_json_bounded(read_file(p), p.string(), kMaxStoredJsonDepth));
+        } catch (const ConfigError&) {  // not one the service wrote: not listed
+        }
     }
     return list;
 }

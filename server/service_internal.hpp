@@ -7,6 +7,7 @@
 #include "service.hpp"
 
 #include "signal_gen/config.hpp"
+#include "signal_gen/json_bounded.hpp"
 #include "text.hpp"
 
 #include <nlohmann/json.hpp>
@@ -79,7 +80,10 @@ inline void split_target(const std::string& target, std::string& path, std::map<
         const std::string kv = qs.substr(pos, amp - pos);
         if (!kv.empty()) {
             const auto eq = kv.find('=');
-            query[pct_decode(kv.substr(0, eq))] = eq == std::string::npos ? "" : pct_decode(kv.substr(eq + 1));
+            std::string k = pct_decode(kv.substr(0, eq));
+            // ?limit=1&limit=1000 is ambiguous (one reader takes the first, another the last)
+            if (query.count(k)) throw ConfigError(k, "query parameter given more than once");
+            query[std::move(k)] = eq == std::string::npos ? "" : pct_decode(kv.substr(eq + 1));
         }
         pos = amp + 1;
     }
@@ -104,97 +108,12 @@ inline HttpResponse json_ok(const json& j, int status = 200) {
     return r;
 }
 
-// nlohmann's DOM parser behind a SAX front that keeps the path of the value being read, so
-// a parse error (1e400 overflows a double) names its field: "scenario.duration_s".
-class PathSax {
-public:
-    explicit PathSax(json& root) : dom_(root, false) {}
-    bool null() { return value() && dom_.null(); }
-    bool boolean(bool v) { return value() && dom_.boolean(v); }
-    bool number_integer(json::number_integer_t v) { return value() && dom_.number_integer(v); }
-    bool number_unsigned(json::number_unsigned_t v) { return value() && dom_.number_unsigned(v); }
-    bool number_float(json::number_float_t v, const json::string_t& s) { return value() && dom_.number_float(v, s); }
-    bool string(json::string_t& v) { return value() && dom_.string(v); }
-    bool binary(json::binary_t& v) { return value() && dom_.binary(v); }
-    bool start_object(std::size_t n) {
-        value();
-        frames_.push_back({false, 0, {}});
-        return dom_.start_object(n);
-    }
-    bool key(json::string_t& k) {
-        frames_.back().key = k;
-        return dom_.key(k);
-    }
-    bool end_object() {
-        frames_.pop_back();
-        return dom_.end_object();
-    }
-    bool start_array(std::size_t n) {
-        value();
-        frames_.push_back({true, 0, {}});
-        return dom_.start_array(n);
-    }
-    bool end_array() {
-        frames_.pop_back();
-        return dom_.end_array();
-    }
-    bool parse_error(std::size_t, const std::string&, const nlohmann::detail::exception& e) {
-        for (std::size_t i = 0; i < frames_.size(); ++i) {
-            const auto& f = frames_[i];
-            // The innermost array is reading its next element; outer ones, their last.
-            if (f.array) {
-                error_field.append(1, '[').append(std::to_string(i + 1 == frames_.size() ? f.count : f.count - 1)).append(1, ']');
-            } else if (!f.key.empty()) {
-                if (!error_field.empty()) error_field.append(1, '.');
-                error_field.append(f.key);
-            }
-        }
-        // What a client sent comes back bounded: 500 000 '[' must not answer with a 1.5 MB path,
-        // nor an unterminated megabyte string with itself.
-        error_field = shorten(std::move(error_field), 240);
-        error_id = e.id;
-        error = shorten(e.what(), 400);
-        return false;
-    }
-    std::string error, error_field;
-    int error_id = 0;
-
-private:
-    static std::string shorten(std::string s, std::size_t max) {
-        if (s.size() <= max) return s;
-        std::size_t head = max / 2, tail = max / 2;
-        while (head > 0 && (static_cast<unsigned char>(s[head]) & 0xC0) == 0x80) --head;  // whole UTF-8 characters
-        while (tail > 0 && (static_cast<unsigned char>(s[s.size() - tail]) & 0xC0) == 0x80) --tail;
-        return s.substr(0, head) + "..." + s.substr(s.size() - tail);
-    }
-    bool value() {
-        if (!frames_.empty() && frames_.back().array) ++frames_.back().count;
-        return true;
-    }
-    struct Frame {
-        bool array;
-        std::size_t count;
-        std::string key;
-    };
-    nlohmann::detail::json_sax_dom_parser<json> dom_;
-    std::vector<Frame> frames_;
-};
-
+// A request body: JSON nested at most kMaxJsonDepth deep, no key twice in an object; errors
+// name the field ("scenario.duration_s": 1e400 overflows a double).
 inline json parse_body(const std::string& body) {
     if (body.empty()) throw ConfigError("", "the request needs a JSON body");
     require_utf8(body, "body", "the request body");
-    json j;
-    PathSax sax(j);
-    if (!json::sax_parse(body, &sax)) {
-        // out_of_range.406: a number that does not fit a double (1e400)
-        if (sax.error_id == 406) {
-            const auto q = sax.error.find('\'');
-            throw ConfigError(sax.error_field, "number out of range" + (q == std::string::npos ? std::string() : " (" + sax.error.substr(q) + ")") +
-                                                   ": JSON numbers here must fit a double");
-        }
-        throw ConfigError(sax.error_field, "malformed JSON: " + sax.error);
-    }
-    return j;
+    return parse_json_bounded(body, "");
 }
 
 inline void only_keys(const json& j, std::initializer_list<const char*> keys, const std::string& where) {

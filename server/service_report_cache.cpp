@@ -23,7 +23,7 @@ std::shared_ptr<const Service::Cached> Service::cached_report(const std::string&
         text = store_->report_text(id);
     }
     if (!text) return nullptr;
-    std::optional<json> rep = json::parse(*text);  // outside the store lock
+    std::optional<json> rep = parse_json_bounded(*text, "the stored report of run " + id, kMaxStoredJsonDepth);  // outside the store lock
     text.reset();
     auto c = std::make_shared<Cached>();
     // The service's folders by short names (capture:ID plays DATA/captures/ID.fcap).

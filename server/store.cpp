@@ -3,6 +3,7 @@
 #include "instance_lock.hpp"
 #include "provenance.hpp"
 #include "signal_gen/config.hpp"
+#include "signal_gen/json_bounded.hpp"
 
 #include <sqlite3.h>
 #include <fcntl.h>
@@ -300,7 +301,7 @@ std::optional<std::string> SqliteStore::report_text(const std::string& id) const
 std::optional<nlohmann::json> RunStore::report(const std::string& id) const {
     auto t = report_text(id);
     if (!t) return std::nullopt;
-    return nlohmann::json::parse(*t);
+    return parse_json_bounded(*t, "the stored report of run " + id, kMaxStoredJsonDepth);
 }
 
 // --since: an ISO date or time (2026-11-21, 2026-11-21T15:00:00Z), "today", "yesterday" or
@@ -320,6 +321,15 @@ std::string parse_since(const std::string& v) {
         return day_start(now - 86400 * static_cast<std::time_t>(std::stoll(v.substr(0, v.size() - 1))));
     std::tm tm{};
     const char* end = strptime(v.c_str(), "%Y-%m-%d", &tm);
+    if (end) {
+        // strptime takes any day 1-31 in any month: 2026-02-30 is no date, not March 2nd
+        std::tm back{}, norm = tm;
+        const std::time_t t = timegm(&norm);
+        gmtime_r(&t, &back);
+        if (back.tm_year != tm.tm_year || back.tm_mon != tm.tm_mon || back.tm_mday != tm.tm_mday)
+            throw ConfigError("since", "'" + v + "' is not a date (month " + std::to_string(tm.tm_mon + 1) + " of " + std::to_string(tm.tm_year + 1900) +
+                                           " has no day " + std::to_string(tm.tm_mday) + ")");
+    }
     if (end && *end == 0) return v + "T00:00:00Z";
     if (end && (*end == 'T' || *end == ' ')) {
         const char* e2 = strptime(end + 1, "%H:%M", &tm);

@@ -944,3 +944,183 @@ TEST_CASE("service: one service per data folder, runs of a gone instance are int
     cli.reset();
     CHECK(body_of(s.handle(req("GET", "/api/v1/runs/20000101T000000Z-00000002", "", false)))["status"] == "interrupted");
 }
+
+// ---- issue 21: inputs that recursed, piled up or were read ambiguously --------------------
+
+namespace {
+std::string repeat(const std::string& s, std::size_t n) {
+    std::string out;
+    out.reserve(s.size() * n);
+    for (std::size_t i = 0; i < n; ++i) out += s;
+    return out;
+}
+}  // namespace
+
+TEST_CASE("http server: JSON nested 10^6 deep answers 400 naming the depth on every endpoint that takes JSON", "[service][socket][hostile][deep]") {
+    TempDir d;
+    auto c = config(d);
+    c.max_body_bytes = 8u << 20;  // the bodies reach the parser (not 413)
+    Served s(c, HttpServerOptions{});
+    const auto up = http_call(s.port(), "POST", "/api/v1/captures", capture_bytes(d, ".fcap"));
+    REQUIRE(up.status == 201);
+    const std::string cap = json::parse(up.body)["id"];
+    constexpr std::size_t kLevels = 1000000;
+    const std::string arrays = repeat("[", kLevels) + repeat("]", kLevels);
+    const std::string objects = repeat(R"({"a":)", kLevels) + "1" + repeat("}", kLevels);
+    struct Case {
+        std::string target, body, field;
+    };
+    std::vector<Case> cases;
+    for (const std::string ep : {"/api/v1/preflight", "/api/v1/runs"}) {
+        cases.push_back({ep, R"({"scenario":{"name":"deep","description":)" + arrays + "}}", "scenario.description"});
+        cases.push_back({ep, R"({"scenario":{"name":"deep","unknown_key":)" + arrays + "}}", "scenario.unknown_key"});
+        cases.push_back({ep, R"({"scenario":{"name":"deep","estimators":[{"name":"atan2","params":)" + arrays + "}]}}", "scenario.estimators[0].params"});
+        cases.push_back({ep, R"({"scenario":{"name":"deep","encoder":)" + objects + "}}", "scenario.encoder"});
+        cases.push_back({ep, arrays, ""});
+    }
+    const std::string ev = "/api/v1/captures/" + cap + "/evaluate";
+    cases.push_back({ev, R"({"estimator":"atan2","params":)" + arrays + "}", "params"});
+    cases.push_back({ev, R"({"estimator":"atan2","encoder":)" + objects + "}", "encoder"});
+    for (const auto& k : cases) {
+        INFO(k.target << " " << k.field);
+        const auto t0 = std::chrono::steady_clock::now();
+        const auto r = http_call(s.port(), "POST", k.target, k.body);
+        const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+        INFO(r.head << "\n" << r.body.substr(0, 600));
+        REQUIRE(r.status == 400);
+        const json e = json::parse(r.body)["error"];
+        CHECK(e["code"] == "invalid");
+        CHECK(e["message"].get<std::string>().find("nested deeper than 64 levels") != std::string::npos);
+        CHECK(e["field"].get<std::string>().rfind(k.field, 0) == 0);
+        CHECK(r.body.size() < 2000);
+        CHECK(ms < 10000);
+        CHECK(http_call(s.port(), "GET", "/api/v1/health").status == 200);
+    }
+    // 64 levels are accepted (the scenario's own checks answer, not the parser).
+    const std::string at_limit = R"({"scenario":{"name":"deep","description":)" + repeat("[", 62) + repeat("]", 62) + "}}";
+    const auto r = http_call(s.port(), "POST", "/api/v1/preflight", at_limit);
+    CHECK(r.body.find("nested deeper") == std::string::npos);
+    CHECK(json::parse(r.body)["error"]["field"] == "scenario.description");  // a string is expected there
+}
+
+TEST_CASE("service: scenario files nested 10^6 deep or naming a key twice are refused naming the depth or the key", "[service][hostile][deep]") {
+    TempDir d;
+    const auto write = [&](const std::string& name, const std::string& text) {
+        const auto p = (d.path / name).string();
+        std::ofstream(p, std::ios::binary) << text;
+        return p;
+    };
+    const std::string deep = write("deep.json", R"({"name":"x","description":)" + repeat("[", 1000000) + repeat("]", 1000000) + "}");
+    try {
+        load_scenario(deep);
+        FAIL("a scenario nested 10^6 deep was read");
+    } catch (const ConfigError& e) {
+        CHECK(e.field().rfind("description", 0) == 0);
+        CHECK(std::string(e.what()).find("nested deeper than 64 levels") != std::string::npos);
+        CHECK(std::string(e.what()).find(deep) != std::string::npos);
+    }
+    const std::string dup = write("dup.json", R"({"name":"a","encoder":"x.json","name":"b"})");
+    try {
+        load_scenario(dup);
+        FAIL("a scenario naming a key twice was read");
+    } catch (const ConfigError& e) {
+        CHECK(e.field() == "name");
+        CHECK(e.message().find("duplicate key 'name'") != std::string::npos);
+    }
+    // nested: the path names the object
+    CHECK_THROWS_WITH(load_json_file(write("dup2.json", R"({"motion":{"kind":"constant","kind":"ramp"}})")), Catch::Contains("motion.kind: duplicate key 'kind'"));
+}
+
+TEST_CASE("service: duplicate JSON keys, duplicate query parameters and impossible dates answer 400 naming them", "[service][hostile]") {
+    TempDir d;
+    Service s(config(d));
+    auto r = s.handle(req("POST", "/api/v1/preflight", R"({"fixture":"fig10c-loopback","fixture":"perf-1e7"})"));
+    CHECK(r.status == 400);
+    CHECK(body_of(r)["error"]["field"] == "fixture");
+    CHECK(body_of(r)["error"]["message"].get<std::string>().find("duplicate key 'fixture'") != std::string::npos);
+    r = s.handle(req("POST", "/api/v1/runs", R"({"scenario":{"name":"a","duration_s":1,"duration_s":2}})"));
+    CHECK(r.status == 400);
+    CHECK(body_of(r)["error"]["field"] == "scenario.duration_s");
+    r = s.handle(req("GET", "/api/v1/runs?limit=1&limit=5", "", false));
+    CHECK(r.status == 400);
+    CHECK(body_of(r)["error"]["field"] == "limit");
+    CHECK(body_of(r)["error"]["message"].get<std::string>().find("more than once") != std::string::npos);
+    CHECK(s.handle(req("GET", "/api/v1/runs?limit=5&outcome=PASS", "", false)).status == 200);
+    for (const std::string bad : {"2026-02-30", "2026-02-29", "2026-04-31", "2026-13-01", "2026-02-30T10:00:00Z"}) {
+        INFO(bad);
+        r = s.handle(req("GET", "/api/v1/runs?since=" + bad, "", false));
+        CHECK(r.status == 400);
+        CHECK(body_of(r)["error"]["field"] == "since");
+    }
+    for (const std::string good : {"2026-02-28", "2024-02-29", "2026-12-31T23:59:59Z", "today", "3d"}) {
+        INFO(good);
+        CHECK(s.handle(req("GET", "/api/v1/runs?since=" + good, "", false)).status == 200);
+    }
+}
+
+TEST_CASE("service: scenario names and descriptions have maximum lengths", "[service][hostile]") {
+    TempDir d;
+    auto c = config(d);
+    c.max_body_bytes = 4u << 20;  // the 900 KB name reaches the scenario reader
+    Service s(c);
+    json sc = json::parse(std::ifstream(FRINGE_SOURCE_DIR "/fixtures/scenarios/fig10c-loopback.json"));
+    sc["encoder"] = "../encoders/paper-d2-analog.json";
+    const auto preflight = [&](const json& scenario) { return s.handle(req("POST", "/api/v1/preflight", json{{"scenario", scenario}}.dump())); };
+    struct Case {
+        std::string key;
+        std::size_t max;
+    };
+    for (const auto& [key, max] : {Case{"name", 200}, Case{"description", 10000}, Case{"dut", 200}, Case{"dut_part", 200}}) {
+        INFO(key);
+        json ok = sc, bad = sc;
+        ok[key] = repeat("\xc3\xa9", max);  // characters, not bytes
+        bad[key] = repeat("x", max + 1);
+        CHECK(preflight(ok).status == 200);
+        const auto r = preflight(bad);
+        CHECK(r.status == 400);
+        CHECK(body_of(r)["error"]["field"] == "scenario." + key);
+        CHECK(body_of(r)["error"]["message"] == "too long: " + std::to_string(max + 1) + " characters (at most " + std::to_string(max) + ")");
+    }
+    // The issue's 900 KB name: refused, nothing stored.
+    json huge = sc;
+    huge["name"] = std::string(900 * 1024, 'n');
+    auto big = s.handle(req("POST", "/api/v1/runs", json{{"scenario", huge}}.dump()));
+    CHECK(big.status == 400);
+    CHECK(body_of(big)["error"]["field"] == "scenario.name");
+    CHECK(body_of(s.handle(req("GET", "/api/v1/runs?limit=5", "", false)))["runs"].empty());
+}
+
+TEST_CASE("service: the run queue is capped: 429 queue_full with Retry-After", "[service][limits]") {
+    TempDir d;
+    auto c = config(d);
+    c.workers = 1;
+    c.max_queued_runs = 3;
+    Service s(c);
+    const std::string first = body_of(s.handle(req("POST", "/api/v1/runs", R"({"fixture":"perf-1e7"})")))["id"];
+    bool running = false;
+    for (int i = 0; i < 250 && !running; ++i) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+        running = s.runs().snapshot(first)->status == "running";
+    }
+    REQUIRE(running);
+    std::vector<std::string> queued;
+    for (int i = 0; i < 3; ++i) {
+        auto r = s.handle(req("POST", "/api/v1/runs", R"({"fixture":"fig10c-loopback"})"));
+        REQUIRE(r.status == 201);
+        queued.push_back(body_of(r)["id"]);
+    }
+    const auto full = s.handle(req("POST", "/api/v1/runs", R"({"fixture":"fig10c-loopback"})"));
+    CHECK(full.status == 429);
+    CHECK(body_of(full)["error"]["code"] == "queue_full");
+    CHECK(body_of(full)["error"]["message"].get<std::string>().find("at most 3") != std::string::npos);
+    bool retry_after = false;
+    for (const auto& [k, v] : full.headers) retry_after |= k == "Retry-After" && !v.empty();
+    CHECK(retry_after);
+    CHECK(body_of(s.handle(req("GET", "/api/v1/runs?limit=100", "", false)))["runs"].size() == 4);  // the refused one left no row
+    // A slot freed: accepted again.
+    CHECK(s.handle(req("POST", "/api/v1/runs/" + queued[0] + "/cancel")).status == 202);
+    const auto again = s.handle(req("POST", "/api/v1/runs", R"({"fixture":"fig10c-loopback"})"));
+    CHECK(again.status == 201);
+    CHECK(s.handle(req("POST", "/api/v1/runs/" + first + "/cancel")).status == 202);
+    s.shutdown();
+}

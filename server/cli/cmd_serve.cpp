@@ -24,8 +24,9 @@ struct ServeOptions {
     double max_upload_mb = 256, upload_quota_mb = 4096, max_report_mb = 64;
     double max_samples = 1e9;
     std::size_t max_estimators = 16, max_limits = 64;
-    unsigned max_connections = 256;
-    int body_timeout_s = 10;
+    unsigned max_connections = 256, max_connections_per_client = 32;
+    std::size_t max_queued_runs = 64;
+    int body_timeout_s = 10, header_timeout_s = 10;
     double upload_min_kib_s = 64;
     bool allow_external = false;
     std::vector<std::string> allow_device, allow_host;
@@ -66,6 +67,7 @@ int run_serve(const ServeOptions& o) {
     cfg.max_estimators = o.max_estimators;
     cfg.max_limits = o.max_limits;
     cfg.max_report_bytes = static_cast<std::size_t>(o.max_report_mb * 1024 * 1024);
+    cfg.max_queued_runs = o.max_queued_runs;
     cfg.upload_quota_bytes = static_cast<std::uint64_t>(o.upload_quota_mb * 1024 * 1024);
     cfg.token_for_reads = !is_loopback_bind(o.bind);
     const std::string token_file = o.token_file.empty() ? cfg.data_dir + "/token" : o.token_file;
@@ -76,6 +78,8 @@ int run_serve(const ServeOptions& o) {
     ho.bind = o.bind;
     ho.threads = o.threads;
     ho.max_connections = o.max_connections;
+    ho.max_connections_per_client = o.max_connections_per_client;
+    ho.header_timeout_s = o.header_timeout_s;
     ho.body_timeout_s = o.body_timeout_s;
     ho.upload_min_bytes_per_s = o.upload_min_kib_s * 1024;
     HttpServer server(svc, ho);
@@ -128,6 +132,13 @@ Command add_serve(CLI::App& app) {
         ->check(kFinitePositive)->capture_default_str();
     sv->add_option("--max-connections", o->max_connections, "Connections served at once; more get 503 and are closed")
         ->check(CLI::Range(1, 100000))->capture_default_str();
+    sv->add_option("--max-connections-per-client", o->max_connections_per_client,
+                   "Connections served at once from one client address; more get 503 and are closed")
+        ->check(CLI::Range(1, 100000))->capture_default_str();
+    sv->add_option("--header-timeout", o->header_timeout_s, "Seconds a request's whole header may take to arrive (and a kept-alive connection may idle); then closed")
+        ->check(CLI::Range(1, 3600))->capture_default_str();
+    sv->add_option("--max-queued-runs", o->max_queued_runs, "Runs waiting to start, all together (429 queue_full with Retry-After beyond)")
+        ->check(CLI::Range(1, 1000000))->capture_default_str();
     sv->add_option("--body-timeout", o->body_timeout_s, "Seconds a JSON body may take to arrive; also the grace before the upload rate applies (408 beyond)")
         ->check(CLI::Range(1, 3600))->capture_default_str();
     sv->add_option("--upload-min-kibps", o->upload_min_kib_s, "Slowest average upload rate accepted after --body-timeout seconds, KiB/s (408 below)")

@@ -7,12 +7,14 @@
 #include "server/scenario.hpp"
 #include "signal_gen/config.hpp"
 #include "signal_gen/generator.hpp"
+#include "signal_gen/json_bounded.hpp"
 
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <string_view>
 
 using nlohmann::json;
 using namespace fringe;
@@ -35,8 +37,13 @@ void check_samples(const Scenario& s) {
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
-    const json j = json::parse(data, data + size, nullptr, false);
-    if (j.is_discarded()) return 0;
+    // As the command line reads a scenario file: nesting bounded, no key twice.
+    json j;
+    try {
+        j = parse_json_bounded(std::string_view(reinterpret_cast<const char*>(data), size), "input");
+    } catch (const ConfigError&) {
+        return 0;
+    }
     try {
         const Scenario s = scenario_from_json(j, kFixtures);
         const json once = s;
