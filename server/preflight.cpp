@@ -84,9 +84,18 @@ std::vector<Finding> preflight(const Scenario& sc) {
             std::snprintf(b, sizeof b, "%.10g", v);
             return std::string(b);
         };
-        throw ConfigError("sample_rate_hz", "undersampled: " + fine(spc) + " (< 2) samples per electrical cycle at the peak speed (" +
+        // The peak speed in the units a person types: a speed in rpm typed as rad/s (x9.55) shows here.
+        const double f_el_hz = sc.sample_rate_hz / spc, rev_s = f_el_hz / static_cast<double>(sc.encoder.lines_per_rev);
+        auto plain = [](double v) {  // 5730 rpm, not 5.73e+03
+            char b[32];
+            std::snprintf(b, sizeof b, std::fabs(v) >= 100 && std::fabs(v) < 1e12 ? "%.0f" : "%.3g", v);
+            return std::string(b);
+        };
+        throw ConfigError("sample_rate_hz", "undersampled: " + fine(spc) + " (< 2) samples per electrical cycle at the peak speed of " + plain(kTwoPi * rev_s) +
+                                                " rad/s = " + plain(60.0 * rev_s) + " rpm (" + plain(f_el_hz) + " Hz electrical with " +
                                                 std::to_string(sc.encoder.lines_per_rev) + " lines); at least 2 are needed, and 4 or more to track. "
-                                                "Raise sample_rate_hz above " + fine(2 * sc.sample_rate_hz / spc) + " Hz or lower the speed");
+                                                "Raise sample_rate_hz above " + fine(2 * sc.sample_rate_hz / spc) + " Hz or lower the speed "
+                                                "(velocity_rad_s is in rad/s: 600 rpm is 62.8 rad/s)");
     }
     if (spc < 4.0)
         w.push_back({false, "few_samples_per_cycle", "sample_rate_hz",

@@ -119,8 +119,24 @@ std::string junit_xml(const json& r) {
         x << "      </properties>\n";
         const std::string what = est + " " + metric + " = " + (m["value"].is_number() ? num(m["value"]) : std::string("unmeasured")) + " " +
                                  m["unit"].get<std::string>();
+        // The limit it was held to, in the message a CI log shows (not only in the properties).
+        std::string unit;
+        if (!m["unit"].get<std::string>().empty()) {
+            unit += ' ';
+            unit += m["unit"].get<std::string>();
+        }
+        std::string lim;
+        if (m["limit"].contains("min") && m["limit"].contains("max"))
+            lim = num(m["limit"]["min"]) + " <= " + metric + " <= " + num(m["limit"]["max"]) + unit;
+        else if (m["limit"].contains("max"))
+            lim = "<= " + num(m["limit"]["max"]) + unit;
+        else if (m["limit"].contains("min"))
+            lim = ">= " + num(m["limit"]["min"]) + unit;
+        if (!lim.empty() && m["limit"].value("marginal_fraction", 0.0) > 0)
+            lim += " (marginal within " + num(100.0 * m["limit"]["marginal_fraction"].get<double>()) + " %)";
+        const std::string against = lim.empty() ? what : what + ", limit " + lim;
         if (m["outcome"] == "FAIL")
-            x << "      <failure message=\"" << xml_escape(m.contains("reason") ? what + ": " + m["reason"].get<std::string>() : what + " outside its limit") << "\"/>\n";
+            x << "      <failure message=\"" << xml_escape(m.contains("reason") ? against + ": " + m["reason"].get<std::string>() : against + ": outside its limit") << "\"/>\n";
         if (m["outcome"] == "ERROR") x << "      <error message=\"" << xml_escape(what + ": the run did not complete") << "\"/>\n";
         x << "    </testcase>\n";
     }
@@ -268,9 +284,38 @@ public:
         s_ << "<line x1=\"" << X(x) << "\" x2=\"" << X(x) << "\" y1=\"" << T << "\" y2=\"" << H - B << "\" stroke=\"#bbb\" stroke-dasharray=\"2,3\"/>";
         if (!text.empty()) s_ << "<text x=\"" << X(x) << "\" y=\"" << T - 3 << "\" text-anchor=\"middle\" font-size=\"9\">" << xml_escape(text) << "</text>";
     }
-    void legend(const std::string& name, const char* col) {
-        s_ << "<text x=\"" << L + 8 << "\" y=\"" << T + 14 + 14 * legends_++ << "\" fill=\"" << col << "\" font-size=\"11\">" << xml_escape(name) << "</text>";
+    // Legends in a row between the title and the plot area: inside it they covered data.
+    void legend(const std::string& name, const char* col, bool dashed = false) {
+        const double y = T - 16;
+        s_ << "<g class=\"legend\"><line x1=\"" << legend_x_ << "\" x2=\"" << legend_x_ + 14 << "\" y1=\"" << y - 4 << "\" y2=\"" << y - 4 << "\" stroke=\"" << col
+           << "\" stroke-width=\"" << (dashed ? 1.2 : 4) << "\"" << (dashed ? " stroke-dasharray=\"3,2\"" : "") << "/><text x=\"" << legend_x_ + 18 << "\" y=\"" << y
+           << "\" fill=\"" << col << "\" font-size=\"11\">" << xml_escape(name) << "</text></g>";
+        legend_x_ += 28 + 6.2 * static_cast<double>(name.size());
+        ++legends_;
     }
+    // A shaded span of x (the settle time), with its words at the top.
+    void xspan(double x0, double x1, const std::string& text) {
+        const double a = X(std::max(x0, x_.lo)), b = X(std::min(x1, x_.hi));
+        if (!(b > a)) return;
+        s_ << "<g class=\"settle\"><rect x=\"" << a << "\" y=\"" << T << "\" width=\"" << b - a << "\" height=\"" << H - T - B
+           << "\" fill=\"#8c959f\" fill-opacity=\"0.25\"/><text x=\"" << a + 3 << "\" y=\"" << T + 12 << "\" font-size=\"10\" fill=\"#57606a\">"
+           << xml_escape(text) << "</text></g>";
+    }
+    // A dashed horizontal line (a limit) across the plot, labelled at its right end.
+    void hline(double y, const std::string& text, const char* col) {
+        if (!in(x_.log ? x_.hi : 0, y) || y < y_.lo || y > y_.hi) return;
+        s_ << "<g class=\"limit\"><line x1=\"" << L << "\" x2=\"" << W - R << "\" y1=\"" << Y(y) << "\" y2=\"" << Y(y) << "\" stroke=\"" << col
+           << "\" stroke-width=\"1.3\" stroke-dasharray=\"6,4\"/><text x=\"" << W - R - 3 << "\" y=\"" << Y(y) - 3
+           << "\" text-anchor=\"end\" font-size=\"10\" fill=\"" << col << "\">" << xml_escape(text) << "</text></g>";
+    }
+    // A label at the bottom of the plot area beside x (e.g. "Nyquist" at its marker).
+    void xspan_label(double x, const std::string& text) {
+        if (!in(x, y_.log ? y_.hi : 0) || x < x_.lo || x > x_.hi) return;
+        s_ << "<text class=\"nyquist\" x=\"" << X(x) - 3 << "\" y=\"" << H - B - 4 << "\" text-anchor=\"end\" font-size=\"10\" fill=\"#57606a\">"
+           << xml_escape(text) << "</text>";
+    }
+    // The height that makes the plot area square for a width (a Lissajous drawn 1:1).
+    static double square_height(double w) { return w - L - R + T + B; }
     void note(const std::string& text) {
         s_ << "<text x=\"" << (L + W - R) / 2 << "\" y=\"" << (T + H - B) / 2 << "\" text-anchor=\"middle\" fill=\"#666\">" << xml_escape(text) << "</text>";
     }
@@ -303,9 +348,10 @@ private:
     std::string id_, title_;
     Axis x_, y_;
     double W, H;
-    static constexpr double L = 70, R = 12, T = 30, B = 40;
+    static constexpr double L = 70, R = 12, T = 46, B = 40;
     std::ostringstream s_;
     int legends_ = 0;
+    double legend_x_ = L;
 };
 
 // One colour per estimator across every plot: its place in the report's estimators.
@@ -345,15 +391,24 @@ std::string svg_spectrum(const json& estimators) {
     x.finish();
     y.finish();
     const auto& sp0 = (*with.front())["spectrum"];
+    // Harmonic markers only below Nyquist (half the sample rate): above it there are no bins.
+    double nyq = sp0.value("sample_rate_hz", json()).is_number() ? sp0["sample_rate_hz"].get<double>() / 2 : 0;
+    if (!(nyq > 0))
+        for (const json* e : with)
+            for (const auto& f : (*e)["spectrum"]["f_hz"]) nyq = std::max(nyq, f.get<double>());
     SvgPlot p("plot-spectrum", "Error spectrum (full rate, Welch, " + sp0["segment_samples"].dump() + "-sample Hann segments)", x, y);
     if (fe > 0)
-        for (int k = 1; k <= 16; ++k) p.vmark(k * fe, (k <= 4 || k % 4 == 0) ? std::to_string(k) + "x" : "");
+        for (int k = 1; k <= 16; ++k)
+            if (k * fe <= nyq * (1 + 1e-9)) p.vmark(k * fe, (k <= 4 || k % 4 == 0) ? std::to_string(k) + "x" : "");
+    p.vmark(nyq, "");
+    p.xspan_label(nyq, "Nyquist");
     const Palette colour(estimators);
     for (const json* e : with) {
         const char* col = colour((*e)["label"].get<std::string>());
         p.line((*e)["spectrum"]["f_hz"], (*e)["spectrum"]["amplitude_rad"], col);
         p.legend((*e)["label"].get<std::string>(), col);
     }
+    if (fe > 0) p.legend("harmonic orders below Nyquist", "#bbbbbb", true);
     return p.str();
 }
 
@@ -368,8 +423,9 @@ std::string stride_plots(const json& tr, const json& estimators) {
     {
         Axis x{"cos (V)"}, y{"sin (V)"};
         x.see_all(arr("cos_v")); y.see_all(arr("sin_v"));
-        x.finish(); y.finish();
-        SvgPlot p("plot-lissajous", "Lissajous (stride samples)", x, y, 380, 380);
+        const double a = std::max({std::fabs(x.lo), std::fabs(x.hi), std::fabs(y.lo), std::fabs(y.hi), 1e-9}) * 1.05;
+        if (x.lo > x.hi || y.lo > y.hi) { x.finish(); y.finish(); } else { x.lo = y.lo = -a; x.hi = y.hi = a; }  // 1:1, as the envelope one
+        SvgPlot p("plot-lissajous", "Lissajous (stride samples)", x, y, 380, SvgPlot::square_height(380));
         p.points(arr("cos_v"), arr("sin_v"), kColours[0]);
         out += p.str();
     }
@@ -403,8 +459,37 @@ std::string stride_plots(const json& tr, const json& estimators) {
 }
 
 // Plots from "kind":"envelope" traces (TraceRecorder) and each estimator's "spectrum" (ErrorSpectrum).
-std::string envelope_plots(const json& tr, const json& estimators) {
+// The scenario's settle time [t0, t0 + settle_s] (not scored), when the report states it.
+bool settle_span(const json& r, double& a, double& b) {
+    const json sc = r.value("scenario", json::object());
+    if (!sc.is_object() || !sc.value("settle_s", json()).is_number() || !(sc["settle_s"].get<double>() > 0)) return false;
+    a = sc.value("t0_s", json()).is_number() ? sc["t0_s"].get<double>() : 0.0;
+    b = a + sc["settle_s"].get<double>();
+    return true;
+}
+
+// Limits that bound every sample of an error plot: max_abs_rad (+-max) and max_dev_rad (mean +- max).
+struct ErrLimit { std::string label, text; std::vector<double> ys; };
+std::vector<ErrLimit> error_limits(const json& r) {
+    std::vector<ErrLimit> out;
+    for (const auto& m : r.value("measurements", json::array())) {
+        if (!m.value("limit", json()).is_object() || !m["limit"].value("max", json()).is_number()) continue;
+        const double mx = m["limit"]["max"].get<double>();
+        const std::string label = m.value("estimator", std::string()), metric = m.value("metric", std::string());
+        if (metric == "max_abs_rad") out.push_back({label, "limit " + label + " |e| <= " + fmt_num(mx) + " rad", {mx, -mx}});
+        if (metric == "max_dev_rad")
+            for (const auto& e : r.value("estimators", json::array()))
+                if (e.value("label", std::string()) == label && sub(e.value("metrics", json()), "mean", "rad").is_number()) {
+                    const double mu = sub(e["metrics"], "mean", "rad").get<double>();
+                    out.push_back({label, "limit " + label + " |e - mean| <= " + fmt_num(mx) + " rad", {mu + mx, mu - mx}});
+                }
+    }
+    return out;
+}
+
+std::string envelope_plots(const json& tr, const json& estimators, const json& report) {
     std::string out;
+    const auto limits = error_limits(report);
     const Palette colour(estimators);
     const auto& liss = tr["lissajous"];
     {  // Lissajous: real samples as points, the folded electrical cycle as one closed line
@@ -413,7 +498,7 @@ std::string envelope_plots(const json& tr, const json& estimators) {
         x.see_all(liss["cycle"]["cos_v"]); y.see_all(liss["cycle"]["sin_v"]);
         const double a = std::max({std::fabs(x.lo), std::fabs(x.hi), std::fabs(y.lo), std::fabs(y.hi), 1e-9}) * 1.05;
         x.lo = y.lo = -a; x.hi = y.hi = a;
-        SvgPlot p("plot-lissajous", "Lissajous: samples, folded cycle", x, y, 380, 380);
+        SvgPlot p("plot-lissajous", "Lissajous: samples, folded cycle (1:1)", x, y, 380, SvgPlot::square_height(380));
         p.line(liss["cycle"]["cos_v"], liss["cycle"]["sin_v"], kColours[0], true, 1.6);
         p.points(liss["points"]["cos_v"], liss["points"]["sin_v"], "#57606a", 1.1);  // over the mean: their spread shows
         p.legend("samples", "#57606a");
@@ -425,8 +510,15 @@ std::string envelope_plots(const json& tr, const json& estimators) {
         Axis x{"electrical angle (rad)"}, y{"error (rad)"};
         x.lo = 0; x.hi = 2 * kPi;
         for (const auto& [label, f] : ba["error_rad"].items()) { y.see_all(f["min"]); y.see_all(f["max"]); }
+        const double peak = std::max(std::fabs(y.lo), std::fabs(y.hi));
+        for (const auto& l : limits)  // a limit near the data is kept in view (within 3x of its peak)
+            if (ba["error_rad"].contains(l.label))
+                for (double v : l.ys) if (std::fabs(v) <= 3 * peak) { y.lo = std::min(y.lo, v); y.hi = std::max(y.hi, v); }
         y.finish();
         SvgPlot p("plot-by-angle", "Error vs electrical angle (mean, min..max)", x, y);
+        for (const auto& l : limits)
+            if (ba["error_rad"].contains(l.label))
+                for (double v : l.ys) p.hline(v, l.text, "#d1242f");
         for (const auto& [label, f] : ba["error_rad"].items()) {
             const char* col = colour(label);
             p.band(ba["theta_rad"], f["min"], f["max"], col, 0.2);
@@ -440,8 +532,17 @@ std::string envelope_plots(const json& tr, const json& estimators) {
         x.see_all(tr["t_s"]);
         x.finish(0.0);
         for (const auto& [label, e] : tr["error_rad"].items()) { y.see_all(e["min"]); y.see_all(e["max"]); }
+        const double peak = std::max(std::fabs(y.lo), std::fabs(y.hi));
+        for (const auto& l : limits)
+            if (tr["error_rad"].contains(l.label))
+                for (double v : l.ys) if (std::fabs(v) <= 3 * peak) { y.lo = std::min(y.lo, v); y.hi = std::max(y.hi, v); }
         y.finish();
         SvgPlot p("plot-time", "Error vs time (min..max per " + tr["bucket_samples"].dump() + " samples)", x, y);
+        double s0, s1;
+        if (settle_span(report, s0, s1)) p.xspan(s0, s1, "settle: not scored");
+        for (const auto& l : limits)
+            if (tr["error_rad"].contains(l.label))
+                for (double v : l.ys) p.hline(v, l.text, "#d1242f");
         for (const auto& [label, e] : tr["error_rad"].items()) {
             const char* col = colour(label);
             p.band(tr["t_s"], e["min"], e["max"], col, 0.45);
@@ -453,7 +554,7 @@ std::string envelope_plots(const json& tr, const json& estimators) {
     return out;
 }
 std::string svg_bars(const json& estimators) {
-    const double W = 640, H = 300, L = 70, R = 12, B = 40, T = 28;
+    const double W = 640, H = 300, L = 70, R = 12, B = 40, T = 46;  // legend row above the plot area: inside it, it covered the 1x bar
     double vmax = 0;
     for (const auto& e : estimators)
         for (const auto& h : e["metrics"]["harmonics"]) vmax = std::max(vmax, h["amplitude"]["rad"].get<double>());
@@ -485,6 +586,7 @@ std::string svg_bars(const json& estimators) {
         s << "<text class=\"xtick\" x=\"" << px << "\" y=\"" << H - B + 15 << "\" text-anchor=\"middle\" font-size=\"11\">" << k << "x</text>";
     }
     std::size_t ei = 0;
+    double legend_x = L;
     for (const auto& e : estimators) {
         const char* col = kColours[ei % 6];
         for (const auto& h : e["metrics"]["harmonics"]) {
@@ -495,7 +597,9 @@ std::string svg_bars(const json& estimators) {
               << "\" height=\"" << hh << "\" fill=\"" << col << "\"><title>" << xml_escape(e["label"].get<std::string>()) << " " << k << "x: " << fmt_num(v)
               << " rad</title></rect>";
         }
-        s << "<text x=\"" << L + 8 << "\" y=\"" << T + 14 + 14 * ei << "\" fill=\"" << col << "\" font-size=\"11\">" << xml_escape(e["label"].get<std::string>()) << "</text>";
+        s << "<g class=\"legend\"><rect x=\"" << legend_x << "\" y=\"" << T - 24 << "\" width=\"12\" height=\"10\" fill=\"" << col << "\"/><text x=\"" << legend_x + 16
+          << "\" y=\"" << T - 15 << "\" fill=\"" << col << "\" font-size=\"11\">" << xml_escape(e["label"].get<std::string>()) << "</text></g>";
+        legend_x += 28 + 6.2 * static_cast<double>(e["label"].get<std::string>().size());
         ++ei;
     }
     s << "</svg>";
@@ -508,6 +612,8 @@ std::string report_html(const json& r) {
     std::ostringstream h;
     // Values for people: 3 significant digits (the JSON and JUnit keep every digit).
     auto num = [](const json& v) { return v.is_number() ? fmt_num(v.get<double>()) : std::string(); };
+    // A count that was not measured (an unscored estimator) reads "not scored", never "null".
+    auto count = [](const json& v) { return v.is_number() ? fmt_num(v.get<double>()) : std::string("not scored"); };
     const std::string name = r["scenario"].value("name", std::string("run"));
     const std::string verdict = r.value("verdict", std::string("ERROR"));
     h << "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><meta name=\"viewport\" content=\"width=device-width, initial-scale=1\"><title>fringe report " << xml_escape(name) << " "
@@ -552,8 +658,8 @@ std::string report_html(const json& r) {
         const json ev = m.value("evidence", json::object());
         auto bget = [&](const char* k) { return b.is_object() && b.contains(k) ? num(b[k]) : std::string(); };
         h << "<tr><td>" << xml_escape(e["label"].get<std::string>()) << "</td><td>" << num(sub(m, "rms", "rad")) << "</td><td>" << num(sub(m, "max_abs", "rad"))
-          << "</td><td>" << num(sub(m, "rms", "percent_period")) << "</td><td>" << num(sub(m, "rms", "arcsec_mech")) << "</td><td>" << m["slipped_samples"].dump()
-          << "</td><td>" << ev.value("scored_samples", json()).dump() << "</td><td>" << num(ev.value("scored_cycles", json()))
+          << "</td><td>" << num(sub(m, "rms", "percent_period")) << "</td><td>" << num(sub(m, "rms", "arcsec_mech")) << "</td><td>" << count(m.value("slipped_samples", json()))
+          << "</td><td>" << count(ev.value("scored_samples", json())) << "</td><td>" << num(ev.value("scored_cycles", json()))
           << "</td><td>" << (ev.value("valid_fraction", json()).is_number() ? num(100.0 * ev["valid_fraction"].get<double>()) + " %" : std::string())
           << "</td><td>" << bget("per_sample_crb_rad") << "</td><td>" << bget("pcrb_rad") << "</td><td>" << bget("efficiency") << "</td></tr>\n";
     }
@@ -563,7 +669,7 @@ std::string report_html(const json& r) {
     if (envelope ? tr["t_s"].empty() : (!tr.contains("t_s") || tr["t_s"].empty())) {
         h << "<p>No traces: the run processed no samples.</p>";
     } else if (envelope) {
-        h << envelope_plots(tr, r["estimators"]);
+        h << envelope_plots(tr, r["estimators"], r);
         h << svg_bars(r["estimators"]);
     } else {
         h << stride_plots(tr, r["estimators"]);

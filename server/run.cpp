@@ -74,6 +74,8 @@ std::vector<Finding> validate_run(const Scenario& sc) {
             else if (p.string("model").rfind("tracker", 0) == 0 && !(p.number("natural_freq_hz") > 0))
                 throw ConfigError("params.natural_freq_hz", "a tracker's declared prior needs its natural frequency (> 0 Hz)");
         } catch (const ConfigError& e) {
+            // An unknown estimator is the scenario's "name" key (est::find names the CLI's --estimator).
+            if (e.field() == "estimator") throw ConfigError("estimators[" + std::to_string(i) + "].name", e.message());
             throw e.prefixed("estimators[" + std::to_string(i) + "]");
         }
     }

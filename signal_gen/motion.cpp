@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <charconv>
+#include <map>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -153,6 +154,27 @@ MotionProfile motion_from_json(const json& j, const std::string& base_dir, int l
     JsonReader r(j, path);
     MotionProfile m;
     const std::string kind = r.choice("kind", "constant", {"constant", "ramp", "trapezoid", "sine", "steps", "table"});
+    // A key this kind does not take is named first, with the keys it does take: a speed given as
+    // "speed_rpm" was reported as velocity_rad_s missing, which does not say what was wrong.
+    {
+        static const std::map<std::string, std::vector<std::string>> keys = {
+            {"constant", {"kind", "phi0_rad", "velocity_rad_s", "electrical_freq_hz"}},
+            {"ramp", {"kind", "phi0_rad", "velocity_rad_s", "accel_rad_s2"}},
+            {"trapezoid", {"kind", "phi0_rad", "velocity_rad_s", "accel_rad_s2", "start_s", "cruise_s"}},
+            {"sine", {"kind", "phi0_rad", "amplitude_rad", "freq_hz", "phase_rad", "velocity_rad_s"}},
+            {"steps", {"kind", "phi0_rad", "step_rad", "dwell_s"}},
+            {"table", {"kind", "phi0_rad", "file"}}};
+        const auto& known = keys.at(kind);
+        for (auto it = j.begin(); it != j.end(); ++it) {
+            if (std::find(known.begin(), known.end(), it.key()) != known.end()) continue;
+            std::string list;
+            for (const auto& k : known) list += (list.empty() ? "" : ", ") + k;
+            std::string hint;
+            if (it.key().find("rpm") != std::string::npos)
+                hint = "; speeds are in rad/s (velocity_rad_s = rpm x 2 pi / 60: 600 rpm is 62.83 rad/s)";
+            throw ConfigError(r.path_of(it.key()), "unknown key for a " + kind + " motion (its keys: " + list + ")" + hint);
+        }
+    }
     m.phi0_rad = r.number("phi0_rad", 0.0, -1e6, 1e6);
     constexpr double kMaxV = 1e6, kMaxA = 1e9;
     if (kind == "constant") {

@@ -14,6 +14,23 @@ const fmt = (v) => sig(v);
 const verdictBadge = (v, extra = '') => h('span', { class: `verdict v-${v || 'none'} ${extra}`, 'data-verdict': v || '' }, v || '—');
 const status = (msg) => { document.getElementById('status').textContent = msg; };
 
+// The footer's run count, on every page: the run list sets it on each poll; elsewhere it is
+// asked for when the page changes, every 10 s, and when a run is started from this page, so it
+// never shows a count from an earlier page.
+const LIST_MAX = 1000;
+function showRunCount(n, filtered = false, max = 100) {
+  const count = `${n >= max ? `${max}+` : n} run${n === 1 ? '' : 's'}${filtered ? ' (filtered)' : ''}`;
+  status(`${count} · ${new Date().toLocaleTimeString()}`);
+  document.getElementById('status').dataset.runs = String(n);
+}
+export async function refreshRunCount() {
+  try {
+    const d = await api.get(`runs?limit=${LIST_MAX}`);
+    showRunCount(d.runs.length, false, LIST_MAX);
+  } catch { /* the page says what failed; the footer keeps its last count */ }
+}
+window.addEventListener('fringe:run-started', refreshRunCount);
+
 // ---- token ---------------------------------------------------------------------------
 // The URL fringe serve prints on first start ends in #token=HEX: taken whenever the hash
 // carries it (a fresh tab, or this tab with the app already open), then dropped from the URL.
@@ -63,7 +80,7 @@ async function runList(params) {
     location.hash = `#/runs?${p}`;
   };
   const tbody = h('tbody');
-  const table = h('table', { id: 'runs' }, h('thead', {}, h('tr', {}, ['', 'run', 'bench', 'scenario', 'DUT', 'started (UTC)', 'status', 'verdict', 'progress'].map((c) => h('th', {}, c)))), tbody);
+  const table = h('table', { id: 'runs', class: 'cards' }, h('thead', {}, h('tr', {}, ['', 'run', 'bench', 'scenario', 'DUT', 'started (UTC)', 'status', 'verdict', 'progress'].map((c) => h('th', {}, c)))), tbody);
   const pick = new Set();
   const compareBtn = h('button', { type: 'button', disabled: true, onclick: () => { const [a, b] = [...pick]; location.hash = `#/compare/${a}/${b}`; } }, 'compare selected');
   view.replaceChildren(
@@ -84,13 +101,15 @@ async function runList(params) {
       } });
       box.checked = pick.has(r.id);
       const frac = r.progress && r.progress.total ? r.progress.done / r.progress.total : null;
+      // On a phone each row is a card: verdict and scenario first, then the id and the rest (style.css).
+      const c = (cls, label, ...x) => h('td', { class: cls, 'data-label': label }, ...x);
       return h('tr', { 'data-id': r.id, 'data-status': r.status },
-        h('td', {}, box), h('td', {}, h('a', { href: `#/run/${r.id}` }, r.id)), h('td', {}, r.bench || ''), h('td', {}, r.scenario),
-        h('td', {}, r.dut || ''), h('td', {}, r.created_at),
-        h('td', {}, r.status), h('td', {}, verdictBadge(r.verdict)),
-        h('td', {}, frac == null || r.status !== 'running' ? '' : `${(100 * frac).toFixed(0)} %`));
+        c('c-pick', null, box), c('c-id', 'run', h('a', { href: `#/run/${r.id}` }, r.id)), c('c-bench', r.bench ? 'bench' : null, r.bench || ''), c('c-scenario', null, r.scenario),
+        c('c-dut', r.dut ? 'DUT' : null, r.dut || ''), c('c-started', 'started', r.created_at),
+        c('c-status', null, r.status), c('c-verdict', null, verdictBadge(r.verdict)),
+        c('c-progress', null, frac == null || r.status !== 'running' ? '' : `${(100 * frac).toFixed(0)} %`));
     }));
-    status(`${data.runs.length} runs · ${new Date().toLocaleTimeString()}`);
+    showRunCount(data.runs.length, q.toString() !== '');
     return data.runs.some((r) => r.status === 'queued' || r.status === 'running');
   };
   // Live status: poll while something is queued or running, slowly otherwise.
@@ -129,15 +148,24 @@ async function runPage(id) {
   cleanup.push(close);
 }
 
-// Each measurement with its unit, its limit and its outcome on one row.
+// Each measurement with its unit, its limit and its outcome on one row. The rows that decide
+// the verdict come first: FAIL, ERROR, MARGINAL, then the passing user limits, then the evidence
+// checks (stable within each group); a failing row is highlighted. On a phone each row is a
+// card (style.css) with value, limit and outcome on screen, each cell named by data-label.
+const OUTCOME_RANK = { FAIL: 0, ERROR: 1, MARGINAL: 2 };
+export function measurementOrder(ms) {
+  const rank = (m) => (m.outcome in OUTCOME_RANK ? OUTCOME_RANK[m.outcome] : m.implicit ? 4 : 3);
+  return (ms || []).map((m, i) => [m, i]).sort((a, b) => rank(a[0]) - rank(b[0]) || a[1] - b[1]).map((x) => x[0]);
+}
 function measurementsTable(r) {
-  return scroller(h('table', { id: 'measurements' },
+  const cell = (label, attrs, ...c) => h('td', { ...attrs, 'data-label': label }, ...c);
+  return scroller(h('table', { id: 'measurements', class: 'cards' },
     h('thead', {}, h('tr', {}, ['estimator', 'metric', 'value', 'limit', 'outcome'].map((c) => h('th', {}, c)))),
-    h('tbody', {}, (r.measurements || []).map((m) => h('tr', { class: m.implicit ? 'evidence' : '' },
-      h('td', {}, m.estimator), h('td', {}, m.metric, m.implicit ? h('span', { class: 'muted', title: 'implicit check: a verdict needs this much evidence' }, ' (evidence)') : ''),
-      h('td', { class: 'num', 'data-value': m.value == null ? '' : String(m.value) }, m.value == null ? 'not measured' : withUnit(m.value, m.unit)),
-      h('td', { class: 'num limit' }, limitText(m.limit, m.unit)),
-      h('td', { class: 'outcome' }, verdictBadge(m.outcome), m.reason ? h('span', { class: 'muted reason' }, ` ${m.reason}`) : ''))))));
+    h('tbody', {}, measurementOrder(r.measurements).map((m) => h('tr', { class: `${m.implicit ? 'evidence' : ''} o-${m.outcome || 'none'}`, 'data-outcome': m.outcome || '' },
+      cell('estimator', { class: 'est' }, m.estimator), cell('metric', { class: 'metric' }, m.metric, m.implicit ? h('span', { class: 'muted', title: 'implicit check: a verdict needs this much evidence' }, ' (evidence)') : ''),
+      cell('value', { class: 'num value', 'data-value': m.value == null ? '' : String(m.value) }, m.value == null ? 'not measured' : withUnit(m.value, m.unit)),
+      cell('limit', { class: 'num limit' }, limitText(m.limit, m.unit)),
+      cell('outcome', { class: 'outcome' }, verdictBadge(m.outcome), m.reason ? h('span', { class: 'muted reason' }, ` ${m.reason}`) : ''))))));
 }
 
 // Preflight and convention warnings: what the verdict was reached under.
@@ -186,7 +214,7 @@ async function report(id, into) {
   const empty = !t.t_s || !t.t_s.length;
   if (empty) { plotBox.append(h('p', { class: 'muted' }, 'no traces (the run processed no samples)')); return; }
   try {
-    plots.reportPlots(plotBox, t, tr.estimators || []);
+    plots.reportPlots(plotBox, t, tr.estimators || [], r);
   } catch (e) { plotBox.append(showError(e)); }
 }
 
@@ -228,7 +256,16 @@ async function compare(a, b) {
       h('td', { class: 'num' }, y ? fmt(y.value) : '-'), h('td', {}, limitOf(y)), h('td', {}, y ? verdictBadge(y.outcome) : '-'));
   });
   const plotBox = h('div', { class: 'plots compare-plots', id: 'compare-plots' });
+  const nameA = (ra.scenario && ra.scenario.name) || '?', nameB = (rb.scenario && rb.scenario.name) || '?';
+  const diffs = scenarioDiff(ra.scenario || {}, rb.scenario || {});
   view.append(
+    h('p', { id: 'compare-names' }, h('b', {}, 'A'), ` ${nameA} (`, h('a', { href: `#/run/${a}` }, a), ') ', verdictBadge(ra.verdict), ' · ',
+      h('b', {}, 'B'), ` ${nameB} (`, h('a', { href: `#/run/${b}` }, b), ') ', verdictBadge(rb.verdict)),
+    h('h2', {}, 'What differs'),
+    diffs.length ? scroller(h('table', { id: 'compare-diff', class: 'cards' }, h('thead', {}, h('tr', {}, ['setting', `A: ${nameA}`, `B: ${nameB}`].map((c) => h('th', {}, c)))),
+      h('tbody', {}, diffs.map((d) => h('tr', { 'data-key': d.key }, h('td', { 'data-label': null, class: 'key' }, d.key),
+        h('td', { 'data-label': 'A' }, d.a), h('td', { 'data-label': 'B' }, d.b))))))
+      : h('p', { id: 'compare-diff', class: 'muted' }, 'The two scenarios are the same setting for setting (only the runs differ).'),
     scroller(h('table', { id: 'compare' }, h('thead', {}, h('tr', {},
       h('th', {}, 'estimator'), h('th', {}, 'metric'), h('th', {}, h('a', { href: `#/run/${a}` }, 'A '), verdictBadge(ra.verdict)),
       h('th', {}, h('a', { href: `#/run/${b}` }, 'B '), verdictBadge(rb.verdict)), h('th', {}, 'B / A'))), h('tbody', {}, rows))),
@@ -236,15 +273,53 @@ async function compare(a, b) {
     scroller(h('table', { id: 'compare-limits' }, h('thead', {}, h('tr', {},
       ['estimator', 'metric', 'unit', 'A value', 'A limit', 'A outcome', 'B value', 'B limit', 'B outcome'].map((c) => h('th', {}, c)))),
     h('tbody', {}, limitRows))),
-    h('h2', {}, 'Error vs time (each run on its own time axis)'), plotBox);
-  // Each run keeps its own time base: never B's errors on A's times.
+    h('h2', {}, 'Error vs time, A and B on the same axes'), plotBox);
+  // Shared axes: both plots span the same time and error range, so equal errors look equal; each
+  // run's errors stay on its own times (never B's errors on A's times). One colour per estimator.
   const ta_ = ta.traces || {}, tb_ = tb.traces || {};
   const common = labels.filter((l) => ta_.error_rad && ta_.error_rad[l] && tb_.error_rad && tb_.error_rad[l]);
+  const span = (t) => { const v = (t.t_s || []).filter((x) => x != null); return v.length ? [v[0], v[v.length - 1]] : null; };
+  const sa = span(ta_), sb = span(tb_);
+  const xRange = sa && sb ? [Math.min(sa[0], sb[0]), Math.max(sa[1], sb[1])] : null;
+  let lo = Infinity, hi = -Infinity, alo = Infinity, ahi = 0;
+  for (const t of [ta_, tb_])
+    for (const l of common) {
+      const e = t.error_rad[l];
+      const arrs = Array.isArray(e) ? [e] : [e.min, e.max];
+      for (const arr of arrs) for (const v of arr || []) if (v != null && Number.isFinite(v)) {
+        lo = Math.min(lo, v); hi = Math.max(hi, v);
+        if (v !== 0) { alo = Math.min(alo, Math.abs(v)); ahi = Math.max(ahi, Math.abs(v)); }
+      }
+    }
+  const ctxA = plots.plotContext(ra, ra.estimators, common), ctxB = plots.plotContext(rb, rb.estimators, common);
+  for (const lim of [...(ctxA.limits || []), ...(ctxB.limits || [])]) for (const y of lim.ys) { lo = Math.min(lo, y); hi = Math.max(hi, y); ahi = Math.max(ahi, Math.abs(y)); }
+  const pad = (hi - lo) * 0.05 || Math.abs(hi) * 0.05 || 1e-9;
+  const yRange = Number.isFinite(lo) ? [lo - pad, hi + pad] : null;
+  const yRangeLog = ahi > 0 ? [10 ** Math.floor(Math.log10(alo)), 10 ** Math.ceil(Math.log10(ahi))] : null;
+  const colorIndex = (l) => Math.max(0, labels.indexOf(l));
   for (const l of common)
-    for (const [run, t, idr] of [['A', ta_, a], ['B', tb_, b]]) {
-      const div = plots.errorVsTime(plotBox, t, [l], `${run} (${idr}): ${l}, error vs time`, `compare-${run}-${l}`);
+    for (const [run, t, idr, name, c] of [['A', ta_, a, nameA, ctxA], ['B', tb_, b, nameB, ctxB]]) {
+      const div = plots.errorVsTime(plotBox, t, [l], `${run}: ${name} (${idr}), ${l}, error vs time`, `compare-${run}-${l}`,
+        { ...c, xRange, yRange, yRangeLog, colorIndex });
       div.dataset.run = run;
     }
+}
+
+// Settings that differ between two scenarios, as dotted keys with both values ("motion.velocity_rad_s").
+// Name and description are shown above, not listed as settings.
+export function scenarioDiff(a, b) {
+  const flat = (o, pre, out) => {
+    if (o && typeof o === 'object' && !Array.isArray(o)) {
+      for (const k of Object.keys(o)) flat(o[k], pre ? `${pre}.${k}` : k, out);
+      if (!Object.keys(o).length && pre) out[pre] = '{}';
+    } else if (Array.isArray(o) && o.length && o.every((x) => x && typeof x === 'object')) {
+      o.forEach((x, i) => flat(x, `${pre}[${i}]`, out));
+    } else out[pre] = JSON.stringify(o);
+    return out;
+  };
+  const fa = flat(a, '', {}), fb = flat(b, '', {});
+  const keys = [...new Set([...Object.keys(fa), ...Object.keys(fb)])].filter((k) => k !== 'name' && k !== 'description');
+  return keys.filter((k) => fa[k] !== fb[k]).map((k) => ({ key: k, a: k in fa ? fa[k] : '(not set)', b: k in fb ? fb[k] : '(not set)' }));
 }
 
 // ---- router --------------------------------------------------------------------------
@@ -256,6 +331,11 @@ async function route() {
   const parts = path.split('/').filter(Boolean).map(decodeURIComponent);
   for (const a of document.querySelectorAll('nav a')) a.classList.toggle('active', a.dataset.nav === parts[0]);
   try {
+    if (parts[0] !== 'runs' && parts[0]) {
+      refreshRunCount();
+      const t = setInterval(refreshRunCount, 10000);
+      cleanup.push(() => clearInterval(t));
+    }
     if (parts[0] === 'new') await newRun(view, cleanup);
     else if (parts[0] === 'run' && parts[1]) await runPage(parts[1]);
     else if (parts[0] === 'compare') await compare(parts[1], parts[2]);

@@ -8,6 +8,9 @@ import { sig } from './format.js';
 
 const RAD_S_PER_RPM = (2 * Math.PI) / 60;
 
+// The blank start: nothing chosen, every field empty (the inputs show the service's defaults).
+const BLANK = { encoder: {}, motion: { kind: 'constant' }, device: 'loopback:', estimators: [], limits: [] };
+
 // ---- small helpers -------------------------------------------------------------------
 function getDeep(o, path) {
   return path.split('.').reduce((a, k) => (a == null ? undefined : a[k]), o);
@@ -59,6 +62,7 @@ function readInput(el) {
 function readParams(container) {
   const out = {};
   for (const el of container.querySelectorAll('[data-param]')) {
+    if (el.disabled) continue;  // a setting that does not apply in the chosen mode (loopback own_clock)
     const v = readInput(el);
     if (v !== undefined) out[el.dataset.param] = v;
   }
@@ -78,10 +82,22 @@ export async function newRun(view, cleanup) {
   const S = cat.schema;
   let base = null;  // the fixture the editor started from: keys the editor does not show stay as they are
 
-  // Scenario: starting point, name, description.
-  const fixtureSel = h('select', { name: 'fixture', id: 'fixture' }, cat.fixtures.map((f) => h('option', { value: f.name }, f.name)));
-  const nameIn = h('input', { name: 'name', id: 'sc-name', 'data-field': 'scenario.name', size: 24 });
-  const desc = h('p', { class: 'muted', id: 'sc-desc' });
+  // Scenario: starting point, name, description. A fixture is a starting point, not an identity:
+  // its name and description are shown beside the choice but are not the user's scenario's. The
+  // name and description fields start empty and only what is in them is sent (empty name: the
+  // service calls it "unnamed"); "keep the fixture's name and description" copies them into the
+  // fields for a user who re-runs the fixture on purpose. "blank" starts from nothing.
+  const fixtureSel = h('select', { name: 'fixture', id: 'fixture' }, h('option', { value: '' }, 'blank (nothing filled in)'),
+    cat.fixtures.map((f) => h('option', { value: f.name }, f.name)));
+  const nameIn = h('input', { name: 'name', id: 'sc-name', 'data-field': 'scenario.name', size: 24, placeholder: 'unnamed' });
+  const descIn = h('textarea', { name: 'description', id: 'sc-description', 'data-field': 'scenario.description', rows: 2, cols: 48, placeholder: 'what this scenario is for (optional)' });
+  const fixtureText = h('span', { id: 'sc-desc' });
+  const keepBtn = h('button', { type: 'button', id: 'keep-fixture-text', hidden: true, onclick: () => {
+    nameIn.value = (base && base.name) || '';
+    descIn.value = (base && base.description) || '';
+    schedule();
+  } }, "keep the fixture's name and description");
+  const desc = h('p', { class: 'muted', id: 'sc-from' }, fixtureText, ' ', keepBtn);
 
   // Encoder: a profile by name, or inline values.
   const encSel = h('select', { name: 'encoder_source', id: 'encoder-source', 'data-field': 'scenario.encoder' },
@@ -219,11 +235,38 @@ export async function newRun(view, cleanup) {
     const given = Object.fromEntries(new URLSearchParams(query));
     const d = cat.drivers.find((x) => x.scheme === scheme) || cat.drivers[0];
     devParams.replaceChildren(...(d ? d.settings : []).map((p) => paramInput(p, given[p.name], `scenario.device.${p.name}`, `device.${p.name}`)));
+    modeSettings(d);
     drop.hidden = scheme !== 'capture';
     if (scheme === 'capture')
       api.get('captures').then((r) => captureIds.replaceChildren(...(r.captures || []).map((c) => h('option', { value: c.id }, `${c.samples} samples`)))).catch(() => {});
   };
   driverSel.addEventListener('change', () => fillDevice(`${driverSel.value}:`));
+  // A driver with an own_clock mode (loopback) describes the settings of that mode as
+  // "own_clock: ..." and refuses them without own_clock=1: they are hidden and left out of the
+  // scenario (disabled) until own_clock is 1, with a note naming them.
+  const ownNote = h('p', { class: 'muted', id: 'own-clock-note' });
+  function modeSettings(d) {
+    ownNote.remove();
+    const own = devParams.querySelector('[data-param="own_clock"]');
+    if (!d || !own) return;
+    const only = d.settings.filter((p) => p.name !== 'own_clock' && /^own_clock\b/.test(p.description || '')).map((p) => p.name);
+    if (!only.length) return;
+    const apply = () => {
+      const on = Number(readInput(own)) === 1;
+      for (const n of only) {
+        const el = devParams.querySelector(`[data-param="${n}"]`);
+        if (!el) continue;
+        el.disabled = !on;
+        el.closest('label.field').hidden = !on;
+      }
+      ownNote.textContent = on ? '' : `${only.length} more settings (${only.join(', ')}) apply to a generator and a digitizer on separate clocks: set own_clock to 1 to show them.`;
+      ownNote.hidden = on;
+    };
+    own.addEventListener('input', apply);
+    own.addEventListener('change', apply);
+    devParams.after(ownNote);
+    apply();
+  }
   const deviceUri = () => {
     const dq = new URLSearchParams();
     for (const [k, v] of Object.entries(readParams(devParams))) dq.set(k, String(v));
@@ -257,7 +300,7 @@ export async function newRun(view, cleanup) {
     return m ? m.unit : /^harmonic_\d+x_rad$/.test(name) ? 'rad' : '';
   };
   const limitBody = h('tbody');
-  const limitTable = h('table', { id: 'limits' }, h('thead', {}, h('tr', {}, ['estimator', 'metric', 'min', 'max', 'marginal band [% of limit]', ''].map((c) => h('th', {}, c)))), limitBody);
+  const limitTable = h('table', { id: 'limits', class: 'cards' }, h('thead', {}, h('tr', {}, ['estimator', 'metric', 'min', 'max', 'marginal band [% of limit]', ''].map((c) => h('th', {}, c)))), limitBody);
   const addLimit = (l = {}) => {
     const est = h('select', { class: 'l-est' });
     est.dataset.want = l.estimator || '*';
@@ -276,8 +319,9 @@ export async function newRun(view, cleanup) {
     const showUnits = () => { for (const u of units) u.textContent = unit() ? ` ${unit()}` : ''; };
     met.addEventListener('change', showUnits);
     showUnits();
-    const row = h('tr', { class: 'limit' }, h('td', {}, est), h('td', {}, met), h('td', {}, min, units[0]), h('td', {}, max, units[1]), h('td', {}, band),
-      h('td', {}, h('button', { type: 'button', class: 'l-del', title: 'remove this limit', onclick: () => { row.remove(); schedule(); } }, '✕')));
+    const row = h('tr', { class: 'limit' }, h('td', { class: 'c-est' }, est), h('td', { class: 'c-metric' }, met), h('td', { class: 'c-min', 'data-label': 'min' }, min, units[0]),
+      h('td', { class: 'c-max', 'data-label': 'max' }, max, units[1]), h('td', { class: 'c-band', 'data-label': 'marginal %' }, band),
+      h('td', { class: 'c-del' }, h('button', { type: 'button', class: 'l-del', title: 'remove this limit', onclick: () => { row.remove(); schedule(); } }, '✕')));
     limitBody.append(row);
     refreshLimits();
     return row;
@@ -303,8 +347,9 @@ export async function newRun(view, cleanup) {
   // ---- the scenario the form describes; each value's input gets the field the API names --
   const build = () => {
     const sc = structuredClone(base || {});
-    const name = nameIn.value.trim();
+    const name = nameIn.value.trim(), text = descIn.value.trim();
     if (name) sc.name = name; else delete sc.name;
+    if (text) sc.description = text; else delete sc.description;
     // encoder
     if (encSel.value) sc.encoder = `../encoders/${encSel.value}.json`;
     else {
@@ -487,7 +532,7 @@ export async function newRun(view, cleanup) {
     setBusy(true);
     let fetched;
     try {
-      fetched = (await api.get(`fixtures/${encodeURIComponent(fixtureSel.value)}`)).scenario;
+      fetched = fixtureSel.value === '' ? structuredClone(BLANK) : (await api.get(`fixtures/${encodeURIComponent(fixtureSel.value)}`)).scenario;
     } catch (e) {
       if (seq === loadSeq) { setBusy(false); showApiError(e); }
       return;
@@ -495,8 +540,12 @@ export async function newRun(view, cleanup) {
     if (seq !== loadSeq) return;
     base = fetched;
     setBusy(false);
-    desc.textContent = base.description || '';
-    nameIn.value = base.name || '';
+    const from = fixtureSel.value;
+    fixtureText.textContent = from ? `Started from the fixture ${from}${base.description ? `: ${base.description}` : ''}` : 'Blank: every field empty (a grey value is the default the service uses).';
+    keepBtn.hidden = !from;
+    nameIn.value = '';
+    descIn.value = '';
+    nameIn.placeholder = from ? `unnamed (the fixture is ${base.name || from})` : 'unnamed';
     fillEncoder(base.encoder);
     fillMotion(base.motion);
     fillSampling(base);
@@ -512,7 +561,8 @@ export async function newRun(view, cleanup) {
   const legend = (t, hint) => h('legend', {}, t, hint ? h('span', { class: 'muted' }, ` ${hint}`) : '');
   const form = h('form', { id: 'new-run', novalidate: true, onsubmit: submit, oninput: schedule, onchange: schedule },
     h('fieldset', {}, legend('Scenario'), h('div', { class: 'row' }, h('label', { class: 'field' }, 'start from', fixtureSel),
-      h('label', { class: 'field' }, h('span', { class: 'fname' }, 'name'), nameIn)), desc),
+      h('label', { class: 'field' }, h('span', { class: 'fname' }, 'name'), nameIn),
+      h('label', { class: 'field' }, h('span', { class: 'fname' }, 'description'), descIn)), desc),
     h('fieldset', {}, legend('Encoder'), h('div', { class: 'row' }, h('label', { class: 'field' }, 'profile', encSel)), encGrid),
     h('fieldset', {}, legend('Motion'), h('div', { class: 'row' }, h('label', { class: 'field' }, 'kind', kindSel), h('label', { class: 'field' }, 'speed unit', speedUnit)), motionGrid),
     h('fieldset', {}, legend('Sampling'), sampGrid),
@@ -524,12 +574,11 @@ export async function newRun(view, cleanup) {
     preflightBox,
     h('div', { class: 'row actions' }, startBtn,
       h('button', { type: 'button', id: 'check', onclick: async () => { if (!api.token()) { needToken(); return; } checked = null; await runPreflight(); } }, 'Check'),
-      h('button', { type: 'button', id: 'save', onclick: save, title: 'download the scenario as a JSON file (fringe run --scenario FILE runs it)' }, 'Save JSON')),
+      h('button', { type: 'button', id: 'save', onclick: save, title: 'download the scenario as a JSON file (fringe run FILE runs it)' }, 'Save JSON')),
     formError);
   view.replaceChildren(h('h1', {}, 'New run'), form);
-  if (cat.fixtures.length) {
-    const pref = cat.fixtures.find((f) => f.name === 'fig10c-loopback');
-    if (pref) fixtureSel.value = pref.name;
-    await loadFixture();
-  }
+  // The paper's example is shown first (a runnable start); "blank" is the first choice.
+  const pref = cat.fixtures.find((f) => f.name === 'fig10c-loopback');
+  if (pref) fixtureSel.value = pref.name;
+  await loadFixture();
 }

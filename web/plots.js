@@ -145,9 +145,12 @@ export function lissajous(parent, t) {
   const pts = env ? t.lissajous.points : { cos_v: t.cos_v || [], sin_v: t.sin_v || [] };
   const cyc = env ? t.lissajous.cycle : { cos_v: [], sin_v: [] };
   const a = Math.max(...range([pts.cos_v, cyc.cos_v, pts.sin_v, cyc.sin_v], 0.05).map(Math.abs));
-  const w = width(parent);
+  // Drawn 1:1: a volt is as long across as up, so a circle stays a circle and an amplitude
+  // mismatch shows as the ellipse it is. Both axes take the same room (axis size plus label)
+  // and the same padding, so a square chart has a square plot area.
+  const w = Math.min(width(parent), 480);
   const record = { segments: [] };
-  div.fringe = { kind: 'lissajous', envelope: env, record, points: pts.cos_v.length, cycle: cyc.cos_v.length, axes: ['cos (V)', 'sin (V)'] };
+  div.fringe = { kind: 'lissajous', envelope: env, record, points: pts.cos_v.length, cycle: cyc.cos_v.length, axes: ['cos (V)', 'sin (V)'], range_v: [-a, a] };
   // The folded cycle first, the samples over it (their spread around the mean stays visible).
   const series = [{}];
   const data = [null];
@@ -157,14 +160,16 @@ export function lissajous(parent, t) {
   }
   series.push({ label: 'samples', stroke: '#57606a', fill: '#57606a99', paths: dots, points: { show: false } });
   data.push([pts.cos_v, pts.sin_v]);
-  new uPlot({
-    mode: 2, width: w, height: w * 0.85,
+  const u = new uPlot({
+    mode: 2, width: w, height: w,
+    padding: [12, 12, 0, 0],
     // xy mode takes an x range from the first and last sample only: give both ranges (square).
     scales: { x: { time: false, auto: false, range: [-a, a] }, y: { auto: false, range: [-a, a] } },
-    axes: [{ label: 'cos (V)' }, { label: 'sin (V)' }],
+    axes: [{ label: 'cos (V)', size: 50, labelSize: 28 }, { label: 'sin (V)', size: 50, labelSize: 28 }],
     legend: { show: false },
     series,
   }, data, div);
+  div.fringe.u = u;
   return div;
 }
 
@@ -172,8 +177,9 @@ export function lissajous(parent, t) {
 // full rate; x in electrical radians [0, 2 pi). Old reports: the stride samples as points.
 // Log option: |error| (the larger of |min| and |max| per bin, and |mean|) on a log axis, where
 // small errors beside large ones stay visible.
-export function errorVsAngle(parent, t, labels) {
+export function errorVsAngle(parent, t, labels, opts = {}) {
   const div = box(parent, 'Error vs electrical angle', 'plot-by-angle');
+  const limits = opts.limits || [];
   div.fringe = { kind: 'by_angle', log: false, axes: ['electrical angle (rad)', 'error (rad)'] };
   const holder = document.createElement('div');
   div.append(holder);
@@ -183,14 +189,16 @@ export function errorVsAngle(parent, t, labels) {
     div.fringe.log = log;
     div.fringe.axes = ['electrical angle (rad)', log ? '|error| (rad), log' : 'error (rad)'];
     const axes = [{ label: div.fringe.axes[0], values: errTicks }, { label: div.fringe.axes[1], size: 70, values: log ? logTicks : errTicks }];
-    const yscale = log ? { distr: 3 } : {};
+    const yscale = { ...(log ? { distr: 3 } : {}), range: errRange(limits, log, null) };
+    const dec = decorate(div, { limits }, log);
+    const hooks = { draw: dec.draw };
     if (!isEnvelope(t)) {
       const th = (t.theta_true_wrapped_rad || []).map((v) => (v == null ? null : ((v % (2 * Math.PI)) + 2 * Math.PI) % (2 * Math.PI)));
       const idx = th.map((_, i) => i).filter((i) => th[i] != null).sort((a, b) => th[a] - th[b]);
       const ys = labels.map((l) => idx.map((i) => t.error_rad[l][i])).map((y) => (log ? y.map((v) => (v ? Math.abs(v) : null)) : y));
       const xs = idx.map((i) => th[i]);
       u = new uPlot({
-        width: width(parent), height: 300, scales: { x: { time: false }, y: yscale }, axes,
+        width: width(parent), height: 300, scales: { x: { time: false }, y: yscale }, axes, hooks,
         series: [{ label: 'angle', value: xValue('rad', 0, 2 * Math.PI) },
           ...labels.map((l, i) => ({ label: l, stroke: color(i), paths: noPath, points: { show: true, size: 3, fill: color(i) }, value: legendValue('rad', ys[i], 'absmax') }))],
       }, [xs, ...ys], holder);
@@ -216,42 +224,147 @@ export function errorVsAngle(parent, t, labels) {
           { label: `${l} mean`, stroke: color(i), width: 1.5, value: legendValue('rad', f.mean, 'rms') });
         bands.push({ series: [base, base + 1], fill: color(i) + '22' });
       });
-      u = new uPlot({ width: width(parent), height: 300, scales: { x: { time: false, auto: false, range: [0, 2 * Math.PI] }, y: yscale }, axes, series, bands }, data, holder);
+      u = new uPlot({ width: width(parent), height: 300, scales: { x: { time: false, auto: false, range: [0, 2 * Math.PI] }, y: yscale }, axes, series, bands, hooks }, data, holder);
     }
     div.fringe.u = u;
   };
   toggle(div, 'log |error|', false, draw, 'log-toggle');
   draw(false);
+  limitNote(div, null, limits);
   return div;
+}
+
+// Limits that bound every sample of the plotted error, as horizontal lines: max_abs_rad (|e| <= max,
+// lines at +-max) and max_dev_rad (|e - mean| <= max, lines at mean +- max). Limits on rms, mean
+// or counts bound no single sample and are not drawn. measurements: the report's rows.
+export function errorLimitLines(measurements, estimators, labels) {
+  const out = [];
+  const meanOf = (l) => {
+    const e = (estimators || []).find((x) => x.label === l);
+    const m = e && e.metrics && e.metrics.mean;
+    return m && typeof m.rad === 'number' ? m.rad : null;
+  };
+  for (const m of measurements || []) {
+    if (!m.limit || m.limit.max == null || !labels.includes(m.estimator)) continue;
+    if (m.metric === 'max_abs_rad') out.push({ label: m.estimator, metric: m.metric, ys: [m.limit.max, -m.limit.max], abs: m.limit.max,
+      text: `${m.estimator} max_abs_rad ≤ ${sig(m.limit.max)} rad` });
+    else if (m.metric === 'max_dev_rad') {
+      const mu = meanOf(m.estimator);
+      if (mu == null) continue;
+      out.push({ label: m.estimator, metric: m.metric, ys: [mu + m.limit.max, mu - m.limit.max], abs: Math.abs(mu) + m.limit.max,
+        text: `${m.estimator} max_dev_rad ≤ ${sig(m.limit.max)} rad about its mean ${sig(mu)} rad` });
+    }
+  }
+  return out;
+}
+
+export const LIMIT_COLOR = '#d1242f';
+const SETTLE_FILL = 'rgba(140,149,159,0.25)';
+
+// The settle period (not scored) as a grey band under the series, and the limit lines over them,
+// with their words in the plot and in a note below it.
+function decorate(div, { settle, limits }, log) {
+  const drawClear = [], draw = [];
+  div.fringe.settle = settle || null;
+  div.fringe.limits = (limits || []).map((l) => ({ text: l.text, ys: log ? [l.abs] : l.ys }));
+  if (settle) drawClear.push((uu) => {
+    const ctx = uu.ctx, dpr = devicePixelRatio || 1;
+    const x0 = Math.max(uu.valToPos(settle[0], 'x', true), uu.bbox.left), x1 = Math.min(uu.valToPos(settle[1], 'x', true), uu.bbox.left + uu.bbox.width);
+    if (!(x1 > x0)) return;
+    ctx.save();
+    ctx.fillStyle = SETTLE_FILL;
+    ctx.fillRect(x0, uu.bbox.top, x1 - x0, uu.bbox.height);
+    ctx.fillStyle = '#57606a';
+    ctx.font = `${10 * dpr}px sans-serif`;
+    ctx.textAlign = 'left';
+    ctx.fillText('settle: not scored', x0 + 3 * dpr, uu.bbox.top + 11 * dpr);
+    ctx.restore();
+    div.fringe.settle_px = [x0 / dpr, x1 / dpr];
+  });
+  if (limits && limits.length) draw.push((uu) => {
+    const ctx = uu.ctx, dpr = devicePixelRatio || 1;
+    ctx.save();
+    ctx.strokeStyle = LIMIT_COLOR;
+    ctx.fillStyle = LIMIT_COLOR;
+    ctx.lineWidth = 1.5 * dpr;
+    ctx.setLineDash([6 * dpr, 4 * dpr]);
+    ctx.font = `${10 * dpr}px sans-serif`;
+    ctx.textAlign = 'right';
+    const drawn = [];
+    for (const l of limits)
+      for (const y of log ? [l.abs] : l.ys) {
+        if (!(y >= uu.scales.y.min && y <= uu.scales.y.max)) continue;
+        const py = uu.valToPos(y, 'y', true);
+        const p = new Path2D();
+        p.moveTo(uu.bbox.left, py);
+        p.lineTo(uu.bbox.left + uu.bbox.width, py);
+        ctx.stroke(p);
+        ctx.fillText(`limit ${y < 0 ? '-' : ''}${sig(Math.abs(y))}`, uu.bbox.left + uu.bbox.width - 3 * dpr, py - 3 * dpr);
+        drawn.push(y);
+      }
+    ctx.restore();
+    div.fringe.limits_drawn = drawn;
+  });
+  return { drawClear, draw };
+}
+
+// The y range of an error plot that keeps the limit lines in view when they are near the data
+// (within 3x of its largest |error|); a limit far above stays off scale and the note says so.
+function errRange(limits, log, fixed) {
+  if (fixed) return () => fixed;
+  return (u, lo, hi) => {
+    if (lo == null || hi == null || !Number.isFinite(lo) || !Number.isFinite(hi)) { lo = log ? 1e-6 : -1; hi = log ? 1e-3 : 1; }
+    const peak = Math.max(Math.abs(lo), Math.abs(hi));
+    for (const l of limits || [])
+      for (const y of log ? [l.abs] : l.ys) if (log || Math.abs(y) <= 3 * peak) { lo = Math.min(lo, y); hi = Math.max(hi, y); }
+    if (log) return [10 ** Math.floor(Math.log10(lo)), 10 ** Math.ceil(Math.log10(hi))];
+    const d = (hi - lo) * 0.05 || Math.abs(hi) * 0.05 || 1e-9;
+    return [lo - d, hi + d];
+  };
+}
+
+function limitNote(div, settle, limits) {
+  const parts = [];
+  if (settle) parts.push(`grey: the settle time (${sig(settle[1] - settle[0])} s from ${sig(settle[0])} s), not scored`);
+  for (const l of limits || []) parts.push(`dashed red: limit ${l.text}`);
+  if (parts.length) note(div, `${parts.join('; ')}.`).classList.add('plot-key');
 }
 
 // Error against time: for envelope traces the min..max of every bucket at the full rate (a band
 // per estimator: a fast error fills its band instead of beating). Old reports: points only.
 // Log option: the larger of |min| and |max| per bucket on a log axis.
-export function errorVsTime(parent, t, labels, title = 'Error vs time', id = 'plot-time') {
+// opts: settle [from_s, to_s] (shaded, not scored), limits (errorLimitLines), xRange/yRange
+// (fixed axes shared with another plot: compare).
+export function errorVsTime(parent, t, labels, title = 'Error vs time', id = 'plot-time', opts = {}) {
   const div = box(parent, title, id);
   div.fringe = { kind: 'time', envelope: isEnvelope(t), log: false, axes: ['time (s)', 'error (rad)'] };
   const holder = document.createElement('div');
   div.append(holder);
   // The x range uPlot settles on (after its deferred first layout): each plot's own time base.
-  const hooks = { setScale: [(uu, key) => {
+  const setScale = [(uu, key) => {
+    if (key === 'y') { div.fringe.ymin = uu.scales.y.min; div.fringe.ymax = uu.scales.y.max; return; }
     if (key !== 'x') return;
     div.fringe.xmin = uu.scales.x.min; div.fringe.xmax = uu.scales.x.max;
     div.dataset.xmin = uu.scales.x.min; div.dataset.xmax = uu.scales.x.max;
-  }] };
+  }];
   const [t0, t1] = firstLast(t.t_s);
+  div.fringe.data_t = [t0, t1];
+  const limits = opts.limits || [];
   let u = null;
   const draw = (log) => {
     if (u) u.destroy();
     div.fringe.log = log;
     div.fringe.axes = ['time (s)', log ? '|error| (rad), log' : 'error (rad)'];
     const axes = [{ label: div.fringe.axes[0], values: errTicks }, { label: div.fringe.axes[1], size: 70, values: log ? logTicks : errTicks }];
-    const yscale = log ? { distr: 3 } : {};
+    const dec = decorate(div, opts, log);
+    const hooks = { setScale, drawClear: dec.drawClear, draw: dec.draw };
+    const yscale = { ...(log ? { distr: 3 } : {}), range: errRange(limits, log, log ? (opts.yRangeLog || null) : (opts.yRange || null)) };
+    const xscale = opts.xRange ? { time: false, auto: false, range: opts.xRange } : { time: false };
     const xs = { label: 'time', value: xValue('s', t0, t1) };
     if (!isEnvelope(t)) {
       const ys = labels.map((l) => (log ? t.error_rad[l].map((v) => (v ? Math.abs(v) : null)) : t.error_rad[l]));
       u = new uPlot({
-        width: width(parent), height: 300, scales: { x: { time: false }, y: yscale }, axes, hooks,
+        width: width(parent), height: 300, scales: { x: xscale, y: yscale }, axes, hooks,
         series: [xs, ...labels.map((l, i) => ({ label: l, stroke: color(i), paths: noPath, points: { show: true, size: 3, fill: color(i) }, value: legendValue('rad', ys[i], 'absmax') }))],
       }, [t.t_s, ...ys], holder);
     } else {
@@ -262,23 +375,25 @@ export function errorVsTime(parent, t, labels, title = 'Error vs time', id = 'pl
         const e = t.error_rad[l];
         if (!e) return;
         const base = series.length;
+        const ci = opts.colorIndex ? opts.colorIndex(l, i) : i;
         if (log) {
           const peak = absMax(e.min, e.max);
           data.push(peak);
-          series.push({ label: `${l} max |e|`, stroke: color(i), width: 1, value: legendValue('rad', peak, 'max') });
+          series.push({ label: `${l} max |e|`, stroke: color(ci), width: 1, value: legendValue('rad', peak, 'max') });
           return;
         }
         data.push(e.max, e.min);
-        series.push({ label: `${l} max`, stroke: color(i), width: 1, value: legendValue('rad', e.max, 'max') },
-          { label: `${l} min`, stroke: color(i), width: 1, value: legendValue('rad', e.min, 'min') });
-        bands.push({ series: [base, base + 1], fill: color(i) + '55' });
+        series.push({ label: `${l} max`, stroke: color(ci), width: 1, value: legendValue('rad', e.max, 'max') },
+          { label: `${l} min`, stroke: color(ci), width: 1, value: legendValue('rad', e.min, 'min') });
+        bands.push({ series: [base, base + 1], fill: color(ci) + '55' });
       });
-      u = new uPlot({ width: width(parent), height: 300, scales: { x: { time: false }, y: yscale }, axes, series, bands, hooks }, data, holder);
+      u = new uPlot({ width: width(parent), height: 300, scales: { x: xscale, y: yscale }, axes, series, bands, hooks }, data, holder);
     }
     div.fringe.u = u;
   };
   toggle(div, 'log |error|', false, draw, 'log-toggle');
   draw(false);
+  limitNote(div, opts.settle, limits);
   return div;
 }
 
@@ -333,8 +448,29 @@ export function harmonicBars(parent, estimators) {
   return div;
 }
 
+// A colour key in the page (HTML, readable at any width): one swatch per series.
+function legendBox(div, items, cls = 'plot-legend') {
+  const ul = document.createElement('ul');
+  ul.className = cls;
+  for (const { label, color: c, dash } of items) {
+    const li = document.createElement('li');
+    const sw = document.createElement('span');
+    sw.className = dash ? 'swatch dash' : 'swatch';
+    sw.style.borderColor = c;
+    if (!dash) sw.style.background = c;
+    li.dataset.color = c;
+    li.append(sw, ` ${label}`);
+    ul.append(li);
+  }
+  div.append(ul);
+  return ul;
+}
+
 // Error spectrum from the report (estimators[i].spectrum: Welch at the full sample rate), log-log;
-// x switchable between Hz and orders of the electrical frequency (dashed markers at 1x..16x).
+// x switchable between Hz and orders of the electrical frequency. Dashed markers at the
+// harmonic orders 1x..16x, only where they lie below the Nyquist frequency (sample rate / 2):
+// above it the spectrum has no bins and a marker would point at nothing. A solid line marks
+// Nyquist itself. A legend names each estimator's colour.
 export function errorSpectrum(parent, estimators) {
   const div = box(parent, 'Error spectrum (full rate)', 'plot-spectrum');
   const specs = (estimators || []).map((e, i) => ({ e, i, s: e.spectrum })).filter((x) => x.s && x.s.f_hz && x.s.f_hz.length);
@@ -346,8 +482,13 @@ export function errorSpectrum(parent, estimators) {
   }
   const fe = (specs.find((x) => x.s.electrical_hz > 0) || {}).s?.electrical_hz || 0;
   const s0 = specs[0].s;
+  // Nyquist: half the sample rate the spectrum was taken at (older reports: its last bin).
+  let nyq = s0.sample_rate_hz > 0 ? s0.sample_rate_hz / 2 : 0;
+  if (!nyq) for (const { s } of specs) for (const f of s.f_hz) if (f > nyq) nyq = f;
+  const above = fe ? [1, 2, 3, 4, 8, 12, 16].filter((k) => k * fe > nyq * (1 + 1e-9)) : [];
   note(div, `Welch, ${s0.segment_samples}-sample Hann segments, ${s0.segments} averaged, resolution ${(+s0.resolution_hz).toPrecision(3)} Hz`
-    + (fe ? `, electrical frequency ${(+fe).toPrecision(5)} Hz` : ''));
+    + (fe ? `, electrical frequency ${(+fe).toPrecision(5)} Hz` : '') + `, Nyquist ${sig(nyq)} Hz`
+    + (above.length ? `; harmonics from ${Math.ceil(nyq / fe * (1 + 1e-12)) }x up lie above Nyquist (not marked; they alias into the band)` : ''));
   const sel = document.createElement('select');
   sel.className = 'spectrum-axis';
   sel.innerHTML = '<option value="hz">x: frequency (Hz)</option><option value="order">x: order of the electrical frequency</option>';
@@ -357,6 +498,12 @@ export function errorSpectrum(parent, estimators) {
   div.append(label);
   const holder = document.createElement('div');
   div.append(holder);
+  const legendItems = specs.map(({ e, i }) => ({ label: e.label, color: color(i) }));
+  if (fe) legendItems.push({ label: 'harmonic orders (below Nyquist)', color: '#8c959f', dash: true });
+  legendItems.push({ label: 'Nyquist (sample rate / 2)', color: '#57606a', dash: true });
+  div.fringe.legend = legendItems.map((x) => ({ label: x.label, color: x.color }));
+  div.fringe.nyquist_hz = nyq;
+  div.fringe.electrical_hz = fe;
   let ymax = 0;
   for (const { s } of specs) for (const v of s.amplitude_rad) if (v > ymax) ymax = v;
   const floor = ymax > 0 ? ymax * 1e-7 : 1e-12;  // noise-free runs reach 1e-20: keep the peaks readable
@@ -376,6 +523,8 @@ export function errorSpectrum(parent, estimators) {
     lo = 10 ** Math.floor(Math.log10(lo));  // whole decades: ticks at 1, 10, 100 ...
     hi = 10 ** Math.ceil(Math.log10(hi));
     const unit = byOrder ? 1 : fe;
+    const nyqX = byOrder ? (fe ? nyq / fe : 0) : nyq;
+    const marked = [];
     u = new uPlot({
       mode: 2, width: width(parent), height: 300,
       scales: { x: { time: false, distr: 3, auto: false, range: [lo, hi] }, y: { distr: 3, auto: false, range: [floor, ymax * 2 || 1] } },
@@ -385,33 +534,51 @@ export function errorSpectrum(parent, estimators) {
       series,
       hooks: {
         draw: [(uu) => {
-          if (!fe) return;
           const ctx = uu.ctx;
+          const dpr = devicePixelRatio || 1;
+          const vline = (px) => {
+            const p = new Path2D();
+            p.moveTo(px, uu.bbox.top);
+            p.lineTo(px, uu.bbox.top + uu.bbox.height);
+            ctx.stroke(p);
+          };
           ctx.save();
-          ctx.strokeStyle = '#8c959f';
-          ctx.fillStyle = '#57606a';
-          ctx.setLineDash([2, 3]);
-          ctx.font = `${10 * devicePixelRatio}px sans-serif`;
+          ctx.font = `${10 * dpr}px sans-serif`;
           ctx.textAlign = 'center';
-          for (let k = 1; k <= 16; k++) {
-            const x = k * unit;
-            if (x < lo || x > hi) continue;
-            const px = uu.valToPos(x, 'x', true);
-            ctx.beginPath();
-            ctx.moveTo(px, uu.bbox.top);
-            ctx.lineTo(px, uu.bbox.top + uu.bbox.height);
-            ctx.stroke();
-            if (k <= 4 || k % 4 === 0) ctx.fillText(`${k}x`, px, uu.bbox.top + 10 * devicePixelRatio);
+          marked.length = 0;
+          if (fe) {
+            ctx.strokeStyle = '#8c959f';
+            ctx.fillStyle = '#57606a';
+            ctx.setLineDash([2 * dpr, 3 * dpr]);
+            for (let k = 1; k <= 16; k++) {
+              const x = k * unit;
+              if (k * fe > nyq * (1 + 1e-9) || x < lo || x > hi) continue;
+              const px = uu.valToPos(x, 'x', true);
+              vline(px);
+              marked.push(k);
+              if (k <= 4 || k % 4 === 0) ctx.fillText(`${k}x`, px, uu.bbox.top + 10 * dpr);
+            }
+          }
+          if (nyqX >= lo && nyqX <= hi) {
+            ctx.strokeStyle = '#57606a';
+            ctx.setLineDash([6 * dpr, 3 * dpr]);
+            const px = uu.valToPos(nyqX, 'x', true);
+            vline(px);
+            ctx.textAlign = 'right';
+            ctx.fillText('Nyquist', px - 3 * dpr, uu.bbox.top + uu.bbox.height - 4 * dpr);
           }
           ctx.restore();
+          div.fringe.marked_orders = marked.slice();
         }],
       },
     }, data, holder);
     div.fringe.axis = sel.value;
     div.fringe.axes = [byOrder ? 'order (× electrical frequency)' : 'frequency (Hz)', 'amplitude (rad)'];
+    div.fringe.u = u;
   };
   sel.addEventListener('change', draw);
   draw();
+  legendBox(div, legendItems);
   return div;
 }
 
@@ -420,9 +587,21 @@ export function traceLabels(t, estimators) {
   return (estimators || []).map((e) => e.label).filter((l) => t.error_rad && l in t.error_rad);
 }
 
+// The settle period and error limits of a report, for its error plots.
+export function plotContext(report, estimators, labels) {
+  if (!report) return {};
+  const sc = report.scenario || {};
+  const t0 = typeof sc.t0_s === 'number' ? sc.t0_s : 0;
+  const settle = typeof sc.settle_s === 'number' && sc.settle_s > 0 ? [t0, t0 + sc.settle_s] : null;
+  const est = (report.estimators && report.estimators.length ? report.estimators : estimators) || [];
+  return { settle, limits: errorLimitLines(report.measurements, est, labels) };
+}
+
 // All report plots into `parent`; an honest note for reports older than the envelope traces.
-export function reportPlots(parent, t, estimators) {
+// report: the report (its scenario's settle time and t0, its measurements' limits), when known.
+export function reportPlots(parent, t, estimators, report) {
   const labels = traceLabels(t, estimators);
+  const opts = plotContext(report, estimators, labels);
   if (!isEnvelope(t)) {
     const p = document.createElement('p');
     p.className = 'muted old-traces';
@@ -430,8 +609,8 @@ export function reportPlots(parent, t, estimators) {
     parent.append(p);
   }
   lissajous(parent, t);
-  errorVsAngle(parent, t, labels);
-  errorVsTime(parent, t, labels);
+  errorVsAngle(parent, t, labels, { limits: opts.limits });
+  errorVsTime(parent, t, labels, 'Error vs time', 'plot-time', opts);
   harmonicBars(parent, estimators);
   errorSpectrum(parent, estimators);
 }

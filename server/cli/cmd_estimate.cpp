@@ -113,14 +113,21 @@ int run_estimate(const EstimateOptions& o) {
         std::printf("%s on %s: %llu samples, %.3g M samples/s\n", o.estimator.c_str(), o.capture.c_str(),
                     static_cast<unsigned long long>(r["capture"]["samples"].get<std::uint64_t>()),
                     r["timing"]["estimator_samples_per_s"].get<double>() / 1e6);
+        bool notes_shown = false;
         if (r["metrics"].is_null()) {
             const auto& es = r["estimates"];
             const double vf = es["valid_fraction"].is_number() ? es["valid_fraction"].get<double>() : 0.0;
             std::printf("no theta_true in the capture: estimates only; valid %.1f %% of %llu samples\n",
                         100.0 * vf, static_cast<unsigned long long>(es["samples"].get<std::uint64_t>()));
-            if (vf < 0.95)
-                std::printf("warning: the estimator marked %.1f %% of the samples invalid: read its notes below before using the estimates\n",
-                            100.0 * (1.0 - vf));
+            // The estimator's own account of why, on the same line (a pointer to notes that an
+            // estimator without any left the reader looking at nothing).
+            if (vf < 0.95) {
+                const std::string why = state_notes(r["estimator"].value("state", json()));
+                notes_shown = true;
+                std::printf("warning: %s marked %.1f %% of the samples invalid: %s\n", o.estimator.c_str(), 100.0 * (1.0 - vf),
+                            why.empty() ? "it gives no reason (its state says nothing); check its parameters (fringe estimate --list) before using the estimates"
+                                        : (term_escape(why) + "; check this before using the estimates").c_str());
+            }
         } else if (r["metrics"]["scored"].get<std::uint64_t>() == 0) {
             std::printf("%s\n", term_escape(r["note"].get<std::string>()).c_str());
         } else {
@@ -147,7 +154,7 @@ int run_estimate(const EstimateOptions& o) {
             }
             for (const auto& d : r["diagnosis"]) std::printf("warning: %s\n", term_escape(d["message"].get<std::string>()).c_str());
         }
-        if (const std::string n = state_notes(r["estimator"].value("state", json())); !n.empty()) std::printf("%s: %s\n", o.estimator.c_str(), term_escape(n).c_str());
+        if (const std::string n = state_notes(r["estimator"].value("state", json())); !n.empty() && !notes_shown) std::printf("%s: %s\n", o.estimator.c_str(), term_escape(n).c_str());
         if (r.contains("dut")) {
             const auto& ro = r["dut"]["readout"];
             const auto& m = r["dut"]["metrics"];

@@ -98,7 +98,8 @@ int run_gen(const GenOptions& o) {
                     sc.encoder.kappa_nominal(), sc.encoder.fundamental_amplitude_v());
         if (summary.contains("duty_cycle"))
             std::printf("sin channel over %.0f cycles: duty-cycle error %.2f %%, h2 %.2f %%, h3 %.3f %% of the fundamental %.4f V\n",
-                        summary["cycles"].get<double>(), summary["duty_cycle_error_pct"].get<double>(),
+                        // +0.0: a rounding to -0.00 reads as a sign that is not there
+                        summary["cycles"].get<double>(), std::fabs(summary["duty_cycle_error_pct"].get<double>()) < 0.005 ? 0.0 : summary["duty_cycle_error_pct"].get<double>(),
                         summary["h2_pct"].get<double>(), summary["h3_pct"].get<double>(),
                         summary["fundamental_v"].get<double>());
     }

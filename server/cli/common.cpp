@@ -110,6 +110,13 @@ std::string state_notes(const json& state) {
         add(std::to_string(n) + " sample" + (n == 1 ? "" : "s") + " not taken in (outliers or singular updates)");
     if (const long long n = count("nonfinite_samples"); n > 0)
         add(std::to_string(n) + " non-finite sample" + (n == 1 ? "" : "s") + " skipped");
+    // A fitting estimator (atan2-ellipse): how its fit went; before its first fit its output is invalid.
+    if (state.contains("fit_status") && state["fit_status"].is_string()) {
+        const long long fits = count("fits");
+        add("ellipse fit " + state["fit_status"].get<std::string>() + " (" + std::to_string(fits) + (fits == 1 ? " fit" : " fits") +
+            (state.contains("accepted_points") && state["accepted_points"].is_number_integer() ? ", " + std::to_string(state["accepted_points"].get<long long>()) + " points seen" : "") +
+            "; the output is marked invalid until the first fit)");
+    }
     if (state.contains("message") && state["message"].is_string())
         out += (out.empty() ? "" : "; ") + state["message"].get<std::string>();
     return out;

@@ -300,12 +300,13 @@ try {
   const lim = await page.$$eval('#compare-limits tbody tr', (rows) => rows.map((r) => [...r.querySelectorAll('td')].map((td) => td.textContent)));
   check(lim.length >= 4 && lim.every((c) => c[5] === 'PASS' && c[8] === 'PASS' && c[4] !== '-' && c[7] !== '-'),
     `compare shows each run's limits and outcomes (${lim.length} rows)`);
-  // Each run on its own time axis: A spans 1 s, B 0.6 s (B was drawn on A's times before issue 11).
+  // Shared axes (issue 23), each run's errors on its own times: both plots span A's 1 s, B's
+  // data ends at 0.6 s (B was drawn on A's times before issue 11).
   await page.waitForFunction(() => [...document.querySelectorAll('#compare-plots .plot')].some((d) => d.dataset.xmax));
-  const axesAB = await page.$$eval('#compare-plots .plot', (ds) => ds.map((d) => ({ run: d.dataset.run, xmax: +d.dataset.xmax, id: d.id })));
+  const axesAB = await page.$$eval('#compare-plots .plot', (ds) => ds.map((d) => ({ run: d.dataset.run, xmax: +d.dataset.xmax, id: d.id, last: d.fringe.data_t[1] })));
   const xa = axesAB.filter((x) => x.run === 'A'), xb = axesAB.filter((x) => x.run === 'B');
-  check(xa.length >= 1 && xa.length === xb.length && xa.every((x) => Math.abs(x.xmax - 1.0) < 0.02) && xb.every((x) => Math.abs(x.xmax - 0.6) < 0.02),
-    `compare draws each run on its own time axis (A to ${xa.map((x) => x.xmax.toFixed(3))} s, B to ${xb.map((x) => x.xmax.toFixed(3))} s)`);
+  check(xa.length >= 1 && xa.length === xb.length && axesAB.every((x) => Math.abs(x.xmax - 1.0) < 0.02) && xb.every((x) => Math.abs(x.last - 0.6) < 0.02),
+    `compare draws both runs on one time axis, each on its own times (A to ${xa.map((x) => x.last.toFixed(3))} s, B to ${xb.map((x) => x.last.toFixed(3))} s, axes to ${axesAB[0].xmax.toFixed(3)} s)`);
   await page.screenshot({ path: join(artifacts, 'compare.png'), fullPage: true });
 
   // The user's own board, built in the editor: 2048 lines at 1500 rpm, a 12-bit ADC at 200 kHz,
