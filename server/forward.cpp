@@ -48,9 +48,21 @@ PgStore* ForwardingStore::reader() const {
     } catch (const StoreError& e) {
         reader_.reset();
         reader_retry_ = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+        note_shared(false, e.what());
         spdlog::warn("shared store unreachable, showing this bench's runs only: {}", e.what());
         return nullptr;
     }
+}
+
+void ForwardingStore::note_shared(bool ok, const std::string& error) const {
+    std::lock_guard<std::mutex> l(state_mu_);
+    reachable_ = ok ? 1 : 0;
+    shared_error_ = ok ? std::string() : error;
+}
+
+ForwardingStore::Health ForwardingStore::health() const {
+    std::lock_guard<std::mutex> l(state_mu_);
+    return {reachable_, last_.pending, shared_error_};
 }
 
 std::vector<RunRow> ForwardingStore::list(const RunFilter& f) const {
@@ -61,7 +73,12 @@ std::vector<RunRow> ForwardingStore::list(const RunFilter& f) const {
             for (const auto& r : rows) have[r.id] = true;
             for (auto& r : pg->list(f))
                 if (!have.count(r.id)) rows.push_back(std::move(r));
+            note_shared(true, "");
         } catch (const StoreError& e) {
+            // Frozen or gone: the local rows only, and no new attempt for a while (each would wait).
+            reader_.reset();
+            reader_retry_ = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+            note_shared(false, e.what());
             spdlog::warn("shared store: {}", e.what());
         }
     }
@@ -76,8 +93,14 @@ std::optional<std::string> ForwardingStore::report_text(const std::string& id) c
     if (auto t = local_.report_text(id)) return t;
     if (PgStore* pg = reader()) {
         try {
-            return pg->report_text(id);
+            auto v = pg->report_text(id);
+            note_shared(true, "");
+            return v;
         } catch (const StoreError& e) {
+            // Frozen or gone: the local rows only, and no new attempt for a while (each would wait).
+            reader_.reset();
+            reader_retry_ = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+            note_shared(false, e.what());
             spdlog::warn("shared store: {}", e.what());
         }
     }
@@ -88,8 +111,14 @@ std::optional<RunRow> ForwardingStore::row(const std::string& id) const {
     if (auto r = local_.row(id)) return r;
     if (PgStore* pg = reader()) {
         try {
-            return pg->row(id);
+            auto v = pg->row(id);
+            note_shared(true, "");
+            return v;
         } catch (const StoreError& e) {
+            // Frozen or gone: the local rows only, and no new attempt for a while (each would wait).
+            reader_.reset();
+            reader_retry_ = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+            note_shared(false, e.what());
             spdlog::warn("shared store: {}", e.what());
         }
     }
@@ -130,9 +159,11 @@ ForwardingStore::Pass ForwardingStore::pass_locked() {
                 }
             }
         }
+        if (fwd_shared_) note_shared(true, "");
     } catch (const StoreError& e) {
         p.error = e.what();
         fwd_shared_.reset();  // reconnect on the next pass
+        note_shared(false, p.error);
     }
     p.pending = fwd_local_->pending_count();
     {
@@ -220,6 +251,8 @@ StoreUri parse_store_uri(const std::string& uri, const std::string& data_dir) {
         if (u.sqlite_path.rfind("//", 0) == 0) u.sqlite_path = u.sqlite_path.substr(2);  // sqlite:///abs/path
         if (u.sqlite_path.empty()) throw ConfigError("store", "sqlite: needs a file (sqlite:/var/lib/fringe/runs.db)");
     } else if (uri.rfind("postgresql://", 0) == 0 || uri.rfind("postgres://", 0) == 0) {
+        if (const std::string bad = store_uri_problem(uri); !bad.empty())
+            throw ConfigError("store", "the PostgreSQL URI '" + redact_store_uri(uri) + "' holds " + bad);
         u.kind = StoreUri::Kind::Postgres;
         u.pg_uri = uri;
         u.sqlite_path = spool;

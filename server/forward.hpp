@@ -54,11 +54,21 @@ public:
     void stop();
     // The last outcome, for messages and the health check.
     Pass last() const;
+    // The shared store as the last read or forwarding pass found it (thread-safe, never waits
+    // for the database: the health check calls it without the store lock). reachable: -1 not
+    // tried yet, 0 unreachable (error says why, without the password), 1 reachable.
+    struct Health {
+        int reachable = -1;
+        int pending = 0;
+        std::string error;
+    };
+    Health health() const;
     const std::string& shared_uri() const { return shared_uri_; }
 
 private:
     PgStore* reader() const;  // connected reader for merged reads, or null (down; retried after a pause)
     Pass pass_locked();
+    void note_shared(bool ok, const std::string& error) const;  // for health()
 
     SqliteStore local_;
     std::string instance_, shared_uri_, shown_;
@@ -73,6 +83,8 @@ private:
     std::condition_variable wake_;
     bool stop_ = false, kicked_ = false;
     Pass last_;
+    mutable int reachable_ = -1;  // state_mu_
+    mutable std::string shared_error_;
     std::thread thread_;
 };
 

@@ -32,6 +32,17 @@ namespace fringe {
 
 using namespace service_detail;
 
+namespace {
+// A run this bench does not have while the shared store cannot be asked: it may be another
+// bench's, so the answer is "store unreachable" (503), never "no such run".
+void unknown_while_shared_down(const RunStore& st, const std::string& id) {
+    if (const auto* fwd = dynamic_cast<const ForwardingStore*>(&st))
+        if (const auto h = fwd->health(); h.reachable == 0)
+            throw StoreUnreachable("run " + id + " is not in this bench's spool and the shared store is unreachable, so it cannot be looked up there; "
+                                   "retry when it is back (" + h.error + ")");
+}
+}  // namespace
+
 HttpResponse json_error(int status, const std::string& code, const std::string& message, const std::string& field) {
     json e{{"code", code}, {"message", message}};
     e["field"] = field.empty() ? json(nullptr) : json(field);
@@ -108,6 +119,10 @@ bool Service::is_heavy(const std::string& method, const std::string& target) {
     const std::string path = target.substr(0, target.find('?'));
     if (is_upload(method, target)) return true;  // reads the whole capture to check it
     const auto seg = segments(path);
+    // With a shared store, run reads may wait for PostgreSQL (up to the statement deadline when
+    // it is frozen), and the rest waits for the store lock: never on the I/O threads, so
+    // /health and the other endpoints answer meanwhile.
+    if (seg.size() >= 3 && seg[0] == "api" && seg[1] == "v1" && seg[2] == "runs" && dynamic_cast<const ForwardingStore*>(store_.get())) return true;
     if (seg.size() == 5 && seg[0] == "api" && seg[1] == "v1") {
         if (seg[2] == "captures" && seg[4] == "evaluate") return method == "POST";
         // The first read of a report parses and renders it (it can be hundreds of MB); later
@@ -200,9 +215,17 @@ HttpResponse Service::handle_request(const HttpRequest& req) {
     } catch (const StoreFull& e) {
         spdlog::error("{}", log_escape(e.what()));
         return json_error(507, "storage_full", public_text(std::string("the disk is full: ") + e.what()));
+    } catch (const StoreUnreachable& e) {
+        // The shared store is frozen or gone: what only it could answer is 503, not 404 or 500.
+        const std::string msg = redact_store_text(e.what(), cfg_.store_uri);
+        spdlog::warn("{}", log_escape(msg));
+        auto r = json_error(503, "store_unreachable", public_text(msg));
+        r.headers.emplace_back("Retry-After", "10");
+        return r;
     } catch (const StoreError& e) {
-        spdlog::error("{}", log_escape(e.what()));
-        return json_error(500, "store_error", public_text(e.what()));
+        const std::string msg = redact_store_text(e.what(), cfg_.store_uri);
+        spdlog::error("{}", log_escape(msg));
+        return json_error(500, "store_error", public_text(msg));
     } catch (const fs::filesystem_error& e) {
         spdlog::error("{} {}: {}", log_escape(req.method), log_escape(req.target), log_escape(e.what()));
         if (e.code() == std::errc::no_space_on_device || e.code() == std::errc::file_too_large)
@@ -246,8 +269,17 @@ HttpResponse Service::route(const HttpRequest& req, const std::string& path, con
             if (!get) return wrong_method("GET");
             const auto live = runs_->live();
             const auto running = std::count_if(live.begin(), live.end(), [](const RunSnapshot& s) { return s.status == "running"; });
-            return json_ok({{"status", "ok"}, {"version", FRINGE_VERSION}, {"workers", runs_->workers()},
-                            {"runs", {{"running", running}, {"queued", static_cast<long>(live.size()) - running}}}});
+            json out{{"status", "ok"}, {"version", FRINGE_VERSION}, {"workers", runs_->workers()},
+                     {"runs", {{"running", running}, {"queued", static_cast<long>(live.size()) - running}}}};
+            // The shared store as last seen, without the store lock (a query to a frozen database
+            // may hold it): reachable, and the forwarding backlog in this bench's spool.
+            if (const auto* fwd = dynamic_cast<const ForwardingStore*>(store_.get())) {
+                const auto h = fwd->health();
+                out["store"] = {{"kind", "postgresql"}, {"uri", redact_store_uri(cfg_.store_uri)},
+                                {"reachable", h.reachable < 0 ? json(nullptr) : json(h.reachable == 1)}, {"pending", h.pending},
+                                {"error", h.error.empty() ? json(nullptr) : json(public_text(redact_store_text(h.error, cfg_.store_uri)))}};
+            }
+            return json_ok(out);
         }
         if (top == "estimators") return get ? json_ok({{"estimators", est::registry()}}) : wrong_method("GET");
         if (top == "drivers") return get ? json_ok({{"drivers", dev::drivers()}}) : wrong_method("GET");
@@ -277,6 +309,7 @@ HttpResponse Service::route(const HttpRequest& req, const std::string& path, con
             }
             std::lock_guard<std::mutex> l(store_mu_);
             if (store_->row(id)) return json_error(409, "finished", "run " + id + " is not running in this service");
+            unknown_while_shared_down(*store_, id);
             return json_error(404, "not_found", "no run " + id, "id");
         }
         if (what == "events") {
@@ -449,7 +482,13 @@ HttpResponse Service::list_runs(const std::map<std::string, std::string>& query)
         }
         out.push_back(std::move(j));
     }
-    return json_ok({{"runs", out}});
+    json body{{"runs", out}};
+    // The shared store could not be read: this bench's runs only, and the answer says so.
+    if (const auto* fwd = dynamic_cast<const ForwardingStore*>(store_.get()); fwd && fwd->health().reachable == 0) {
+        body["partial"] = true;
+        body["store"] = {{"reachable", false}, {"error", public_text(redact_store_text(fwd->health().error, cfg_.store_uri))}};
+    }
+    return json_ok(body);
 }
 
 std::optional<RunSnapshot> Service::run_state(const std::string& id) {
@@ -464,6 +503,7 @@ std::optional<RunSnapshot> Service::run_state(const std::string& id) {
         std::lock_guard<std::mutex> l(store_mu_);
         row = store_->row(id);
         if (row && row->dead) store_->mark_interrupted(id);  // its process is gone: for good
+        if (!row) unknown_while_shared_down(*store_, id);
     }
     if (!row) return std::nullopt;
     RunSnapshot s;

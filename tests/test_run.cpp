@@ -460,3 +460,34 @@ TEST_CASE("run history: provenance columns, filters, the forward state, an inter
     }
     std::filesystem::remove_all(dir);
 }
+
+TEST_CASE("store URIs: passwords redacted however they are written; URIs libpq would misread refused by name", "[store][redact]") {
+    // A raw '/' or '@' in the password: everything up to the last '@' is hidden.
+    CHECK(redact_store_uri("postgresql://f:pa/ss@db/runs") == "postgresql://f:***@db/runs");
+    CHECK(redact_store_uri("postgresql://f:p@ss@db/runs") == "postgresql://f:***@db/runs");
+    CHECK(redact_store_uri("postgresql://f:p%zz@db/runs") == "postgresql://f:***@db/runs");
+    // A percent-encoded key, any case; a value holding '&' runs to the next key.
+    CHECK(redact_store_uri("postgresql:///r?host=/tmp&%70assword=s3/cret&user=f") == "postgresql:///r?host=/tmp&%70assword=***&user=f");
+    CHECK(redact_store_uri("postgresql:///r?PASSWORD=a&b&user=f") == "postgresql:///r?PASSWORD=***&user=f");
+    CHECK(redact_store_uri("postgresql:///r?pass%77ord=x%zz") == "postgresql:///r?pass%77ord=***");
+    // key=value conninfo text, quoted or not.
+    CHECK(redact_store_uri("host=db password='se cr\\'et' user=f") == "host=db password=*** user=f");
+    CHECK(redact_store_uri("host=db password=s3cret user=f") == "host=db password=*** user=f");
+    // Any text: the URI, and the password wherever libpq quotes it (encoded or decoded).
+    const std::string uri = "postgresql://f:s%2Fcr%40t@db/runs";
+    CHECK(redact_store_text("run store " + uri + ": bad token \"s%2Fcr%40t\" or \"s/cr@t\"", uri) ==
+          "run store postgresql://f:***@db/runs: bad token \"***\" or \"***\"");
+    CHECK(store_uri_problem(uri).empty());
+    CHECK(store_uri_problem("postgresql:///runs?host=/tmp/x&user=a@b").empty());
+    CHECK(store_uri_problem("postgresql://f:p%zz@db/r").find("%25") != std::string::npos);
+    CHECK(store_uri_problem("postgresql://f:p@ss@db/r").find("%40") != std::string::npos);
+    CHECK(store_uri_problem("postgresql://f:pa/ss@db/r").find("%2F") != std::string::npos);
+    CHECK(store_uri_problem("postgresql://f:pa/ss@db/r").find("pa/ss") == std::string::npos);
+    try {
+        parse_store_uri("postgresql://f:pa/ss@db/r", "/d");
+        FAIL("accepted");
+    } catch (const ConfigError& e) {
+        CHECK(std::string(e.what()).find("pa/ss") == std::string::npos);
+        CHECK(std::string(e.what()).find("%2F") != std::string::npos);
+    }
+}
