@@ -47,7 +47,7 @@ for i in 1 2 3 4 5; do
   [ "$(locks)" = 1 ] || fail "iteration $i: expected the killed run's lock file to be left behind"
   # The next command that opens the folder settles it.
   "$FRINGE" runs --data "$D" > "$dir/runs.txt" 2> "$dir/runs.err"
-  st=$(q "SELECT status || ' ' || verdict FROM runs WHERE id = '$id'")
+  st=$(q "SELECT status || ' ' || COALESCE(verdict, '') FROM runs WHERE id = '$id'")
   [ "$st" = "interrupted ABORTED" ] || fail "iteration $i: the killed run's row is '$st' in runs.db after the next command, expected 'interrupted ABORTED'"
   [ "$(locks)" = 0 ] || fail "iteration $i: $(locks) lock file(s) left in $D/locks after the next command: $(ls "$D/locks")"
   grep -q "marked interrupted" "$dir/runs.err" || fail "iteration $i: the next command says what it did: $(cat "$dir/runs.err")"

@@ -128,7 +128,7 @@ sqlite3 "$E/runs.db" "INSERT INTO runs (id, created_at, scenario, dut, status, v
 echo "4. checksums survive jsonb"
 
 # 5. An earlier run's conflict found during a later run's forward wait.
-old=$(sqlite3 "$D/runs.db" "SELECT id FROM runs WHERE id LIKE 'sweep-%' ORDER BY id LIMIT 1")
+old=$(sqlite3 "$D/runs.db" "SELECT id FROM runs WHERE id LIKE 'sweep-%' ORDER BY id DESC LIMIT 1")
 sqlite3 "$D/runs.db" "UPDATE runs SET report = json_set(report, '$.verdict', 'FAIL'), report_sha256 = 'changed', forward = 'pending' WHERE id = '$old'"
 pg_halt "$dir/b"
 $PY -c 'import json,sys; b=json.load(open(sys.argv[1])); b["duration_s"]=3; json.dump(b, open(sys.argv[2], "w"))' "$dir/short.json" "$dir/slow.json"
