@@ -125,14 +125,53 @@ std::optional<RunRow> ForwardingStore::row(const std::string& id) const {
     return std::nullopt;
 }
 
+namespace {
+// Why a spooled report cannot be sent as it is ("" if it can): what PgStore::put reads.
+std::string spool_problem(const json& rep, const std::string& row_id) {
+    if (rep.is_discarded() || !rep.is_object()) return "the stored report is not a JSON object";
+    if (!rep.contains("id") || !rep["id"].is_string()) return "the report has no string \"id\"";
+    if (rep["id"].get<std::string>() != row_id) return "the report's id is '" + rep["id"].get<std::string>() + "', not its row's";
+    if (!rep.contains("scenario") || !rep["scenario"].is_object()) return "the report has no \"scenario\" object";
+    for (const char* k : {"status", "verdict", "started_at", "fringe_version"})
+        if (rep.contains(k) && !rep[k].is_string() && !rep[k].is_null()) return std::string("\"") + k + "\" is not a string";
+    if (!rep.contains("status") || !rep["status"].is_string()) return "the report has no string \"status\"";
+    return "";
+}
+}  // namespace
+
 ForwardingStore::Pass ForwardingStore::pass_locked() {
     Pass p;
     if (!fwd_local_) fwd_local_ = std::make_unique<SqliteStore>(local_.path());
+    auto quarantine = [&](const std::string& id, const std::string& problem) {
+        ++p.quarantined;
+        const std::string msg = "run " + id + ": its spooled report cannot be forwarded (" + problem + "); it stays in " + local_.path() +
+                                ", marked quarantined, and is not sent";
+        fwd_local_->set_forwarded(id, "quarantined", msg);
+        spdlog::error("{}", msg);
+    };
     try {
         if (!fwd_shared_ || !fwd_shared_->connected()) {
             fwd_shared_.reset();
-            if (fwd_local_->pending_count() == 0) return p;  // nothing to send: no need to connect
+            // Nothing to send, and every forwarded row names the store we last reached (or
+            // nothing was ever spooled): no need to connect.
+            const bool unknown_store = fwd_ident_.empty() ? fwd_local_->spooled_count() > 0 : !fwd_local_->forwarded_elsewhere(fwd_ident_, 1).empty();
+            if (fwd_local_->pending_count() == 0 && !unknown_store) return p;
             fwd_shared_ = std::make_unique<PgStore>(shared_uri_);
+            fwd_ident_ = fwd_shared_->identity();
+        }
+        // Rows forwarded to another store (or before the spool named stores): this store says
+        // whether it holds them; the ones it lacks, or holds with another checksum, go again.
+        for (;;) {
+            const auto batch = fwd_local_->forwarded_elsewhere(fwd_ident_, 256);
+            if (batch.empty()) break;
+            std::vector<std::string> ids;
+            for (const auto& f : batch) ids.push_back(f.id);
+            const auto have = fwd_shared_->stored_checksums(ids);
+            for (const auto& f : batch) {
+                const auto it = have.find(f.id);
+                if (it != have.end() && it->second == f.report_sha256) fwd_local_->set_forwarded(f.id, "done", "", fwd_ident_);
+                else fwd_local_->set_forwarded(f.id, "pending");  // put() below decides: inserted, same or conflict
+            }
         }
         for (;;) {
             const auto batch = fwd_local_->pending_forward(64);
@@ -143,16 +182,27 @@ ForwardingStore::Pass ForwardingStore::pass_locked() {
                     rep = parse_json_bounded(item.report, "", kMaxStoredJsonDepth);
                 } catch (const ConfigError&) {
                 }
-                if (rep.is_discarded() || !rep.is_object()) {
-                    fwd_local_->set_forwarded(item.id, "failed", "the stored report is not JSON");
+                if (const std::string problem = spool_problem(rep, item.id); !problem.empty()) {
+                    quarantine(item.id, problem);
                     continue;
                 }
-                switch (fwd_shared_->put(rep)) {
-                    case PgStore::Put::Inserted: ++p.forwarded; fwd_local_->set_forwarded(item.id, "done"); break;
-                    case PgStore::Put::Same: ++p.same; fwd_local_->set_forwarded(item.id, "done"); break;
+                PgStore::Put put = PgStore::Put::Same;
+                try {
+                    put = fwd_shared_->put(rep);
+                } catch (const StoreError&) {
+                    throw;  // the store (unreachable, refused): retried later
+                } catch (const std::exception& e) {  // the report (a value put() cannot read)
+                    quarantine(item.id, e.what());
+                    continue;
+                }
+                switch (put) {
+                    case PgStore::Put::Inserted: ++p.forwarded; fwd_local_->set_forwarded(item.id, "done", "", fwd_ident_); break;
+                    case PgStore::Put::Same: ++p.same; fwd_local_->set_forwarded(item.id, "done", "", fwd_ident_); break;
                     case PgStore::Put::Conflict:
                         ++p.conflicts;
-                        fwd_local_->set_forwarded(item.id, "conflict", "the shared store holds a different report under this id (see its run_conflicts table)");
+                        p.conflict_ids.push_back(item.id);
+                        fwd_local_->set_forwarded(item.id, "conflict", "the shared store holds a different report under this id (see its run_conflicts table)",
+                                                  fwd_ident_);
                         spdlog::error("run {}: {} holds a different report under this id; ours is kept here and in its run_conflicts, "
                                       "neither is overwritten", item.id, shown_);
                         break;
@@ -173,6 +223,21 @@ ForwardingStore::Pass ForwardingStore::pass_locked() {
     return p;
 }
 
+std::optional<std::set<std::string>> ForwardingStore::shared_has(const std::vector<std::string>& ids) const {
+    reader_retry_ = {};  // asked rarely (a sweep's start and end): always try
+    PgStore* pg = reader();
+    if (!pg) return std::nullopt;
+    try {
+        std::set<std::string> out;
+        for (const auto& [id, sum] : pg->stored_checksums(ids)) out.insert(id);
+        return out;
+    } catch (const StoreError& e) {
+        spdlog::warn("shared store: {}", e.what());
+        reader_.reset();
+        return std::nullopt;
+    }
+}
+
 ForwardingStore::Pass ForwardingStore::forward_pending() {
     std::lock_guard<std::mutex> l(fwd_mu_);
     return pass_locked();
@@ -187,9 +252,11 @@ ForwardingStore::Pass ForwardingStore::forward_until(double timeout_s) {
         total.forwarded += p.forwarded;
         total.same += p.same;
         total.conflicts += p.conflicts;
+        total.quarantined += p.quarantined;
+        total.conflict_ids.insert(total.conflict_ids.end(), p.conflict_ids.begin(), p.conflict_ids.end());
         total.pending = p.pending;
         total.error = p.error;
-        if (p.pending == 0 || std::chrono::steady_clock::now() + std::chrono::duration<double>(wait_s) > deadline) return total;
+        if ((p.pending == 0 && p.error.empty()) || std::chrono::steady_clock::now() + std::chrono::duration<double>(wait_s) > deadline) return total;
         std::this_thread::sleep_for(std::chrono::duration<double>(wait_s));
         wait_s = std::min(wait_s * 2, 5.0);
     }
@@ -207,7 +274,7 @@ void ForwardingStore::start() {
             Pass p;
             try {
                 p = forward_pending();
-            } catch (const std::exception& e) {
+            } catch (const std::exception& e) {  // the spool itself (disk, SQLite): logged, retried, never fatal
                 p.error = e.what();
                 p.pending = 1;
             }
@@ -263,14 +330,34 @@ StoreUri parse_store_uri(const std::string& uri, const std::string& data_dir) {
     return u;
 }
 
+namespace {
+// Every command that opens a data folder's store first settles what dead processes left.
+void reap(SqliteStore& s) {
+    try {
+        if (const int n = s.reap_dead(); n > 0)
+            spdlog::warn("{} run(s) of a process that stopped without finishing are marked interrupted in {}", n, s.path());
+    } catch (const std::exception& e) {  // a read-only folder: the rows still read as interrupted
+        spdlog::debug("could not mark dead runs in {}: {}", s.path(), e.what());
+    }
+}
+}  // namespace
+
 std::unique_ptr<RunStore> open_store(const StoreUri& u, const std::string& instance) {
-    if (u.kind == StoreUri::Kind::Postgres) return std::make_unique<ForwardingStore>(u.sqlite_path, instance, u.pg_uri);
-    return std::make_unique<SqliteStore>(u.sqlite_path, instance);
+    if (u.kind == StoreUri::Kind::Postgres) {
+        auto f = std::make_unique<ForwardingStore>(u.sqlite_path, instance, u.pg_uri);
+        reap(f->local());
+        return f;
+    }
+    auto s = std::make_unique<SqliteStore>(u.sqlite_path, instance);
+    reap(*s);
+    return s;
 }
 
 std::unique_ptr<RunStore> open_store_reader(const StoreUri& u) {
     if (u.kind == StoreUri::Kind::Postgres) return std::make_unique<PgStore>(u.pg_uri);
-    return std::make_unique<SqliteStore>(u.sqlite_path);
+    auto s = std::make_unique<SqliteStore>(u.sqlite_path);
+    reap(*s);
+    return s;
 }
 
 }  // namespace fringe

@@ -2,7 +2,13 @@
 // its local SQLite first (DATA/runs.db, as without a shared store) and marks the finished
 // report "pending" in the row's forward column; a forwarder sends pending reports to the
 // shared store, oldest first, and records the outcome there: "done", or "conflict" (the
-// shared store holds a different report under that id: flagged, neither is overwritten).
+// shared store holds a different report under that id: flagged, neither is overwritten), each
+// with the identity of the store it reached (PgStore::identity: the server's system identifier
+// and the database). Pointed at another store (a new or restored server), the forwarder asks
+// that store which of the spool's runs it holds and sends the others: whether a run is stored
+// is decided by the store, never by the spool. A spooled report that cannot be sent (not JSON,
+// no scenario, an id that is not its row's) is "quarantined" with a message naming the run and
+// the problem, and the others go on.
 // While the database is unreachable the bench keeps running; the forwarder retries with
 // backoff (0.5 s doubling to 30 s), and any later fringe command on that data folder with
 // the same --store forwards what is still pending when it starts. Nothing is lost.
@@ -18,8 +24,11 @@
 #include <condition_variable>
 #include <memory>
 #include <mutex>
+#include <optional>
+#include <set>
 #include <string>
 #include <thread>
+#include <vector>
 
 namespace fringe {
 
@@ -42,7 +51,8 @@ public:
     std::string describe() const override;
 
     struct Pass {
-        int forwarded = 0, same = 0, conflicts = 0, pending = 0;
+        int forwarded = 0, same = 0, conflicts = 0, pending = 0, quarantined = 0;
+        std::vector<std::string> conflict_ids;  // the runs found in conflict, each by its own id
         std::string error;  // why the pass stopped early (the shared store unreachable)
     };
     // One pass over the pending reports (its own connections; not with start() running).
@@ -64,6 +74,10 @@ public:
     };
     Health health() const;
     const std::string& shared_uri() const { return shared_uri_; }
+    SqliteStore& local() { return local_; }
+    // Of these run ids, those the shared store holds with a report; nullopt when it cannot
+    // be asked (down).
+    std::optional<std::set<std::string>> shared_has(const std::vector<std::string>& ids) const;
 
 private:
     PgStore* reader() const;  // connected reader for merged reads, or null (down; retried after a pause)
@@ -79,6 +93,7 @@ private:
     std::mutex fwd_mu_;
     std::unique_ptr<SqliteStore> fwd_local_;
     std::unique_ptr<PgStore> fwd_shared_;
+    std::string fwd_ident_;  // fwd_shared_'s identity; kept once learnt, to know when to connect
     mutable std::mutex state_mu_;
     std::condition_variable wake_;
     bool stop_ = false, kicked_ = false;

@@ -11,6 +11,7 @@
 #include <filesystem>
 #include <chrono>
 #include <random>
+#include <thread>
 
 namespace fringe {
 
@@ -38,6 +39,12 @@ int open_locked(const std::string& path, int how) {
         return -1;
     }
     return fd;
+}
+
+// The open descriptor fd is the file now named path (not one unlinked since it was opened).
+bool same_file(int fd, const std::string& path) {
+    struct stat a {}, b {};
+    return ::fstat(fd, &a) == 0 && ::stat(path.c_str(), &b) == 0 && a.st_dev == b.st_dev && a.st_ino == b.st_ino;
 }
 
 void write_owner(int fd, const std::string& id) {
@@ -93,8 +100,22 @@ void InstanceLock::acquire_instance(const std::string& data_dir, const std::stri
     fs::create_directories(lock_dir(data_dir));
     ::chmod(lock_dir(data_dir).c_str(), 0700);
     instance_path_ = (fs::path(lock_dir(data_dir)) / (instance_id + ".lock")).string();
-    const int fd = open_locked(instance_path_, LOCK_EX);
-    if (fd < 0) throw std::runtime_error("cannot lock " + instance_path_ + ": " + std::strerror(errno));
+    int fd = -1;
+    // Another process may remove a lock file it found unheld between our open() and flock():
+    // ours would then lock a file no longer in the folder, and a prober would find the name
+    // gone and take our rows for dead. Holding the lock, check that the name is still our file.
+    for (int attempt = 0; attempt < 100; ++attempt) {
+        fd = open_locked(instance_path_, LOCK_EX);
+        if (fd < 0 && errno == EWOULDBLOCK) {  // a prober holds it for an instant (the id is new: no owner)
+            std::this_thread::sleep_for(std::chrono::milliseconds(10));
+            continue;
+        }
+        if (fd < 0) throw std::runtime_error("cannot lock " + instance_path_ + ": " + std::strerror(errno));
+        if (same_file(fd, instance_path_)) break;
+        ::close(fd);
+        fd = -1;
+    }
+    if (fd < 0) throw std::runtime_error("cannot lock " + instance_path_ + ": it kept being held or removed by other processes");
     write_owner(fd, instance_id);
     instance_fd_ = fd;
     id_ = instance_id;
@@ -116,16 +137,20 @@ bool instance_alive(const std::string& data_dir, const std::string& instance_id)
 int remove_stale_instance_locks(const std::string& data_dir) {
     int n = 0;
     std::error_code ec;
-    const auto now = fs::file_time_type::clock::now();
     for (const auto& e : fs::directory_iterator(lock_dir(data_dir), ec)) {
-        const auto name = e.path().filename().string();
-        if (e.path().extension() != ".lock") continue;
-        std::error_code tec;
-        const auto mtime = fs::last_write_time(e.path(), tec);
-        if (tec || now - mtime < std::chrono::minutes(1)) continue;
-        if (instance_alive(data_dir, e.path().stem().string())) continue;
-        std::error_code rec;
-        if (fs::remove(e.path(), rec)) ++n;
+        if (e.path().extension() != ".lock" || !valid_instance(e.path().stem().string())) continue;
+        // Removed only while we hold it ourselves and it is still the file of that name: its
+        // owner is gone (the kernel dropped its lock at exit, kill -9 included), and a process
+        // creating it right now re-checks the name after locking (acquire_instance) and
+        // makes a fresh one, so no age rule is needed.
+        const std::string path = e.path().string();
+        const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+        if (fd < 0) continue;
+        if (::flock(fd, LOCK_EX | LOCK_NB) == 0 && same_file(fd, path)) {
+            std::error_code rec;
+            if (fs::remove(e.path(), rec)) ++n;
+        }
+        ::close(fd);
     }
     return n;
 }

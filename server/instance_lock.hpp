@@ -45,8 +45,8 @@ public:
 
 // True if some process holds DATA/locks/ID.lock (the instance that wrote a row is alive).
 bool instance_alive(const std::string& data_dir, const std::string& instance_id);
-// Removes lock files of instances that are gone (killed ones leave theirs), older than a
-// minute so that one being created right now is left alone. Returns how many.
+// Removes lock files of instances that are gone (killed ones leave theirs): each is locked
+// first and removed only while still unheld by anyone else. Returns how many.
 int remove_stale_instance_locks(const std::string& data_dir);
 
 }  // namespace fringe

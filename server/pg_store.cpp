@@ -514,4 +514,33 @@ std::optional<RunRow> PgStore::row(const std::string& id) const {
     return read_row(r, 0);
 }
 
+std::string PgStore::identity() {
+    try {
+        auto r = conn_->exec("SELECT system_identifier::text, current_database() FROM pg_control_system()");
+        if (PgConn::rows(r) == 1) return "pg:" + PgConn::value(r, 0, 0) + "/" + PgConn::value(r, 0, 1);
+    } catch (const StoreError&) {
+        if (!conn_->ok()) throw;  // the connection, not the permission
+    }
+    return "uri:" + describe();
+}
+
+std::map<std::string, std::string> PgStore::stored_checksums(const std::vector<std::string>& ids) {
+    // One text[] parameter: {"id1","id2"} with " and \ escaped.
+    std::string arr = "{";
+    for (const auto& id : ids) {
+        if (arr.size() > 1) arr += ',';
+        arr += '"';
+        for (const char c : id) {
+            if (c == '"' || c == '\\') arr += '\\';
+            arr += c;
+        }
+        arr += '"';
+    }
+    arr += '}';
+    auto r = conn_->exec("SELECT id, COALESCE(report_sha256, '') FROM runs WHERE id = ANY($1::text[]) AND report IS NOT NULL", {arr});
+    std::map<std::string, std::string> out;
+    for (int i = 0; i < PgConn::rows(r); ++i) out[PgConn::value(r, i, 0)] = PgConn::value(r, i, 1);
+    return out;
+}
+
 }  // namespace fringe

@@ -12,7 +12,9 @@
 
 #include "store.hpp"
 
+#include <map>
 #include <memory>
+#include <vector>
 
 struct pg_conn;
 struct pg_result;
@@ -107,6 +109,13 @@ public:
     // decides Same or Conflict (the latter is recorded in run_conflicts).
     Put put(const nlohmann::json& report);
     bool connected() const;
+    // Which store this is, whatever URI reached it: "pg:" + the server's system identifier
+    // (pg_control_system(): new with every initdb, so a fresh or replaced server differs) +
+    // "/" + the database name. When that function is not allowed, "uri:" + the URI without
+    // its password.
+    std::string identity();
+    // Of these run ids, the ones stored here with a report, each with its report_sha256.
+    std::map<std::string, std::string> stored_checksums(const std::vector<std::string>& ids);
 
 private:
     std::unique_ptr<PgConn> conn_;

@@ -4,6 +4,7 @@
 
 #include <array>
 #include <chrono>
+#include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
@@ -73,9 +74,28 @@ std::string sha256_hex(std::string_view data) {
 
 std::string canonical_json(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
 
+namespace {
+// PostgreSQL's jsonb keeps numbers as numeric, which has no negative zero and no exponent:
+// -0.0 comes back as 0, and 1e+18 as 1000000000000000000 (read back as an integer). The
+// checksum is of the form that survives jsonb: a whole-valued double within 64 bits is hashed
+// as that integer (-0.0 as 0), so a report read back from the store still matches its own.
+void jsonb_form(json& j) {
+    if (j.is_number_float()) {
+        const double x = j.get<double>();
+        if (std::isfinite(x) && x == std::trunc(x)) {
+            if (x >= 0 && x < 18446744073709551616.0) j = static_cast<std::uint64_t>(x);
+            else if (x < 0 && x >= -9223372036854775808.0) j = static_cast<std::int64_t>(x);
+        }
+    } else if (j.is_structured()) {
+        for (auto& v : j) jsonb_form(v);
+    }
+}
+}  // namespace
+
 std::string report_checksum(const json& report) {
     json r = report;
     for (const char* k : {"started_at", "finished_at", "wall_s", "provenance"}) r.erase(k);
+    jsonb_form(r);
     return sha256_hex(canonical_json(r));
 }
 

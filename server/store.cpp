@@ -80,7 +80,7 @@ SqliteStore::SqliteStore(const std::string& path, std::string instance) : path_(
     bool backfill = false;
     for (const char* col : {"instance TEXT", "error TEXT", "samples_done INTEGER", "samples_total INTEGER", "device TEXT", "bench TEXT", "host TEXT",
                             "dut_part TEXT", "operator TEXT", "fringe_version TEXT", "scenario_sha256 TEXT", "report_sha256 TEXT",
-                            "forward TEXT", "forward_error TEXT"}) {
+                            "forward TEXT", "forward_error TEXT", "forward_store TEXT"}) {
         const std::string name = std::string(col).substr(0, std::string(col).find(' '));
         if (std::find(have.begin(), have.end(), name) != have.end()) continue;
         exec(std::string("ALTER TABLE runs ADD COLUMN ") + col);
@@ -150,7 +150,8 @@ void SqliteStore::set_status(const std::string& id, const std::string& status) {
 namespace {
 constexpr const char* kRowColumns = "id, created_at, scenario, dut, status, COALESCE(verdict, ''), COALESCE(pid, 0), COALESCE(instance, ''), "
                                     "COALESCE(error, ''), COALESCE(samples_done, 0), COALESCE(samples_total, 0), COALESCE(device, ''), "
-                                    "COALESCE(bench, ''), COALESCE(host, ''), COALESCE(dut_part, ''), COALESCE(operator, ''), COALESCE(forward, '')";
+                                    "COALESCE(bench, ''), COALESCE(host, ''), COALESCE(dut_part, ''), COALESCE(operator, ''), COALESCE(forward, ''), "
+                                    "COALESCE(forward_store, '')";
 RunRow read_row(const Stmt& st) {
     RunRow r;
     r.id = st.text(0);
@@ -168,6 +169,7 @@ RunRow read_row(const Stmt& st) {
     r.dut_part = st.text(14);
     r.operator_name = st.text(15);
     r.forward = st.text(16);
+    r.forward_store = st.text(17);
     return r;
 }
 const char* kInterruptedError = "interrupted: the process that ran it stopped without finishing (killed, or the machine went down)";
@@ -201,6 +203,19 @@ int SqliteStore::mark_dead_interrupted() {
     return static_cast<int>(dead.size());
 }
 
+int SqliteStore::reap_dead() {
+    std::vector<std::string> dead;
+    {
+        Stmt st(db_, "SELECT id, COALESCE(instance, ''), COALESCE(pid, 0) FROM runs WHERE status IN ('queued', 'running')");
+        while (sqlite3_step(st.s) == SQLITE_ROW)
+            if (!row_alive(st.text(1), sqlite3_column_int64(st.s, 2))) dead.push_back(st.text(0));
+    }
+    for (const auto& id : dead) mark_interrupted(id);
+    // After the rows: a lock file removed says "gone" to every later reader as well.
+    remove_stale_instance_locks(dir_);
+    return static_cast<int>(dead.size());
+}
+
 void SqliteStore::mark_interrupted(const std::string& id) {
     Stmt st(db_, "UPDATE runs SET status = 'interrupted', verdict = 'ABORTED', pid = NULL, error = ?2 WHERE id = ?1 AND status IN ('queued', 'running')");
     st.bind(1, id);
@@ -218,7 +233,7 @@ void SqliteStore::finish(const nlohmann::json& r) {
                  "VALUES (?1, ?2, ?3, ?4, ?5, ?6, NULL, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15, ?16, ?17, ?18, ?19) "
                  "ON CONFLICT(id) DO UPDATE SET status = ?5, verdict = ?6, pid = NULL, report = ?7, dut = ?4, error = ?8, "
                  "samples_done = ?9, samples_total = ?10, device = ?11, bench = ?12, host = ?13, dut_part = ?14, operator = ?15, "
-                 "fringe_version = ?16, scenario_sha256 = ?17, report_sha256 = ?18, forward = ?19, forward_error = NULL");
+                 "fringe_version = ?16, scenario_sha256 = ?17, report_sha256 = ?18, forward = ?19, forward_error = NULL, forward_store = NULL");
     st.bind(1, r["id"].get<std::string>());
     st.bind(2, r.value("started_at", std::string()));
     st.bind(3, r["scenario"].value("name", std::string()));
@@ -257,10 +272,25 @@ int SqliteStore::pending_count() const {
     return sqlite3_step(st.s) == SQLITE_ROW ? static_cast<int>(sqlite3_column_int64(st.s, 0)) : 0;
 }
 
-void SqliteStore::set_forwarded(const std::string& id, const std::string& state, const std::string& error) {
-    Stmt st(db_, "UPDATE runs SET forward = ?2, forward_error = ?3 WHERE id = ?1");
-    st.bind(1, id); st.bind(2, state); st.bind(3, error);
+void SqliteStore::set_forwarded(const std::string& id, const std::string& state, const std::string& error, const std::string& store) {
+    Stmt st(db_, "UPDATE runs SET forward = ?2, forward_error = ?3, forward_store = ?4 WHERE id = ?1");
+    st.bind(1, id); st.bind(2, state); st.bind(3, error); st.bind(4, store);
     if (sqlite3_step(st.s) != SQLITE_DONE) fail();
+}
+
+std::vector<SqliteStore::Forwarded> SqliteStore::forwarded_elsewhere(const std::string& store, int limit) const {
+    Stmt st(db_, "SELECT id, COALESCE(report_sha256, '') FROM runs WHERE forward IN ('done', 'conflict') AND report IS NOT NULL "
+                 "AND COALESCE(forward_store, '') != ?1 ORDER BY created_at, id LIMIT ?2");
+    st.bind(1, store);
+    st.bind(2, static_cast<long long>(limit));
+    std::vector<Forwarded> out;
+    while (sqlite3_step(st.s) == SQLITE_ROW) out.push_back({st.text(0), st.text(1)});
+    return out;
+}
+
+int SqliteStore::spooled_count() const {
+    Stmt st(db_, "SELECT COUNT(*) FROM runs WHERE forward IN ('pending', 'done', 'conflict') AND report IS NOT NULL");
+    return sqlite3_step(st.s) == SQLITE_ROW ? static_cast<int>(sqlite3_column_int64(st.s, 0)) : 0;
 }
 
 std::vector<RunRow> SqliteStore::list(const RunFilter& f) const {

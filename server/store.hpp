@@ -37,7 +37,8 @@ public:
 struct RunRow {
     std::string id, created_at, scenario, dut, status, verdict;
     std::string bench, host, dut_part, operator_name;  // provenance (provenance.hpp)
-    std::string forward;                   // local spool of a shared store: "", pending, done, conflict
+    std::string forward;                   // local spool of a shared store: "", pending, done, conflict, quarantined
+    std::string forward_store;             // the shared store that state refers to (PgStore::identity), once reached
     std::string error, device;             // from the report, once finished
     std::uint64_t done = 0, total = 0;     // samples processed / planned, once finished
     bool dead = false;                     // stored as queued/running, but its instance is gone
@@ -96,6 +97,11 @@ public:
     std::optional<RunRow> row(const std::string& id) const override;
     int mark_dead_interrupted() override;
     void mark_interrupted(const std::string& id) override;
+    // What every command that opens the folder does first: rows "queued"/"running" whose
+    // process is gone (its instance lock unheld, or for rows of an older fringe its PID gone)
+    // become "interrupted" for good, and lock files nobody holds (a kill -9 leaves one) are
+    // removed. Returns how many rows.
+    int reap_dead();
     std::string describe() const override { return path_; }
     const std::string& path() const { return path_; }
 
@@ -107,7 +113,16 @@ public:
     };
     std::vector<Pending> pending_forward(int limit) const;
     int pending_count() const;
-    void set_forwarded(const std::string& id, const std::string& state, const std::string& error = "");
+    // state: pending, done, conflict, quarantined (a spooled report that cannot be sent:
+    // error says why); store: the identity of the shared store that state refers to.
+    void set_forwarded(const std::string& id, const std::string& state, const std::string& error = "", const std::string& store = "");
+    // Rows forwarded ("done" or "conflict") to a store other than `store`, or before the
+    // spool named stores: whether `store` holds them is for `store` to say (forward.cpp).
+    struct Forwarded {
+        std::string id, report_sha256;
+    };
+    std::vector<Forwarded> forwarded_elsewhere(const std::string& store, int limit) const;
+    int spooled_count() const;  // rows with a report that went through the spool
 
 private:
     void exec(const std::string& sql) const;

@@ -15,6 +15,10 @@
 #include <sstream>
 #include <thread>
 
+#ifndef FRINGE_VERSION
+#define FRINGE_VERSION "dev"
+#endif
+
 namespace fringe {
 
 using nlohmann::json;
@@ -185,11 +189,15 @@ std::vector<SweepResult> run_sweep(const Sweep& s, int jobs, const std::function
     return out;
 }
 
-std::string sweep_digest(const Sweep& s) {
+std::string sweep_digest(const Sweep& s, const std::string& version) {
     json rows = json::array();
     for (const auto& r : s.rows) rows.push_back(r.set);
-    return sha256_hex(canonical_json(json{{"base", s.base}, {"rows", rows}}));
+    // The version is part of what decides a run: after an upgrade the same sweep file gets new
+    // ids, so --collect never returns rows another version computed.
+    return sha256_hex(canonical_json(json{{"base", s.base}, {"rows", rows}, {"fringe_version", version}}));
 }
+
+std::string sweep_digest(const Sweep& s) { return sweep_digest(s, FRINGE_VERSION); }
 
 std::string sweep_run_id(const Sweep& s, std::size_t k) {
     char n[32];

@@ -57,10 +57,13 @@ std::vector<SweepResult> run_sweep(const Sweep& s, int jobs, const std::function
 // What a row's table cells are, from its run's report (a stored one, for --collect).
 SweepResult sweep_result(const Sweep& s, const SweepRow& row, const nlohmann::json& report);
 
-// SHA-256 of what decides the runs (the base scenario and every row's settings), hex.
+// SHA-256 of what decides the runs (the base scenario, every row's settings and the fringe
+// version, PROJECT_VERSION in CMakeLists.txt), hex. The version: this fringe's, or `version`.
 std::string sweep_digest(const Sweep& s);
+std::string sweep_digest(const Sweep& s, const std::string& version);
 // Row k's run id: "sweep-" + 16 hex digits of the digest + "-" + k (4 digits or more). The
-// same sweep file gives the same ids on every host, so a retried shard finds its rows stored.
+// same sweep file and fringe version give the same ids on every host, so a retried shard finds
+// its rows stored; another version (an upgrade) gives other ids, so rows are never mixed.
 std::string sweep_run_id(const Sweep& s, std::size_t k);
 
 // --shard I/N: I in [0, N). Parses "I/N"; throws ConfigError("shard", ...).

@@ -382,6 +382,12 @@ TEST_CASE("provenance helpers: SHA-256, UUIDv7, checksums, store URIs, shards", 
     CHECK(report_checksum(r) == report_checksum(r2));
     r2["verdict"] = "FAIL";
     CHECK(report_checksum(r) != report_checksum(r2));
+    // As jsonb gives it back (no -0.0, no exponent: 1e+18 returns as an integer): the same checksum.
+    json z{{"id", "x"}, {"v", -0.0}, {"big", 1e18}, {"half", 0.5}, {"neg", -3.0}};
+    const json back = json::parse(R"({"id": "x", "v": 0, "big": 1000000000000000000, "half": 0.5, "neg": -3})");
+    CHECK(report_checksum(z) == report_checksum(back));
+    z["half"] = -0.5;
+    CHECK(report_checksum(z) != report_checksum(back));
 
     CHECK(redact_store_uri("postgresql://fringe:s3cret@db:5432/runs") == "postgresql://fringe:***@db:5432/runs");
     CHECK(redact_store_uri("postgresql://db/runs?user=f&password=s3cret&sslmode=require") == "postgresql://db/runs?user=f&password=***&sslmode=require");
@@ -414,6 +420,9 @@ TEST_CASE("provenance helpers: SHA-256, UUIDv7, checksums, store URIs, shards", 
     Sweep s2 = s;
     s2.base["seed"] = 2;
     CHECK(sweep_digest(s2) != sweep_digest(s));
+    // Another fringe version (an upgrade), other ids: --collect never mixes versions.
+    CHECK(sweep_digest(s, "0.1.0") != sweep_digest(s, "0.2.0"));
+    CHECK(sweep_digest(s, "0.2.0") == sweep_digest(s, "0.2.0"));
 }
 
 TEST_CASE("run history: provenance columns, filters, the forward state, an interrupted row taken over", "[store]") {

@@ -137,8 +137,11 @@ int run_run(const RunCliOptions& o) {
     std::string forward_note;
     if (forwarder && store_error.empty()) {
         const auto p = forwarder->forward_until(o.forward_wait_s);
-        if (p.conflicts) forward_note = "the shared store holds a different report under run id " + ro.run_id + " (flagged in its run_conflicts; neither overwritten)";
-        else if (p.pending) forward_note = "forwarding pending: " + std::to_string(p.pending) + " run(s) kept in " + forwarder->describe() +
+        // Each conflict under its own id: an earlier run's found here is not this run's.
+        for (const auto& id : p.conflict_ids)
+            spdlog::warn("run {}{}: the shared store holds a different report under this id (flagged in its run_conflicts; neither overwritten)", id,
+                         id == ro.run_id ? "" : " (an earlier run kept in this folder)");
+        if (p.pending) forward_note = "forwarding pending: " + std::to_string(p.pending) + " run(s) kept in " + forwarder->describe() +
                                            " are not in the shared store yet (" + p.error + "); the next fringe run, serve or sweep with this --data and --store forwards them";
     }
     if (!o.quiet) print_run_summary(r, sc.name);

@@ -56,7 +56,7 @@ int run_runs(const RunsOptions& o) {
         json a = json::array();
         for (const auto& r : rows)
             a.push_back({{"id", r.id}, {"created_at", r.created_at}, {"scenario", r.scenario}, {"dut", r.dut}, {"status", r.status}, {"verdict", r.verdict},
-                         {"bench", r.bench}, {"host", r.host}, {"dut_part", r.dut_part}, {"operator", r.operator_name}, {"forward", r.forward}});
+                         {"bench", r.bench}, {"host", r.host}, {"dut_part", r.dut_part}, {"operator", r.operator_name}, {"forward", r.forward}, {"forward_store", r.forward_store}});
         std::printf("%s\n", a.dump(2, ' ', false, json::error_handler_t::replace).c_str());
         return kExitOk;
     }

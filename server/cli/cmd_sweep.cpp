@@ -16,6 +16,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <mutex>
+#include <optional>
 #include <spdlog/spdlog.h>
 
 namespace fringe::cli {
@@ -54,10 +55,37 @@ bool stored(const RunStore& st, const std::string& id) {
     return row && row->status != "interrupted" && !row->dead;
 }
 
-// Runs the given rows through the store (each with its deterministic id and provenance) and
-// forwards them; returns the results in `rows` order and whether forwarding finished.
-std::vector<SweepResult> run_rows_stored(const SweepOptions& o, const Sweep& s, RunStore& store, const std::vector<std::size_t>& rows,
-                                         bool& forward_ok) {
+// With a PostgreSQL --store: forwards what the spool holds for it (within --forward-wait),
+// then asks the shared store itself whether each of `ids` is there. True when every one is;
+// otherwise says which are not, and why, and returns false (the command exits 2).
+bool deliver(const SweepOptions& o, ForwardingStore& fwd, const std::vector<std::string>& ids) {
+    const auto p = fwd.forward_until(o.forward_wait_s);
+    for (const auto& id : p.conflict_ids)
+        spdlog::warn("run {}: the shared store holds a different report under this id (flagged in run_conflicts; neither overwritten)", id);
+    const auto have = fwd.shared_has(ids);
+    std::vector<std::string> absent;
+    for (const auto& id : ids)
+        if (!have || !have->count(id)) absent.push_back(id);
+    if (absent.empty()) return true;
+    std::string names;
+    for (std::size_t i = 0; i < absent.size() && i < 10; ++i) names += "\n  " + absent[i];
+    if (absent.size() > 10) names += "\n  ...";
+    if (!have)
+        spdlog::error("forwarding pending: the shared store {} could not be asked whether this shard's {} run(s) are there ({}); they are kept in {}: "
+                      "rerun this shard (stored rows are not run again, kept ones are forwarded) or any fringe command with the same --data and --store",
+                      redact_store_uri(fwd.shared_uri()), ids.size(), p.error.empty() ? "unreachable" : p.error, fwd.local().path());
+    else
+        spdlog::error("forwarding pending: {} of this shard's {} run(s) are not in the shared store {} ({}); the ones this folder holds are kept in {}: "
+                      "rerun this shard (stored rows are not run again, kept ones are forwarded) or any fringe command with the same --data and --store:{}",
+                      absent.size(), ids.size(), redact_store_uri(fwd.shared_uri()),
+                      !p.error.empty() ? p.error : p.quarantined ? "quarantined in the spool: see the messages above" : "still running elsewhere, or failed",
+                      fwd.local().path(), names);
+    return false;
+}
+
+// Runs the given rows through the store (each with its deterministic id and provenance);
+// returns the results in `rows` order. Forwarding is deliver()'s.
+std::vector<SweepResult> run_rows_stored(const SweepOptions& o, const Sweep& s, RunStore& store, const std::vector<std::size_t>& rows) {
     ProvenanceDefaults pd = provenance_defaults();
     if (!o.bench.empty()) pd.bench = o.bench;
     if (!o.operator_name.empty()) pd.operator_name = o.operator_name;
@@ -83,18 +111,7 @@ std::vector<SweepResult> run_rows_stored(const SweepOptions& o, const Sweep& s, 
                                    return rep;
                                });
     progress.clear();
-    forward_ok = true;
-    if (fwd) {
-        fwd->stop();
-        const auto p = fwd->forward_until(o.forward_wait_s);
-        if (p.pending) {
-            spdlog::error("forwarding pending: {} run(s) are stored in {} but not yet in the shared store ({}); rerun this shard (stored rows are "
-                          "not run again) or any fringe command with the same --data and --store to forward them",
-                          p.pending, fwd->describe(), p.error);
-            forward_ok = false;
-        }
-        if (p.conflicts) spdlog::warn("{} run(s) had a different report under the same id in the shared store (flagged in run_conflicts)", p.conflicts);
-    }
+    if (fwd) fwd->stop();
     return res;
 }
 
@@ -132,8 +149,13 @@ int run_sweep_cli(SweepOptions o) {
             instance.acquire_instance(dir.empty() ? "." : dir, "sweep-" + new_instance_id());
             const auto store = open_store(su, instance.id());
             if (!o.quiet) std::fprintf(stderr, "running the %zu missing row(s)\n", missing.size());
+            run_rows_stored(o, s, *store, missing);
             bool forward_ok = true;
-            run_rows_stored(o, s, *store, missing, forward_ok);
+            if (auto* fwd = dynamic_cast<ForwardingStore*>(store.get())) {
+                std::vector<std::string> ids;
+                for (const std::size_t k : missing) ids.push_back(sweep_run_id(s, k));
+                forward_ok = deliver(o, *fwd, ids);
+            }
             for (const std::size_t k : missing) reports[k] = store->report(sweep_run_id(s, k));
             missing.clear();
             for (std::size_t k = 0; k < s.rows.size(); ++k)
@@ -171,20 +193,33 @@ int run_sweep_cli(SweepOptions o) {
     InstanceLock instance;
     instance.acquire_instance(dir.empty() ? "." : dir, "sweep-" + new_instance_id());
     const auto store = open_store(su, instance.id());
+    auto* fwd = dynamic_cast<ForwardingStore*>(store.get());
+    // Stored means stored in the target: with a PostgreSQL --store, that store says which rows
+    // it holds (a new or restored server holds none of them, whatever the spool says). A row
+    // this folder has run but the target lacks is not run again: its kept report is forwarded.
+    std::vector<std::string> ids;
+    for (std::size_t k = shard.index; k < s.rows.size(); k += shard.count) ids.push_back(sweep_run_id(s, k));
+    const auto in_target = fwd ? fwd->shared_has(ids) : std::nullopt;
     std::vector<std::size_t> rows;
-    std::size_t mine = 0;
-    for (std::size_t k = shard.index; k < s.rows.size(); k += shard.count) {
-        ++mine;
-        if (!stored(*store, sweep_run_id(s, k))) rows.push_back(k);
+    std::size_t already = 0, kept = 0;
+    for (std::size_t k = shard.index, j = 0; k < s.rows.size(); k += shard.count, ++j) {
+        if (in_target && in_target->count(ids[j])) ++already;
+        else if (stored(fwd ? static_cast<const RunStore&>(fwd->local()) : *store, ids[j])) ++(fwd ? kept : already);
+        else rows.push_back(k);
     }
-    if (!o.quiet)
-        std::fprintf(stderr, "sweep %s shard %zu/%zu: %zu row(s), %zu already stored, running %zu\n", sweep_digest(s).substr(0, 16).c_str(), shard.index,
-                     shard.count, mine, mine - rows.size(), rows.size());
-    bool forward_ok = true;
-    const auto res = rows.empty() ? std::vector<SweepResult>{} : run_rows_stored(o, s, *store, rows, forward_ok);
+    if (!o.quiet) {
+        std::string note;
+        if (fwd && !in_target) note = " (the shared store is unreachable: counted from this folder's spool)";
+        else if (kept) note = ", " + std::to_string(kept) + " kept in this folder's spool to forward";
+        std::fprintf(stderr, "sweep %s shard %zu/%zu: %zu row(s), %zu already stored%s, running %zu\n", sweep_digest(s).substr(0, 16).c_str(), shard.index,
+                     shard.count, ids.size(), already + (fwd && !in_target ? kept : 0), note.c_str(), rows.size());
+    }
+    const auto res = rows.empty() ? std::vector<SweepResult>{} : run_rows_stored(o, s, *store, rows);
     if (!rows.empty()) write_tables(o, s, res, "runs", std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
     if (cancel_flag().load()) return kExitError;
-    if (!forward_ok) return kExitError;
+    // Every row of the shard must be in the target before this shard reports success: a retry
+    // whose rows all wait in the spool forwards them here (and fails if it cannot).
+    if (fwd && !deliver(o, *fwd, ids)) return kExitError;
     return table_exit(res);
 }
 
