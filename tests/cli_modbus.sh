@@ -3,7 +3,9 @@
 #  - fringe run (step mode) against board-sim over TCP and over RTU on a socat pty pair;
 #  - mbpoll (Debian) writing and reading board-sim's registers;
 #  - pymodbus (Debian's python3-pymodbus) as the analog module fringe drives in step mode;
-#  - a board that drops mid-run ends the run as ERROR naming it.
+#  - a board that drops mid-run ends the run as ERROR naming it;
+#  - one owner per board: a second process on it (spelt 127.1) is refused as busy;
+#  - a board that clips or repeats old data is a bench ERROR, not a FAIL of the DUT.
 set -euo pipefail
 FRINGE="$1"; SRC="$(cd "$2" && pwd)"
 PY=/usr/bin/python3
@@ -109,4 +111,39 @@ assert r["verdict"] == "ERROR", r["verdict"]
 assert "board dut-interpolator at 127.0.0.1:" in r["error"], r["error"]
 assert r["samples"]["processed"] < 128, r["samples"]
 PY
+# 6. One owner per board across processes: while run A drives the board, run B on the same
+#    board spelt 127.1 is refused (exit 2) naming A's pid; A is not disturbed and passes.
+export FRINGE_LOCK_DIR="$dir/locks"
+sim lock --modbus tcp://127.0.0.1:0 --board dut-interpolator --noise-v 2e-4 --seed 3 --delay-ms 4
+P=$(port_of "$SIM_AT")
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.0.0.1:$P?board=dut-interpolator" --report "$dir/lockA.json" > "$dir/lockA.log" 2>&1 &
+A=$!; pids+=($A)
+for _ in $(seq 200); do grep -qs "^pid $A " "$dir"/locks/*.lock && break; sleep 0.02; done
+grep -qs "^pid $A " "$dir"/locks/*.lock || fail "run A took no lock"
+set +e
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.1:$P?board=dut-interpolator" --report "$dir/lockB.json" > "$dir/lockB.log" 2>&1; rc=$?
+wait $A; rcA=$?
+set -e
+[ $rc -eq 2 ] || fail "a second run on a busy board should end as ERROR (exit 2), got $rc"
+grep -q "busy: modbus-tcp:127.0.0.1:$P:unit1 is in use by pid $A (command [^)]*fringe run" "$dir/lockB.json" || fail "B names the board and A's pid: $(cat "$dir/lockB.log")"
+[ $rcA -eq 0 ] || fail "run A should pass undisturbed, got $rcA: $(cat "$dir/lockA.log")"
+$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["samples"]["processed"]==128, r' "$dir/lockA.json" || fail "A ran every step"
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.1:$P?board=dut-interpolator" --report "$dir/lockC.json" || fail "the board is free once A ended"
+
+# 7. Bench faults are ERRORs naming the device, not FAILs of the DUT: an ADC range (0.8 V)
+#    below the signal (1.1 V), and a board whose ADC registers stop updating.
+sim clip --modbus tcp://127.0.0.1:0 --board dut-interpolator --adc-range-v 0.8
+P=$(port_of "$SIM_AT")
+set +e
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.0.0.1:$P?board=dut-interpolator" --report "$dir/clip.json" > "$dir/clip.log" 2>&1; rc=$?
+set -e
+[ $rc -eq 2 ] || fail "a clipping board should end as ERROR (exit 2), got $rc"
+grep -q "bench: clipping at the input of modbus+tcp://127.0.0.1:$P" "$dir/clip.json" || fail "clip: $(cat "$dir/clip.log")"
+sim stale --modbus tcp://127.0.0.1:0 --board dut-interpolator --noise-v 2e-4 --stale-adc-after 40
+P=$(port_of "$SIM_AT")
+set +e
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.0.0.1:$P?board=dut-interpolator" --report "$dir/stale.json" > "$dir/stale.log" 2>&1; rc=$?
+set -e
+[ $rc -eq 2 ] || fail "a frozen board should end as ERROR (exit 2), got $rc"
+grep -q "bench: the input of modbus+tcp://127.0.0.1:$P.* is frozen: 32 consecutive samples from input sample 39 " "$dir/stale.json" || fail "stale: $(cat "$dir/stale.log")"
 echo "cli.modbus: ok"
