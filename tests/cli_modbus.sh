@@ -130,6 +130,41 @@ grep -q "busy: modbus-tcp:127.0.0.1:$P:unit1 is in use by pid $A (command [^)]*f
 $PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["samples"]["processed"]==128, r' "$dir/lockA.json" || fail "A ran every step"
 "$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.1:$P?board=dut-interpolator" --report "$dir/lockC.json" || fail "the board is free once A ended"
 
+# 6b. A serve run while a CLI run holds the board: the service's run ends as ERROR "busy"
+#     naming the CLI run's pid; the service keeps serving.
+timeout 120 "$FRINGE" serve --bind 127.0.0.1:0 --data "$dir/sdata" --allow-device 'modbus+tcp://127.*' > "$dir/serve.out" 2> "$dir/serve.log" &
+SV=$!; pids+=($SV)
+URL=$(poll_log "$dir/serve.out" 's/.*serving \(http:[^ ]*\) .*/\1/p' 100 0.1) || fail "fringe serve did not start"
+P=$(port_of "$SIM_AT")
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.0.0.1:$P?board=dut-interpolator" --report "$dir/lockD.json" > "$dir/lockD.log" 2>&1 &
+D=$!; pids+=($D)
+for _ in $(seq 200); do grep -qs "^pid $D " "$dir"/locks/*.lock && break; sleep 0.02; done
+body=$($PY -c 'import json,sys; sc=json.load(open(sys.argv[1])); sc["device"]=sys.argv[2]; print(json.dumps({"scenario": sc}))' "$S" "modbus+tcp://127.1:$P?board=dut-interpolator")
+rid=$(curl -sS --max-time 10 -X POST -H "Authorization: Bearer $(cat "$dir/sdata/token")" -d "$body" "${URL}api/v1/runs" | $PY -c 'import json,sys; print(json.load(sys.stdin)["id"])') || fail "POST /runs"
+for _ in $(seq 100); do
+  st=$(curl -sS --max-time 10 "${URL}api/v1/runs/$rid" -H "Authorization: Bearer $(cat "$dir/sdata/token")" | $PY -c 'import json,sys; r=json.load(sys.stdin); print(r["status"], r["error"])')
+  case "$st" in error*|done*|aborted*) break;; esac; sleep 0.05
+done
+case "$st" in "error "*"busy: modbus-tcp:127.0.0.1:$P:unit1 is in use by pid $D (command "*"fringe run"*) ;; *) fail "the service's run on a busy board: $st";; esac
+set +e; wait $D; rcD=$?; set -e
+[ $rcD -eq 0 ] || fail "the CLI run should pass undisturbed, got $rcD"
+kill -TERM $SV; wait $SV || true
+
+# 6c. SIGTERM while the board is frozen (retries=20 x 500 ms): the run ends within about one
+#     attempt, ABORTED, the steps measured before kept.
+sim frozen --modbus tcp://127.0.0.1:0 --board dut-interpolator --freeze-after 40
+P=$(port_of "$SIM_AT")
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.0.0.1:$P?board=dut-interpolator&timeout_ms=500&retries=20" --report "$dir/term.json" > "$dir/term.log" 2>&1 &
+R=$!; pids+=($R)
+sleep 1
+t0=$(date +%s%N); kill -TERM $R; set +e; wait $R; rc=$?; set -e; t1=$(date +%s%N)
+ms=$(( (t1 - t0) / 1000000 ))
+[ $ms -lt 1000 ] || fail "SIGTERM honoured ${ms} ms late"
+[ $rc -eq 2 ] || fail "a terminated run exits 2, got $rc"
+$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["status"]=="aborted" and r["samples"]["processed"]>0, (r["status"], r["samples"], r["error"])' "$dir/term.json" \
+  || fail "the terminated run: $(cat "$dir/term.log")"
+echo "SIGTERM honoured in $ms ms"
+
 # 7. Bench faults are ERRORs naming the device, not FAILs of the DUT: an ADC range (0.8 V)
 #    below the signal (1.1 V), and a board whose ADC registers stop updating.
 sim clip --modbus tcp://127.0.0.1:0 --board dut-interpolator --adc-range-v 0.8
