@@ -223,8 +223,9 @@ std::string DeviceLock::key_for(const std::string& uri) {
     if (scheme == "usb" || scheme == "scpi+usbtmc") {
         std::string vp = p.path.empty() ? "1209:ec01" : p.path;
         for (auto& c : vp) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-        const std::string serial = p.settings.contains("serial") && p.settings["serial"].is_string() ? p.settings["serial"].get<std::string>() : "";
-        return "usb:" + vp + (serial.empty() ? "" : ":" + serial);
+        // Not the serial: a URI without one opens the first board found, which may be the one
+        // another run named by serial. Every board of one VID:PID is one owner at a time.
+        return "usb:" + vp;
     }
     return "";  // loopback, capture: nothing outside this run can drive them
 }

@@ -185,8 +185,8 @@ public:
     static std::shared_ptr<DeviceLock> acquire(const std::string& key, const std::string& device);
     // The resolved device a URI names, the same for every spelling of it (127.0.0.1 and 127.1,
     // a symlink and its pty), empty for devices nothing else can own (loopback, capture).
-    // Modbus TCP: resolved address, port and unit; serial: the real path; USB: VID:PID and the
-    // serial when given; SCPI over TCP: resolved address and port.
+    // Modbus TCP: resolved address, port and unit; serial: the real path; USB: VID:PID (every
+    // board of it: a URI without a serial opens the first one found); SCPI over TCP: resolved address and port.
     static std::string key_for(const std::string& uri);
     // $FRINGE_LOCK_DIR, else /run/lock/fringe when /run/lock is writable, else /tmp/fringe-locks:
     // machine-wide, so runs with different data directories and users still meet.
