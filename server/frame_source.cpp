@@ -420,8 +420,11 @@ private:
                 if (rail_v_ > 0 && std::fabs(v) >= rail_v_ - std::max(step_v_, 1e-9 * rail_v_)) ++chan_[k].at_rail;
                 plateau(chan_[k], v, step_v_ > 0 ? step_v_ / 2 : 0.0);
             }
-            // Runs of exactly equal pairs, and how far the truth moved across them.
-            if (seen_ > 0 && s == last_s_ && c == last_c_) {
+            // Runs of exactly equal pairs, and how far the truth moved across them. An exact
+            // (0, 0) is what a step-mode board without ADC registers returns: not a reading.
+            if (s == 0 && c == 0) {
+                run_ = 0;
+            } else if (seen_ > 0 && s == last_s_ && c == last_c_) {
                 ++run_;
             } else {
                 run_ = 1;
