@@ -17,6 +17,7 @@
 #include <memory>
 #include <random>
 #include <set>
+#include <atomic>
 #include <stdexcept>
 #include <thread>
 
@@ -100,36 +101,78 @@ struct Sim {
             put("error_flags", flags);
         }
     }
-    void on_read_inputs() {  // a fresh conversion for every read
-        put("sin_in", convert(analog_s));
+    long long conversions = 0;
+    // A read request (function, address, count) that covers an ADC register (sin_in, cos_in).
+    bool reads_adc(const std::uint8_t* pdu) const {
+        const RegTable t = pdu[0] == MODBUS_FC_READ_INPUT_REGISTERS ? RegTable::Input : RegTable::Holding;
+        const int a = pdu[1] << 8 | pdu[2], n = pdu[3] << 8 | pdu[4];
+        for (const char* role : {"sin_in", "cos_in"})
+            if (const auto* r = board.find(role); r && r->table == t && r->address < a + n && a < r->address + r->words()) return true;
+        return false;
+    }
+    void on_read_inputs() {  // a fresh conversion for every read (unless a fault froze the ADC)
+        ++conversions;
+        if (o.stale_adc_after >= 0 && conversions > o.stale_adc_after) return;
+        put("sin_in", o.nan_adc_after >= 0 && conversions > o.nan_adc_after ? std::nan("") : convert(analog_s));
         put("cos_in", convert(analog_c));
     }
 };
 
+// The reply libmodbus would send, captured through a socket pair, then sent to the client one
+// byte every trickle_ms.
+template <class Reply>
+void trickled(modbus_t* ctx, int trickle_ms, const std::atomic<bool>* stop, Reply&& reply) {
+    const int real = modbus_get_socket(ctx);
+    int sv[2];
+    if (socketpair(AF_UNIX, SOCK_STREAM, 0, sv) != 0) { reply(); return; }
+    modbus_set_socket(ctx, sv[0]);
+    reply();
+    modbus_set_socket(ctx, real);
+    ::shutdown(sv[0], SHUT_WR);
+    std::uint8_t buf[512];
+    const ssize_t n = ::recv(sv[1], buf, sizeof buf, 0);
+    ::close(sv[0]);
+    ::close(sv[1]);
+    for (ssize_t i = 0; i < n; ++i) {
+        if (stop && stop->load()) return;
+        if (::send(real, buf + i, 1, MSG_NOSIGNAL) != 1) return;
+        if (i + 1 < n) std::this_thread::sleep_for(std::chrono::milliseconds(trickle_ms));
+    }
+}
+
+enum class Served { Ok, Drop, Restart };
+
 // One request: faults, then the reply (and the board's reaction to writes).
-bool serve_one(Sim& sim, modbus_t* ctx, const std::uint8_t* query, int len, long long& count) {
+Served serve_one(Sim& sim, modbus_t* ctx, const std::uint8_t* query, int len, long long& count) {
     const BoardSimOptions& o = sim.o;
     ++count;
-    if (o.drop_after >= 0 && count > o.drop_after) return false;
-    if (o.delay_ms > 0) std::this_thread::sleep_for(std::chrono::milliseconds(o.delay_ms));
+    if (o.drop_after >= 0 && count > o.drop_after) return Served::Drop;
+    if (o.restart_after >= 0 && count == o.restart_after + 1) return Served::Restart;
+    if (o.freeze_after >= 0 && count > o.freeze_after) return Served::Ok;  // read, never answered
+    if (o.delay_ms > 0 && count >= o.delay_from && (o.delay_count < 0 || count < o.delay_from + o.delay_count))
+        std::this_thread::sleep_for(std::chrono::milliseconds(o.delay_ms));
+    auto reply = [&](auto&& f) {
+        if (o.trickle_ms > 0) trickled(ctx, o.trickle_ms, o.stop, f);
+        else f();
+    };
     if (o.exception_every > 0 && count % o.exception_every == 0) {
-        modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE);
-        return true;
+        reply([&] { modbus_reply_exception(ctx, query, MODBUS_EXCEPTION_SLAVE_OR_SERVER_FAILURE); });
+        return Served::Ok;
     }
     const int hl = modbus_get_header_length(ctx);
     const int fc = query[hl];
     // A fresh conversion for every read of the table the ADC registers are in (input
     // registers, or holding registers on boards with one address space, like a LabJack).
-    if (fc == MODBUS_FC_READ_INPUT_REGISTERS || (fc == MODBUS_FC_READ_HOLDING_REGISTERS && sim.adc_in_holding)) sim.on_read_inputs();
-    modbus_reply(ctx, query, len, sim.map);
+    if ((fc == MODBUS_FC_READ_INPUT_REGISTERS || (fc == MODBUS_FC_READ_HOLDING_REGISTERS && sim.adc_in_holding)) && sim.reads_adc(query + hl)) sim.on_read_inputs();
+    reply([&] { modbus_reply(ctx, query, len, sim.map); });
     if (fc == MODBUS_FC_WRITE_SINGLE_REGISTER || fc == MODBUS_FC_WRITE_MULTIPLE_REGISTERS || fc == MODBUS_FC_WRITE_AND_READ_REGISTERS) sim.on_write();
-    return true;
+    return Served::Ok;
 }
 
 }  // namespace
 
 long long run_board_sim(const BoardSimOptions& o) {
-    Sim sim(o);
+    auto simp = std::make_unique<Sim>(o);
     long long count = 0;
     std::uint8_t query[MODBUS_TCP_MAX_ADU_LENGTH > MODBUS_RTU_MAX_ADU_LENGTH ? MODBUS_TCP_MAX_ADU_LENGTH : MODBUS_RTU_MAX_ADU_LENGTH];
     auto stopped = [&] { return o.stop && o.stop->load(); };
@@ -153,7 +196,7 @@ long long run_board_sim(const BoardSimOptions& o) {
             timeval tv{0, 100000};
             if (select(fd + 1, &rd, nullptr, nullptr, &tv) <= 0) continue;
             const int rc = modbus_receive(ctx, query);
-            if (rc > 0 && !serve_one(sim, ctx, query, rc, count)) break;
+            if (rc > 0 && serve_one(*simp, ctx, query, rc, count) != Served::Ok) break;
             // rc == 0: a request for another unit; rc == -1: a garbled frame (CRC): keep serving
         }
         modbus_close(ctx);
@@ -166,18 +209,24 @@ long long run_board_sim(const BoardSimOptions& o) {
     const auto colon = hp.rfind(':');
     const std::string host = colon == std::string::npos ? hp : hp.substr(0, colon);
     const int port = colon == std::string::npos ? 502 : std::stoi(hp.substr(colon + 1));
-    modbus_t* ctx = modbus_new_tcp(host.c_str(), port);
-    if (!ctx) throw std::runtime_error(std::string("board-sim: ") + modbus_strerror(errno));
-    const int server = modbus_tcp_listen(ctx, 16);
-    if (server == -1) {
-        const std::string msg = modbus_strerror(errno);
-        modbus_free(ctx);
-        throw std::runtime_error("board-sim: listen on " + o.listen + ": " + msg);
-    }
+    modbus_t* ctx = nullptr;
+    int server = -1;
+    auto listen_on = [&](int p) {
+        ctx = modbus_new_tcp(host.c_str(), p);
+        if (!ctx) throw std::runtime_error(std::string("board-sim: ") + modbus_strerror(errno));
+        server = modbus_tcp_listen(ctx, 16);
+        if (server == -1) {
+            const std::string msg = modbus_strerror(errno);
+            modbus_free(ctx);
+            throw std::runtime_error("board-sim: listen on " + host + ":" + std::to_string(p) + ": " + msg);
+        }
+    };
+    listen_on(port);
     sockaddr_in addr{};
     socklen_t alen = sizeof addr;
     getsockname(server, reinterpret_cast<sockaddr*>(&addr), &alen);
-    if (o.on_listening) o.on_listening("tcp://" + host + ":" + std::to_string(ntohs(addr.sin_port)));
+    const int bound_port = ntohs(addr.sin_port);
+    if (o.on_listening) o.on_listening("tcp://" + host + ":" + std::to_string(bound_port));
     std::set<int> clients;
     bool dropped = false;
     while (!stopped() && !dropped) {
@@ -195,13 +244,16 @@ long long run_board_sim(const BoardSimOptions& o) {
             const int c = accept(server, nullptr, nullptr);
             if (c >= 0) clients.insert(c);
         }
+        bool restart = false;
         for (auto it = clients.begin(); it != clients.end();) {
             const int c = *it;
             if (!FD_ISSET(c, &rd)) { ++it; continue; }
             modbus_set_socket(ctx, c);
             const int rc = modbus_receive(ctx, query);
             if (rc > 0) {
-                if (!serve_one(sim, ctx, query, rc, count)) { dropped = true; break; }
+                const Served s = serve_one(*simp, ctx, query, rc, count);
+                if (s == Served::Drop) { dropped = true; break; }
+                if (s == Served::Restart) { restart = true; break; }
                 ++it;
             } else if (rc == -1) {  // closed or broken
                 close(c);
@@ -209,6 +261,16 @@ long long run_board_sim(const BoardSimOptions& o) {
             } else {
                 ++it;
             }
+        }
+        if (restart) {  // the board reboots: connections reset, away for a while, fresh registers
+            for (int c : clients) close(c);
+            clients.clear();
+            close(server);
+            modbus_free(ctx);
+            const auto back = std::chrono::steady_clock::now() + std::chrono::milliseconds(o.restart_down_ms);
+            while (!stopped() && std::chrono::steady_clock::now() < back) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+            simp = std::make_unique<Sim>(o);
+            listen_on(bound_port);
         }
     }
     for (int c : clients) close(c);

@@ -3,7 +3,9 @@
 // simulated analog path (gain mismatch, offsets, noise, ADC bits) into the input registers
 // (sin_in, cos_in: a fresh conversion per read) and, for a DUT board, into an on-board
 // estimator (any registered one) whose position appears in the position registers.
-// Fault injection: exception replies, reply delays, dropping the connection.
+// Fault injection: exception replies, reply delays (all or some requests), replies trickled a
+// byte at a time, a board that stops answering (frozen), is killed or restarts on its port, ADC
+// registers that stop updating (repeating old data) or turn to NaN.
 #pragma once
 
 #include <nlohmann/json.hpp>
@@ -31,8 +33,16 @@ struct BoardSimOptions {
     std::uint64_t seed = 1;
     // Faults.
     int exception_every = 0;       // every Nth request answers SLAVE_OR_SERVER_FAILURE (0: never)
-    int delay_ms = 0;              // before every reply
+    int delay_ms = 0;              // before every reply (or those delay_from.. below)
+    long long delay_from = 1;      // the first request (counted from 1) delay_ms applies to
+    long long delay_count = -1;    // how many requests from delay_from are delayed (-1: all)
+    int trickle_ms = 0;            // send each reply one byte at a time, this far apart (0: at once)
     long long drop_after = -1;     // after this many requests, close every connection and stop (-1: never)
+    long long freeze_after = -1;   // after this many requests, read requests but never answer (-1: never)
+    long long restart_after = -1;  // after this many requests, close everything, stay away restart_down_ms,
+    int restart_down_ms = 300;     // then listen again on the same port with fresh registers (once; TCP)
+    long long stale_adc_after = -1;  // after this many ADC conversions the input registers stop updating
+    long long nan_adc_after = -1;    // after this many ADC conversions sin_in reads NaN (float registers)
     std::function<void(const std::string& where)> on_listening;  // "tcp://127.0.0.1:40123" or the tty
     const std::atomic<bool>* stop = nullptr;
 };

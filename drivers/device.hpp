@@ -10,6 +10,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <atomic>
 #include <cmath>
 #include <cstdint>
 #include <functional>
@@ -31,6 +32,19 @@ public:
 private:
     std::string device_;
 };
+
+// A run was cancelled while the device waited (a retry, a reconnect, a settle): thrown by a
+// device told of the cancel (Device::set_cancel), so a cancel does not wait out a failing board.
+class Cancelled : public DeviceError {
+public:
+    explicit Cancelled(const std::string& device) : DeviceError(device, "cancelled") {}
+};
+
+// One owner per device at a time, across processes and the service: an exclusive flock(2) on
+// a file named after the resolved device (DeviceLock::key_for) in lock_dir(). Released when
+// the device is closed, or by the kernel when its process ends (nothing stale survives a
+// crash). A device held elsewhere is a DeviceError "busy: ... is in use by pid N (command)".
+class DeviceLock;
 
 enum class StreamStatus {
     Ok,
@@ -105,6 +119,10 @@ public:
     virtual ~Device() = default;
     virtual DeviceInfo info() const = 0;
 
+    // The run's cancel flag (may be null): a device that waits (retries, reconnects, settles)
+    // checks it and throws Cancelled. Devices that never wait long ignore it.
+    virtual void set_cancel(const std::atomic<bool>* cancel) { (void)cancel; }
+
     // Streaming (DAC out, ADC in) at one sample rate. Throws DeviceError if unsupported.
     virtual void start(double sample_rate_hz) = 0;
     // Queue output frames (V). Non-blocking for simulated devices.
@@ -152,6 +170,36 @@ public:
         (void)sin_v; (void)cos_v; (void)settle_s; (void)average;
         throw DeviceError(info().uri, "step mode is not supported by this device");
     }
+
+private:
+    friend std::unique_ptr<Device> open(const std::string& uri);
+    // Released after the driver's own destructor has closed the device.
+    std::shared_ptr<DeviceLock> lock_;
+};
+
+class DeviceLock {
+public:
+    // Takes the lock on key (a file in lock_dir()), or throws DeviceError(device, "busy: ...").
+    // A key this thread already holds is shared (a run that opens one instrument twice);
+    // another thread of this process holding it is busy too (two runs in one service).
+    static std::shared_ptr<DeviceLock> acquire(const std::string& key, const std::string& device);
+    // The resolved device a URI names, the same for every spelling of it (127.0.0.1 and 127.1,
+    // a symlink and its pty), empty for devices nothing else can own (loopback, capture).
+    // Modbus TCP: resolved address, port and unit; serial: the real path; USB: VID:PID (every
+    // board of it: a URI without a serial opens the first one found); SCPI over TCP: resolved address and port.
+    static std::string key_for(const std::string& uri);
+    // $FRINGE_LOCK_DIR, else /run/lock/fringe when /run/lock is writable, else /tmp/fringe-locks:
+    // machine-wide, so runs with different data directories and users still meet.
+    static std::string lock_dir();
+    ~DeviceLock();
+    DeviceLock(const DeviceLock&) = delete;
+    DeviceLock& operator=(const DeviceLock&) = delete;
+    const std::string& key() const { return key_; }
+
+private:
+    DeviceLock(std::string key, int fd) : key_(std::move(key)), fd_(fd) {}
+    std::string key_;
+    int fd_ = -1;
 };
 
 struct DriverInfo {

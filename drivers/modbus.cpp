@@ -1,14 +1,23 @@
 // Modbus boards over libmodbus (TCP and RTU): step mode only (a static sin/cos pair, settle,
 // read back with averaging), the register map from a board profile (modbus_board.hpp).
-// Native errors keep libmodbus's own text and name the board and register; timeouts and
-// lost connections are retried a bounded number of times (reconnecting), Modbus exceptions
-// are not.
+// Native errors keep libmodbus's own text and name the board and register. The retry policy
+// (docs/modbus.md "Timeouts, retries and reconnects"): a Modbus exception reply is final; a
+// timeout, a garbled or stale reply (bad CRC, a transaction id or unit that is not ours) or a
+// lost connection is retried up to `retries` times, over a fresh connection on TCP (a late
+// reply to an abandoned request can then never be taken for the answer to a later one) or
+// after draining the line on RTU. Every request has a deadline of (retries + 1) x timeout_ms
+// (its attempts, reconnects and their backoff all inside it); each attempt's whole reply must
+// arrive within timeout_ms (no per-byte allowance that a trickling reply could stretch); a
+// block of 16 steps has a deadline too (below); a cancel is seen between attempts and during
+// waits.
 #include "device.hpp"
 #include "modbus_board.hpp"
 #include "signal_gen/config.hpp"
 
 #include <modbus/modbus.h>
 
+#include <algorithm>
+#include <atomic>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
@@ -27,9 +36,19 @@ std::string num(double v) {
     return b;
 }
 
+using Clock = std::chrono::steady_clock;
+
 bool connection_error(int e) {
     return e == ECONNRESET || e == EPIPE || e == EBADF || e == ECONNREFUSED || e == ENOTCONN || e == ECONNABORTED || e == EIO;
 }
+
+// A Modbus exception reply from the board (function code | 0x80): final, never retried. Other
+// libmodbus codes above MODBUS_ENOBASE (bad CRC, invalid data such as a transaction id that is
+// not ours, a reply from another unit, too many data) are a garbled or stale reply: retried.
+bool exception_reply(int e) { return e >= EMBXILFUN && e <= EMBXGTAR; }
+
+// Steps the run engine reads per block (server/frame_source.cpp): the block deadline's unit.
+constexpr int kBlockSteps = 16;
 
 class ModbusDevice final : public Device {
 public:
@@ -66,7 +85,11 @@ public:
         }
         if (!ctx_) throw DeviceError(uri_, std::string("libmodbus: ") + modbus_strerror(errno));
         modbus_set_slave(ctx_, unit_);
-        modbus_set_response_timeout(ctx_, static_cast<std::uint32_t>(timeout_ms_ / 1000), static_cast<std::uint32_t>((timeout_ms_ % 1000) * 1000));
+        set_timeout_ms(timeout_ms_);
+        // No per-byte timeout: the whole reply must arrive within the response timeout (libmodbus's
+        // select keeps counting the same interval down), so a reply trickled a byte at a time
+        // cannot stretch one request beyond it.
+        modbus_set_byte_timeout(ctx_, 0, 0);
         connect();
         try {
             open_board();
@@ -99,6 +122,7 @@ public:
                        "write cos_out @" + std::to_string(rc->address)};
         regs_.resize(2 * in_base_);  // holding image, then input image
     }
+    void set_cancel(const std::atomic<bool>* cancel) override { cancel_ = cancel; }
     ~ModbusDevice() override {
         if (ctx_) {
             modbus_close(ctx_);
@@ -151,16 +175,48 @@ public:
     StepResult step(double sin_v, double cos_v, double settle_s, int average) override {
         if (settle_s < 0) settle_s = settle_s_;
         if (average <= 0) average = average_;
+        // The block deadline: a block of 16 steps may take what its requests would if every one
+        // used its whole timeout, plus one request's full retry budget. A board that answers
+        // only after retries, request after request, ends the run here instead of stretching it
+        // many times over.
+        if (steps_ % kBlockSteps == 0) {
+            const std::size_t writes = sin_out_->address + sin_out_->words() == cos_out_->address && sin_out_->write_function == 16 && cos_out_->write_function == 16
+                                           ? 1 : static_cast<std::size_t>(sin_out_->words() + cos_out_->words());
+            const double requests = static_cast<double>(writes + static_cast<std::size_t>(average) * batches_.size());
+            block_budget_s_ = kBlockSteps * (settle_s + requests * timeout_ms_ * 1e-3) + (retries_ + 1) * timeout_ms_ * 1e-3;
+            block_start_ = Clock::now();
+            block_deadline_ = block_start_ + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(block_budget_s_));
+            block_first_step_ = steps_;
+        }
+        ++steps_;
+        // A board that came back after a lost connection may have restarted: its drive registers
+        // and configuration are gone, so the identity checks and init writes run again and the
+        // whole step is redone (never a reading of a drive value that was not written).
+        for (int pass = 0;; ++pass) {
+            const long long lost = lost_;
+            StepResult out = step_once(sin_v, cos_v, settle_s, average);
+            if (lost_ == lost) return out;
+            if (pass >= retries_)
+                throw DeviceError(uri_, "board " + board_.name + " at " + endpoint_ + ": the connection was lost and re-made " + std::to_string(pass + 1) +
+                                            " times within one step (the board keeps restarting)");
+            open_board();
+        }
+    }
+
+private:
+    StepResult step_once(double sin_v, double cos_v, double settle_s, int average) {
         write_pair(sin_v, cos_v);
-        if (settle_s > 0) std::this_thread::sleep_for(std::chrono::duration<double>(settle_s));
+        if (settle_s > 0) wait_s(settle_s, "settling");
         StepResult out;
         double ss = 0, cs = 0;
         std::optional<double> dut;
         bool dut_bad = false;
         for (int a = 0; a < average; ++a) {
             read_all();
+            ++reads_;
             if (sin_in_) ss += read_input(*sin_in_);
             if (cos_in_) cs += read_input(*cos_in_);
+            ++good_reads_;
         }
         out.sin_v = ss / average;
         out.cos_v = cs / average;
@@ -173,9 +229,13 @@ public:
         return out;
     }
 
-private:
     // One register image: holding registers at their address, input registers after them.
     std::size_t key(const RegisterDef& r) const { return r.table == RegTable::Input ? in_base_ + static_cast<std::size_t>(r.address) : static_cast<std::size_t>(r.address); }
+
+    void set_timeout_ms(int ms) {
+        ms = std::max(ms, 1);
+        modbus_set_response_timeout(ctx_, static_cast<std::uint32_t>(ms / 1000), static_cast<std::uint32_t>((ms % 1000) * 1000));
+    }
 
     void connect() {
         if (modbus_connect(ctx_) == -1) {
@@ -187,24 +247,82 @@ private:
         connected_ = true;
     }
 
-    // Runs op with bounded retries; reconnects after a lost connection. Throws naming the
-    // board, the register and libmodbus's message.
+    void check_cancel() const {
+        if (cancel_ && cancel_->load()) throw Cancelled(uri_);
+    }
+
+    // Sleeps seconds in short slices, seeing a cancel within 20 ms.
+    void wait_s(double seconds, const char*) const {
+        const auto until = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
+        for (;;) {
+            check_cancel();
+            const auto now = Clock::now();
+            if (now >= until) return;
+            std::this_thread::sleep_for(std::min<Clock::duration>(until - now, std::chrono::milliseconds(20)));
+        }
+    }
+
+    static double ms_between(Clock::time_point a, Clock::time_point b) { return std::chrono::duration<double, std::milli>(b - a).count(); }
+
+    // Runs op under the retry policy (top of the file). Throws naming the board, the request,
+    // libmodbus's message, the attempts and the time spent.
     template <class Op>
     void with_retries(const std::string& what, Op&& op) {
-        for (int attempt = 0;; ++attempt) {
-            if (!connected_) {
-                if (modbus_connect(ctx_) == 0) connected_ = true;
+        const auto t0 = Clock::now();
+        const auto own = t0 + std::chrono::milliseconds(static_cast<long long>(timeout_ms_) * (retries_ + 1));
+        const bool block = steps_ > 0 && block_deadline_ < own;
+        const auto deadline = block ? block_deadline_ : own;
+        int attempts = 0, refused = 0;
+        int e = 0;
+        auto backoff = std::chrono::milliseconds(50);
+        auto fail = [&](const std::string& why) {
+            std::string msg = "board " + board_.name + " at " + endpoint_ + ": " + what + ": " + why;
+            if (!exception_reply(e) || attempts > 1) {
+                char b[96];
+                std::snprintf(b, sizeof b, " (after %d attempt%s%s in %.0f ms)", attempts, attempts == 1 ? "" : "s",
+                              refused ? (", " + std::to_string(refused) + " refused reconnects").c_str() : "", ms_between(t0, Clock::now()));
+                msg += b;
             }
-            if (connected_ && op() != -1) return;
-            const int e = errno;
-            const bool exception = e > MODBUS_ENOBASE && e < MODBUS_ENOBASE + 20;  // a Modbus exception reply
-            if (exception || attempt >= retries_)
-                throw DeviceError(uri_, "board " + board_.name + " at " + endpoint_ + ": " + what + ": " + modbus_strerror(e) +
-                                            (exception ? "" : " (after " + std::to_string(attempt + 1) + " attempts)"));
-            if (connection_error(e) || !connected_) {
+            if (block && Clock::now() >= deadline) {
+                char b[200];
+                std::snprintf(b, sizeof b, "; steps %lld-%lld ran past their block deadline of %.3g s (16 steps, each request given its whole timeout_ms): the board answers late, request after request",
+                              block_first_step_, block_first_step_ + kBlockSteps - 1, block_budget_s_);
+                msg += b;
+            }
+            throw DeviceError(uri_, msg);
+        };
+        for (;;) {
+            check_cancel();
+            if (!connected_) {
+                if (modbus_connect(ctx_) == 0) {
+                    connected_ = true;
+                    ++reconnects_;
+                } else {
+                    e = errno;
+                    ++refused;
+                    // Reconnect with backoff (50, 100, 200 ... 800 ms) while the deadline allows.
+                    if (Clock::now() + backoff >= deadline) fail(std::string("reconnect: ") + modbus_strerror(e));
+                    wait_s(std::chrono::duration<double>(backoff).count(), "reconnect backoff");
+                    backoff = std::min(backoff * 2, std::chrono::milliseconds(800));
+                    continue;
+                }
+            }
+            const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now()).count();
+            if (left <= 0) fail(std::string(modbus_strerror(e ? e : ETIMEDOUT)));
+            set_timeout_ms(static_cast<int>(std::min<long long>(timeout_ms_, left)));
+            ++attempts;
+            if (op() != -1) return;
+            e = errno;
+            if (exception_reply(e)) fail(modbus_strerror(e));
+            if (attempts > retries_ || Clock::now() >= deadline) fail(modbus_strerror(e));
+            // Whatever was late or garbled must not be read as the next reply: a fresh connection
+            // on TCP; on RTU a quiet wait, then the line's input is discarded.
+            if (!rtu_ || connection_error(e)) {
+                if (connection_error(e)) ++lost_;  // the board may have restarted: the step is redone
                 modbus_close(ctx_);
                 connected_ = false;
             } else {
+                wait_s(std::min(0.05, timeout_ms_ * 1e-3), "draining");
                 modbus_flush(ctx_);
             }
         }
@@ -263,17 +381,24 @@ private:
     }
 
     // A reading that is not a number, or far outside what the converter can return, is a
-    // misread register (type, word order, address), not a measurement.
+    // misread register (type, word order, address) when the board never read well; after good
+    // readings it is the board's own fault at that reading, named with its count.
     double read_input(const RegisterDef& r) const {
         const std::uint16_t* w = &regs_[key(r)];
         const double v = decode_register(r, w);
         const double raw = r.raw_of(v);
         const double margin = r.has_range ? 0.1 * (r.range_hi - r.range_lo) : 0.0;
-        if (!std::isfinite(v) || (r.has_range && (raw < r.range_lo - margin || raw > r.range_hi + margin)))
-            throw DeviceError(uri_, "board " + board_.name + " at " + endpoint_ + ": " + r.role + " @" + std::to_string(r.address) + " reads " + num(raw) +
-                                        (r.has_range ? ", far outside its range " + num(r.range_lo) + ".." + num(r.range_hi) : "") +
-                                        ": the register's type or word_order does not match the board (with the words swapped it reads " +
+        if (!std::isfinite(v) || (r.has_range && (raw < r.range_lo - margin || raw > r.range_hi + margin))) {
+            const std::string where = "board " + board_.name + " at " + endpoint_ + ": " + r.role + " @" + std::to_string(r.address);
+            const std::string range = r.has_range ? " (its range " + num(r.range_lo) + ".." + num(r.range_hi) + ")" : "";
+            if (good_reads_ > 0)
+                throw DeviceError(uri_, where + " reads " + num(raw) + range + " at reading " + std::to_string(reads_) + ", after " + std::to_string(good_reads_) +
+                                            " good readings: the board returned " + (std::isfinite(v) ? "a value far outside its range" : "a value that is not a number") +
+                                            " (a fault or overrange of its converter, not the register map, which read well until now)");
+            throw DeviceError(uri_, where + " reads " + num(raw) + (r.has_range ? ", far outside its range " + num(r.range_lo) + ".." + num(r.range_hi) : "") +
+                                        " at the first reading: the register's type or word_order does not match the board (with the words swapped it reads " +
                                         num(r.raw_of(decode_swapped(r, w))) + ")");
+        }
         return v;
     }
 
@@ -313,6 +438,10 @@ private:
     double settle_s_ = 0;
     modbus_t* ctx_ = nullptr;
     bool connected_ = false;
+    const std::atomic<bool>* cancel_ = nullptr;
+    long long reconnects_ = 0, lost_ = 0, steps_ = 0, block_first_step_ = 0, reads_ = 0, good_reads_ = 0;
+    double block_budget_s_ = 0;
+    Clock::time_point block_start_{}, block_deadline_{};
     std::vector<ReadBatch> batches_;
     std::vector<std::string> batch_what_, write_what_;
     const RegisterDef *sin_out_ = nullptr, *cos_out_ = nullptr;
@@ -325,8 +454,8 @@ std::vector<ParamInfo> common_settings() {
     return {
         {"board", "", ParamType::String, "generic-aio", -kInf, kInf, {}, "board profile: a name in fixtures/boards/ (or $FRINGE_BOARDS), or a path"},
         {"unit", "", ParamType::Integer, 1, 0, 247, {}, "Modbus unit (slave) id"},
-        {"timeout_ms", "ms", ParamType::Integer, 500, 1, 60000, {}, "response timeout per request"},
-        {"retries", "", ParamType::Integer, 2, 0, 20, {}, "retries after a timeout or a lost connection (not after an exception reply)"},
+        {"timeout_ms", "ms", ParamType::Integer, 500, 1, 60000, {}, "response timeout per attempt: the whole reply must arrive within it"},
+        {"retries", "", ParamType::Integer, 2, 0, 20, {}, "retries after a timeout, a garbled or stale reply or a lost connection (not after an exception reply); a request's deadline is (retries + 1) x timeout_ms"},
         {"settle_s", "s", ParamType::Number, nullptr, 0, 60, {}, "wait after writing a step before reading back (default: the board profile's)"},
         {"average", "", ParamType::Integer, nullptr, 1, 1000, {}, "readings averaged per step (default: the board profile's)"},
     };

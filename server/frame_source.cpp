@@ -44,7 +44,20 @@ public:
         gen_.generate(k_, b_);
         out.resize(n, dut_);
         for (std::size_t i = 0; i < n; ++i) {
-            const dev::StepResult r = dev_.step(b_.sin_v[i], b_.cos_v[i], -1.0, 0);  // the device's settle and averaging
+            dev::StepResult r;
+            // A step that fails ends the block there: the steps measured before it are delivered
+            // (scored, recorded) with the error; a cancel delivers them too and the run ends as aborted.
+            try {
+                r = dev_.step(b_.sin_v[i], b_.cos_v[i], -1.0, 0);  // the device's settle and averaging
+            } catch (const dev::Cancelled&) {
+                out.resize(i, dut_);
+                k_ += i;
+                return {};
+            } catch (const std::exception& e) {
+                out.resize(i, dut_);
+                k_ += i;
+                return {false, false, e.what()};
+            }
             out.sin_v[i] = r.sin_v;
             out.cos_v[i] = r.cos_v;
             if (dut_) out.dut_theta_rad[i] = r.dut_theta_rad ? *r.dut_theta_rad : kNaN;
@@ -377,6 +390,138 @@ private:
     nlohmann::json info_;
 };
 
+// Bench checks on what a hardware input delivers (docs/bench.md "Clipping and frozen inputs"):
+// faults of the bench, not of the DUT, end the run as ERROR naming the device and the evidence.
+//  - clipping at known rails: more than kClipShare of a channel's samples at or beyond the ADC's
+//    full scale (within one step of +-adc_range_v), once 100 samples are in and at the end;
+//  - clipping at unknown rails (a board whose range is not what its profile says): at the end,
+//    more than kPlateauShare of a channel's samples on its largest or smallest value (within one
+//    step, or 1e-9 of the span for an ideal converter), when the truth spanned a full
+//    electrical cycle (a sinusoid spends about sqrt(2 step / A) / pi of a cycle within one step
+//    of its peak: 0.3 % for 16 bits, 4.5 % for 8);
+//  - a frozen input: kFrozenRun consecutive samples with both channels exactly equal while the
+//    truth moved more than 1 rad, or a block of 16 or more samples exactly equal to the block
+//    before it while the truth did not repeat (a board returning old data).
+class BenchChecks final : public FrameSource {
+public:
+    BenchChecks(std::unique_ptr<FrameSource> inner, const dev::DeviceInfo& in, std::uint64_t total)
+        : inner_(std::move(inner)), device_(in.uri), total_(total) {
+        const auto& c = in.converter;
+        rail_v_ = c.adc_range_v > 0 ? c.adc_range_v : 0.0;
+        step_v_ = c.adc_q_v();
+    }
+    void stop() override { inner_->stop(); }
+    nlohmann::json alignment() const override { return inner_->alignment(); }
+    SourceStatus next(std::size_t max, Frames& out) override {
+        SourceStatus st = inner_->next(max, out);
+        const std::string why = check(out);
+        if (!why.empty() && st.ok) return {false, false, why};
+        return st;
+    }
+
+private:
+    static constexpr double kClipShare = 0.01, kPlateauShare = 0.05;
+    static constexpr std::size_t kFrozenRun = 32;
+    struct Chan {
+        std::uint64_t at_rail = 0;
+        double hi = -std::numeric_limits<double>::infinity(), lo = std::numeric_limits<double>::infinity();
+        std::uint64_t at_hi = 0, at_lo = 0;
+    };
+    static std::string fmt(double v) {
+        char b[32];
+        std::snprintf(b, sizeof b, "%.4g", v);
+        return b;
+    }
+    void plateau(Chan& c, double v, double tol) {
+        if (v > c.hi + tol) { c.hi = v; c.at_hi = 1; }
+        else if (v >= c.hi - tol) ++c.at_hi;
+        if (v < c.lo - tol) { c.lo = v; c.at_lo = 1; }
+        else if (v <= c.lo + tol) ++c.at_lo;
+    }
+    std::string check(const Frames& f) {
+        const std::size_t n = f.size();
+        const char* names[2] = {"sin", "cos"};
+        const std::vector<double>* ch[2] = {&f.sin_v, &f.cos_v};
+        for (std::size_t i = 0; i < n; ++i) {
+            const double s = f.sin_v[i], c = f.cos_v[i];
+            for (int k = 0; k < 2; ++k) {
+                const double v = (*ch[k])[i];
+                if (!std::isfinite(v)) continue;
+                if (rail_v_ > 0 && std::fabs(v) >= rail_v_ - std::max(step_v_, 1e-9 * rail_v_)) ++chan_[k].at_rail;
+                plateau(chan_[k], v, step_v_ > 0 ? step_v_ / 2 : 0.0);
+            }
+            // Runs of exactly equal pairs, and how far the truth moved across them. An exact
+            // (0, 0) is what a step-mode board without ADC registers returns: not a reading.
+            if (s == 0 && c == 0) {
+                run_ = 0;
+            } else if (seen_ > 0 && s == last_s_ && c == last_c_) {
+                ++run_;
+            } else {
+                run_ = 1;
+                run_start_ = seen_;
+                run_theta0_ = f.truth_known[i] ? f.theta_true_rad[i] : kNaN;
+            }
+            if (f.truth_known[i]) {
+                th_min_ = std::min(th_min_, f.theta_true_rad[i]);
+                th_max_ = std::max(th_max_, f.theta_true_rad[i]);
+                if (run_ >= kFrozenRun && std::fabs(f.theta_true_rad[i] - run_theta0_) > 1.0)
+                    return "bench: the input of " + device_ + " is frozen: " + std::to_string(run_) + " consecutive samples from input sample " +
+                           std::to_string(run_start_) + " read exactly sin " + fmt(s) + " V, cos " + fmt(c) + " V while the signal moved " +
+                           fmt(std::fabs(f.theta_true_rad[i] - run_theta0_)) + " rad (the board repeats old data, or the drive never reaches its input: wiring, or the drive registers' address, type or word order; not a fault of the DUT)";
+            }
+            last_s_ = s;
+            last_c_ = c;
+            ++seen_;
+        }
+        // A block that repeats the one before it exactly while the truth did not repeat.
+        if (n >= 16 && prev_.size() == n && prev_truth_known_ && f.truth_known[0] &&
+            std::fabs(std::remainder(f.theta_true_rad[0] - prev_theta0_, kTwoPi)) > 0.01 &&
+            std::equal(f.sin_v.begin(), f.sin_v.end(), prev_.begin()) && std::equal(f.cos_v.begin(), f.cos_v.end(), prev_c_.begin()))
+            return "bench: the input of " + device_ + " is frozen: the " + std::to_string(n) + " samples from input sample " + std::to_string(seen_ - n) +
+                   " repeat the block before them exactly while the signal moved on (the board returns old data; not a fault of the DUT)";
+        prev_.assign(f.sin_v.begin(), f.sin_v.end());
+        prev_c_.assign(f.cos_v.begin(), f.cos_v.end());
+        prev_truth_known_ = n > 0 && f.truth_known[0];
+        prev_theta0_ = n > 0 ? f.theta_true_rad[0] : 0.0;
+        const bool end = seen_ >= total_;
+        if (rail_v_ > 0 && (seen_ >= 100 || end) && seen_ > 0)
+            for (int k = 0; k < 2; ++k)
+                if (static_cast<double>(chan_[k].at_rail) > kClipShare * static_cast<double>(seen_))
+                    return "bench: clipping at the input of " + device_ + ": " + fmt(100.0 * static_cast<double>(chan_[k].at_rail) / static_cast<double>(seen_)) + " % of " +
+                           names[k] + " samples (" + std::to_string(chan_[k].at_rail) + " of " + std::to_string(seen_) + ") at or beyond its ADC's rails +-" + fmt(rail_v_) +
+                           " V (more than " + fmt(100 * kClipShare) + " % is clipping, not a fault of the DUT): lower the signal's amplitude or raise the input range";
+        if (end && th_max_ - th_min_ >= kTwoPi)
+            for (int k = 0; k < 2; ++k)
+                for (const bool top : {true, false}) {
+                    const std::uint64_t m = top ? chan_[k].at_hi : chan_[k].at_lo;
+                    if (static_cast<double>(m) > kPlateauShare * static_cast<double>(seen_))
+                        return "bench: clipping at the input of " + device_ + ": " + fmt(100.0 * static_cast<double>(m) / static_cast<double>(seen_)) + " % of " + names[k] +
+                               " samples (" + std::to_string(m) + " of " + std::to_string(seen_) + ") sit on its " + (top ? "largest" : "smallest") + " value, " +
+                               fmt(top ? chan_[k].hi : chan_[k].lo) + " V, over " + fmt((th_max_ - th_min_) / kTwoPi) +
+                               " electrical cycles (a sinusoid spends well under " + fmt(100 * kPlateauShare) +
+                               " % of a cycle there: the input range is smaller than the signal; not a fault of the DUT)";
+                }
+        return "";
+    }
+
+    std::unique_ptr<FrameSource> inner_;
+    std::string device_;
+    std::uint64_t total_, seen_ = 0;
+    double rail_v_ = 0, step_v_ = 0;
+    Chan chan_[2];
+    double last_s_ = kNaN, last_c_ = kNaN, run_theta0_ = kNaN;
+    std::size_t run_ = 0;
+    std::uint64_t run_start_ = 0;
+    double th_min_ = std::numeric_limits<double>::infinity(), th_max_ = -std::numeric_limits<double>::infinity();
+    std::vector<double> prev_, prev_c_;
+    bool prev_truth_known_ = false;
+    double prev_theta0_ = 0;
+};
+
+// Simulated devices (loopback) and captures carry the scenario's own model of clipping (the
+// preflight warns of it); the checks are for bench hardware.
+bool bench_hardware(const dev::DeviceInfo& i) { return i.driver != "loopback" && i.driver != "capture"; }
+
 }  // namespace
 
 void Frames::resize(std::size_t n, bool dut) {
@@ -387,10 +532,13 @@ void Frames::resize(std::size_t n, bool dut) {
 
 std::unique_ptr<FrameSource> make_frame_source(const Scenario& sc, dev::Device& device, const dev::DeviceInfo& info,
                                                std::size_t block) {
-    if (info.can_play && info.can_record) return std::make_unique<InstrumentSource>(sc, device, device, info);
-    if (!info.streaming && info.step_mode) return std::make_unique<StepSource>(sc, device, info.dut_position);
-    if (!info.needs_output) return std::make_unique<ReplaySource>(sc, device, info.dut_position);
-    return std::make_unique<StreamSource>(sc, device, info, block);
+    std::unique_ptr<FrameSource> s;
+    if (info.can_play && info.can_record) s = std::make_unique<InstrumentSource>(sc, device, device, info);
+    else if (!info.streaming && info.step_mode) s = std::make_unique<StepSource>(sc, device, info.dut_position);
+    else if (!info.needs_output) return std::make_unique<ReplaySource>(sc, device, info.dut_position);
+    else s = std::make_unique<StreamSource>(sc, device, info, block);
+    if (bench_hardware(info)) s = std::make_unique<BenchChecks>(std::move(s), info, sc.samples());
+    return s;
 }
 
 }  // namespace fringe
@@ -399,7 +547,10 @@ namespace fringe {
 
 std::unique_ptr<FrameSource> make_instrument_source(const Scenario& sc, dev::Device& output, dev::Device& input,
                                                     const dev::DeviceInfo& output_info) {
-    return std::make_unique<InstrumentSource>(sc, output, input, output_info);
+    std::unique_ptr<FrameSource> s = std::make_unique<InstrumentSource>(sc, output, input, output_info);
+    const dev::DeviceInfo in = input.info();
+    if (bench_hardware(in)) s = std::make_unique<BenchChecks>(std::move(s), in, sc.samples());
+    return s;
 }
 
 }  // namespace fringe

@@ -346,6 +346,8 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             device = dev::open(sc.device);
             dinfo = device->info();
         }
+        for (auto* d : {device.get(), input_device.get()})
+            if (d) d->set_cancel(o.cancel);  // a device waiting on a failing board sees a cancel
         for (const auto& f : preflight_device(sc, dinfo)) warnings.push_back(f);
         for (const auto& spec : sc.estimators) {
             auto lane = std::make_unique<Lane>(&spec, sc, segment);

@@ -1,6 +1,7 @@
 #include "run_manager.hpp"
 
 #include "run.hpp"
+#include "drivers/device.hpp"
 
 #include <spdlog/spdlog.h>
 
@@ -28,10 +29,17 @@ void to_json(json& j, const RunSnapshot& s) {
     j["error"] = s.error.empty() ? json(nullptr) : json(s.error);
 }
 
+// The queue's key for a device: the resolved device the lock is taken on (127.0.0.1 and 127.1
+// are one board), so a run waits here for a board another run of this service holds; a board
+// held by another process ends the run as ERROR "busy" when it opens (drivers/device.hpp).
 std::string device_key(const std::string& uri) {
     const auto colon = uri.find(':');
     const std::string scheme = colon == std::string::npos ? uri : uri.substr(0, colon);
     if (scheme == "loopback" || scheme == "capture") return "";
+    try {
+        if (std::string k = dev::DeviceLock::key_for(uri); !k.empty()) return k;
+    } catch (const std::exception&) {  // a bad URI: the run names it when it opens
+    }
     return uri.substr(0, uri.find('?'));
 }
 

@@ -43,9 +43,12 @@ struct SimThread {
         std::unique_lock<std::mutex> l(mu);
         cv.wait_for(l, std::chrono::seconds(5), [&] { return !where.empty(); });
     }
-    ~SimThread() {
+    ~SimThread() { finish(); }
+    // Stops the board; the number of requests it answered.
+    long long finish() {
         stop = true;
-        t.join();
+        if (t.joinable()) t.join();
+        return answered;
     }
     std::string uri(const std::string& query) const {
         return "modbus+tcp://" + where.substr(6) + "?" + query;

@@ -213,4 +213,16 @@ curl -sS --max-time 5 "${URL}api/v1/runs/$sid/report.json" | jq -e '.status == "
 kill $SERVE_PID; wait $SERVE_PID 2>/dev/null || true
 
 sed -n 1p "$dir/dies-run.log"
+
+# 6. A digitizer whose range (+-0.8 V) is below the signal (~1.1 V) clips: a bench ERROR naming
+#    the digitizer and the share of samples on its rail, not a FAIL of the DUT.
+isim clip --bench --digitizer-range-v 0.8
+scenario "$dir/clip.json" "$GEN?model=keysight-33500b" "$DIG?model=generic-scope&pretrigger_samples=256"
+set +e
+"$FRINGE" run "$dir/clip.json" --no-db -q --report "$dir/clip-report.json" > "$dir/clip-run.log" 2>&1
+rc=$?
+set -e
+[ $rc -eq 2 ] || fail "a clipping digitizer should end the run as ERROR (exit 2), got $rc"
+grep -q "bench: clipping at the input of $DIG?model=generic-scope.* % of sin samples (.*) sit on its largest value, 0.8 V" "$dir/clip-report.json" \
+  || fail "the clipping error names the digitizer and the evidence: $(cat "$dir/clip-run.log")"
 echo "cli_instrument_sim: ok"

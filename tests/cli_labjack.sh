@@ -84,8 +84,9 @@ grep -q "check TEST @55100 reads 573767697, expected 1122867" "$dir/little.json"
   || fail "the error names the TEST check: $(cat "$dir/little.out")"
 grep -q "the profile's word_order 'little' is not the board's" "$dir/little.json" || fail "the error names the word order"
 #    ... and without the checks the run still stops: the T7 refuses the garbled init values
-#    (an AIN range of 2.3e-41 V), and with no init either the misread AIN values end it
-#    naming the word order. Never a garbage PASS.
+#    (an AIN range of 2.3e-41 V), and with no init either the garbled drive values never
+#    reach the inputs, which read one value while the signal moves: a frozen input, naming the
+#    word order among its causes. Never a garbage PASS.
 profile "$dir/p-nocheck.json" 'p["word_order"] = "little"; p.pop("checks")'
 run nocheck "modbus+tcp://127.0.0.1:$PORT?board=$dir/p-nocheck.json"
 [ $rc -eq 2 ] || fail "a wrong word order without checks must end as ERROR, got $rc"
@@ -98,7 +99,9 @@ $PY - "$dir/bare.json" <<'PY' || fail "bare report"
 import json, sys
 r = json.load(open(sys.argv[1]))
 assert r["verdict"] == "ERROR", r["verdict"]
-assert "sin_in @0 reads" in r["error"] and "word_order does not match the board" in r["error"], r["error"]
+# The garbled drive values never reach the inputs: they read one value while the signal moves.
+assert "bench: the input of modbus+tcp://127.0.0.1:" in r["error"] and "is frozen: 32 consecutive samples from input sample 0 read exactly" in r["error"] \
+    and "word order" in r["error"], r["error"]
 PY
 
 # 3. Function 6 on the FLOAT32 DACs: the T7 refuses it; the run ends as ERROR naming it.

@@ -3,7 +3,9 @@
 #  - fringe run (step mode) against board-sim over TCP and over RTU on a socat pty pair;
 #  - mbpoll (Debian) writing and reading board-sim's registers;
 #  - pymodbus (Debian's python3-pymodbus) as the analog module fringe drives in step mode;
-#  - a board that drops mid-run ends the run as ERROR naming it.
+#  - a board that drops mid-run ends the run as ERROR naming it;
+#  - one owner per board: a second process on it (spelt 127.1) is refused as busy;
+#  - a board that clips or repeats old data is a bench ERROR, not a FAIL of the DUT.
 set -euo pipefail
 FRINGE="$1"; SRC="$(cd "$2" && pwd)"
 PY=/usr/bin/python3
@@ -109,4 +111,74 @@ assert r["verdict"] == "ERROR", r["verdict"]
 assert "board dut-interpolator at 127.0.0.1:" in r["error"], r["error"]
 assert r["samples"]["processed"] < 128, r["samples"]
 PY
+# 6. One owner per board across processes: while run A drives the board, run B on the same
+#    board spelt 127.1 is refused (exit 2) naming A's pid; A is not disturbed and passes.
+export FRINGE_LOCK_DIR="$dir/locks"
+sim lock --modbus tcp://127.0.0.1:0 --board dut-interpolator --noise-v 2e-4 --seed 3 --delay-ms 4
+P=$(port_of "$SIM_AT")
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.0.0.1:$P?board=dut-interpolator" --report "$dir/lockA.json" > "$dir/lockA.log" 2>&1 &
+A=$!; pids+=($A)
+for _ in $(seq 200); do grep -qs "^pid $A " "$dir"/locks/*.lock && break; sleep 0.02; done
+grep -qs "^pid $A " "$dir"/locks/*.lock || fail "run A took no lock"
+set +e
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.1:$P?board=dut-interpolator" --report "$dir/lockB.json" > "$dir/lockB.log" 2>&1; rc=$?
+wait $A; rcA=$?
+set -e
+[ $rc -eq 2 ] || fail "a second run on a busy board should end as ERROR (exit 2), got $rc"
+grep -q "busy: modbus-tcp:127.0.0.1:$P:unit1 is in use by pid $A (command [^)]*fringe run" "$dir/lockB.json" || fail "B names the board and A's pid: $(cat "$dir/lockB.log")"
+[ $rcA -eq 0 ] || fail "run A should pass undisturbed, got $rcA: $(cat "$dir/lockA.log")"
+$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["samples"]["processed"]==128, r' "$dir/lockA.json" || fail "A ran every step"
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.1:$P?board=dut-interpolator" --report "$dir/lockC.json" || fail "the board is free once A ended"
+
+# 6b. A serve run while a CLI run holds the board: the service's run ends as ERROR "busy"
+#     naming the CLI run's pid; the service keeps serving.
+timeout 120 "$FRINGE" serve --bind 127.0.0.1:0 --data "$dir/sdata" --allow-device 'modbus+tcp://127.*' > "$dir/serve.out" 2> "$dir/serve.log" &
+SV=$!; pids+=($SV)
+URL=$(poll_log "$dir/serve.out" 's/.*serving \(http:[^ ]*\) .*/\1/p' 100 0.1) || fail "fringe serve did not start"
+P=$(port_of "$SIM_AT")
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.0.0.1:$P?board=dut-interpolator" --report "$dir/lockD.json" > "$dir/lockD.log" 2>&1 &
+D=$!; pids+=($D)
+for _ in $(seq 200); do grep -qs "^pid $D " "$dir"/locks/*.lock && break; sleep 0.02; done
+body=$($PY -c 'import json,sys; sc=json.load(open(sys.argv[1])); sc["device"]=sys.argv[2]; print(json.dumps({"scenario": sc}))' "$S" "modbus+tcp://127.1:$P?board=dut-interpolator")
+rid=$(curl -sS --max-time 10 -X POST -H "Authorization: Bearer $(cat "$dir/sdata/token")" -d "$body" "${URL}api/v1/runs" | $PY -c 'import json,sys; print(json.load(sys.stdin)["id"])') || fail "POST /runs"
+for _ in $(seq 100); do
+  st=$(curl -sS --max-time 10 "${URL}api/v1/runs/$rid" -H "Authorization: Bearer $(cat "$dir/sdata/token")" | $PY -c 'import json,sys; r=json.load(sys.stdin); print(r["status"], r["error"])')
+  case "$st" in error*|done*|aborted*) break;; esac; sleep 0.05
+done
+case "$st" in "error "*"busy: modbus-tcp:127.0.0.1:$P:unit1 is in use by pid $D (command "*"fringe run"*) ;; *) fail "the service's run on a busy board: $st";; esac
+set +e; wait $D; rcD=$?; set -e
+[ $rcD -eq 0 ] || fail "the CLI run should pass undisturbed, got $rcD"
+kill -TERM $SV; wait $SV || true
+
+# 6c. SIGTERM while the board is frozen (retries=20 x 500 ms): the run ends within about one
+#     attempt, ABORTED, the steps measured before kept.
+sim frozen --modbus tcp://127.0.0.1:0 --board dut-interpolator --freeze-after 40
+P=$(port_of "$SIM_AT")
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.0.0.1:$P?board=dut-interpolator&timeout_ms=500&retries=20" --report "$dir/term.json" > "$dir/term.log" 2>&1 &
+R=$!; pids+=($R)
+sleep 1
+t0=$(date +%s%N); kill -TERM $R; set +e; wait $R; rc=$?; set -e; t1=$(date +%s%N)
+ms=$(( (t1 - t0) / 1000000 ))
+[ $ms -lt 1000 ] || fail "SIGTERM honoured ${ms} ms late"
+[ $rc -eq 2 ] || fail "a terminated run exits 2, got $rc"
+$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["status"]=="aborted" and r["samples"]["processed"]>0, (r["status"], r["samples"], r["error"])' "$dir/term.json" \
+  || fail "the terminated run: $(cat "$dir/term.log")"
+echo "SIGTERM honoured in $ms ms"
+
+# 7. Bench faults are ERRORs naming the device, not FAILs of the DUT: an ADC range (0.8 V)
+#    below the signal (1.1 V), and a board whose ADC registers stop updating.
+sim clip --modbus tcp://127.0.0.1:0 --board dut-interpolator --adc-range-v 0.8
+P=$(port_of "$SIM_AT")
+set +e
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.0.0.1:$P?board=dut-interpolator" --report "$dir/clip.json" > "$dir/clip.log" 2>&1; rc=$?
+set -e
+[ $rc -eq 2 ] || fail "a clipping board should end as ERROR (exit 2), got $rc"
+grep -q "bench: clipping at the input of modbus+tcp://127.0.0.1:$P" "$dir/clip.json" || fail "clip: $(cat "$dir/clip.log")"
+sim stale --modbus tcp://127.0.0.1:0 --board dut-interpolator --noise-v 2e-4 --stale-adc-after 40
+P=$(port_of "$SIM_AT")
+set +e
+"$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.0.0.1:$P?board=dut-interpolator" --report "$dir/stale.json" > "$dir/stale.log" 2>&1; rc=$?
+set -e
+[ $rc -eq 2 ] || fail "a frozen board should end as ERROR (exit 2), got $rc"
+grep -q "bench: the input of modbus+tcp://127.0.0.1:$P.* is frozen: 32 consecutive samples from input sample 39 " "$dir/stale.json" || fail "stale: $(cat "$dir/stale.log")"
 echo "cli.modbus: ok"

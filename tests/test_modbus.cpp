@@ -5,6 +5,8 @@
 #include "drivers/device.hpp"
 #include "drivers/modbus_board.hpp"
 #include "server/preflight.hpp"
+#include "server/run.hpp"
+#include "server/run_manager.hpp"
 #include "server/scenario.hpp"
 #include "signal_gen/config.hpp"
 
@@ -374,4 +376,158 @@ TEST_CASE("modbus: the preflight warns when the signal does not fit a unipolar D
     CHECK_FALSE(dac_clip());        // the paper encoder's ~1.1 V fits
     d.converter.dac_range_v = 0.5;  // a DAC with +-0.5 V of room does not
     CHECK(dac_clip());
+}
+
+// The bench's faults on the real driver path: board-sim's fault options, libmodbus over TCP.
+namespace {
+double since_s(std::chrono::steady_clock::time_point t0) { return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(); }
+}  // namespace
+
+TEST_CASE("modbus faults: a reply 50 ms past the timeout is discarded and the request retried", "[modbus][modbus-faults][socket]") {
+    BoardSimOptions o;
+    o.board = "generic-aio";
+    o.adc_bits = 0;
+    o.delay_ms = 150;  // timeout 100 ms: 50 ms late
+    o.delay_from = 4;  // the read of step 2
+    o.delay_count = 1;
+    SimThread sim(o);
+    auto dev = open(sim.uri("board=generic-aio&settle_s=0&timeout_ms=100&retries=2"));
+    for (int k = 0; k < 6; ++k) {
+        const double s = 0.1 * k - 0.2, c = 0.3 - 0.05 * k;
+        StepResult r;
+        REQUIRE_NOTHROW(r = dev->step(s, c, 0.0, 1));
+        // the late reply (to an abandoned request) is never taken for a later one's answer
+        CHECK(r.sin_v == Approx(s).margin(1e-4));
+        CHECK(r.cos_v == Approx(c).margin(1e-4));
+    }
+}
+
+TEST_CASE("modbus faults: a reply trickled a byte every 400 ms ends within (retries + 1) x timeout", "[modbus][modbus-faults][socket]") {
+    BoardSimOptions o;
+    o.trickle_ms = 400;
+    SimThread sim(o);
+    auto dev = open(sim.uri("board=generic-aio&settle_s=0&timeout_ms=300&retries=1"));
+    const auto t0 = std::chrono::steady_clock::now();
+    CHECK_THROWS_WITH(dev->step(0.1, 0.2, 0.0, 1), Catch::Contains("write sin_out,cos_out @0") && Catch::Contains("timed out") && Catch::Contains("after 2 attempts"));
+    const double took = since_s(t0);
+    CHECK(took < 0.6 + 0.3);  // 2 x 300 ms, and the reconnect
+    CHECK(took > 0.5);
+}
+
+TEST_CASE("modbus faults: a cancel is seen while a frozen board is retried", "[modbus][modbus-faults][socket]") {
+    BoardSimOptions o;
+    o.freeze_after = 2;  // answers one step, then never again
+    SimThread sim(o);
+    auto dev = open(sim.uri("board=generic-aio&settle_s=0&timeout_ms=300&retries=20"));
+    std::atomic<bool> cancel{false};
+    dev->set_cancel(&cancel);
+    CHECK_NOTHROW(dev->step(0.1, 0.2, 0.0, 1));
+    std::thread t([&] {
+        std::this_thread::sleep_for(std::chrono::milliseconds(500));
+        cancel = true;
+    });
+    const auto t0 = std::chrono::steady_clock::now();
+    CHECK_THROWS_AS(dev->step(0.1, 0.2, 0.0, 1), Cancelled);
+    const double took = since_s(t0);
+    t.join();
+    CHECK(took < 0.5 + 0.3 + 0.1);  // within one attempt's timeout of the cancel (21 x 300 ms without it)
+}
+
+TEST_CASE("modbus faults: a board restarted on its port is reconnected with backoff and the step redone", "[modbus][modbus-faults][socket]") {
+    BoardSimOptions o;
+    o.board = "generic-aio";
+    o.adc_bits = 0;
+    o.restart_after = 3;  // request 4, the read of step 2, finds the board restarting
+    o.restart_down_ms = 300;
+    SimThread sim(o);
+    auto dev = open(sim.uri("board=generic-aio&settle_s=0&timeout_ms=250&retries=3"));
+    for (int k = 0; k < 5; ++k) {
+        const double s = 0.1 * k + 0.05, c = -0.2;
+        StepResult r;
+        const auto t0 = std::chrono::steady_clock::now();
+        REQUIRE_NOTHROW(r = dev->step(s, c, 0.0, 1));
+        // the restarted board lost its drive registers: a reading of them would be 0
+        CHECK(r.sin_v == Approx(s).margin(1e-4));
+        CHECK(r.cos_v == Approx(c).margin(1e-4));
+        if (k == 1) CHECK(since_s(t0) > 0.29);  // it waited for the board
+    }
+}
+
+TEST_CASE("modbus faults: a NaN after good readings names the reading and the register, not the word order", "[modbus][modbus-faults][socket]") {
+    BoardSimOptions o;
+    o.board = "labjack-t7";
+    o.adc_bits = 0;
+    o.nan_adc_after = 60;
+    SimThread sim(o);
+    auto dev = open(sim.uri("board=labjack-t7&settle_s=0"));
+    int ok = 0;
+    try {
+        for (int k = 0; k < 100; ++k, ++ok) dev->step(0.5, 0.5, 0.0, 1);
+        FAIL("no error");
+    } catch (const DeviceError& e) {
+        const std::string m = e.what();
+        CHECK(ok == 60);
+        CHECK(m.find("sin_in @0 reads nan") != std::string::npos);
+        CHECK(m.find("at reading 61, after 60 good readings") != std::string::npos);
+        CHECK(m.find("not a number") != std::string::npos);
+        CHECK(m.find("word_order") == std::string::npos);
+    }
+}
+
+TEST_CASE("device lock: one owner per resolved device", "[modbus][device-lock][socket]") {
+    BoardSimOptions o;
+    SimThread sim(o);
+    const std::string port = sim.where.substr(sim.where.rfind(':') + 1);
+    CHECK(DeviceLock::key_for("modbus+tcp://127.0.0.1:" + port + "?board=generic-aio") ==
+          DeviceLock::key_for("modbus+tcp://127.1:" + port + "?board=generic-aio&timeout_ms=100"));
+    CHECK(DeviceLock::key_for("modbus+tcp://127.0.0.1:" + port + "?board=generic-aio") != DeviceLock::key_for("modbus+tcp://127.0.0.1:" + port + "?board=generic-aio&unit=2"));
+    CHECK(DeviceLock::key_for("loopback:").empty());
+    // the service's queue waits on the same key: two spellings of one board queue behind each other
+    CHECK(device_key("modbus+tcp://127.0.0.1:" + port + "?board=generic-aio") == device_key("modbus+tcp://127.1:" + port + "?board=generic-aio&average=2"));
+    auto a = open("modbus+tcp://127.0.0.1:" + port + "?board=generic-aio");
+    // the same thread (one run opening an instrument twice) shares it; another thread does not
+    std::string other;
+    std::thread t([&] {
+        try {
+            auto b = open("modbus+tcp://127.1:" + port + "?board=generic-aio");
+        } catch (const DeviceError& e) {
+            other = e.what();
+        }
+    });
+    t.join();
+    CHECK(other.find("busy: modbus-tcp:127.0.0.1:" + port + ":unit1 is in use by another run of this process (pid " + std::to_string(::getpid())) != std::string::npos);
+    a.reset();
+    std::thread t2([&] { CHECK_NOTHROW(open("modbus+tcp://127.1:" + port + "?board=generic-aio")); });  // released on close
+    t2.join();
+}
+
+TEST_CASE("modbus faults: a step that fails keeps every step measured before it in the partial report", "[modbus][modbus-faults][socket]") {
+    const std::string dir = FRINGE_SOURCE_DIR;
+    Scenario sc = load_scenario(dir + "/fixtures/scenarios/modbus-step-sweep.json");
+    // Requests per step of this board: count what opening it and 10 steps take.
+    long long at_open = 0, per_step = 0;
+    {
+        BoardSimOptions o;
+        o.board = "dut-interpolator";
+        SimThread a(o), b(o);
+        { auto d = open(a.uri("board=dut-interpolator&settle_s=0")); }
+        {
+            auto d = open(b.uri("board=dut-interpolator&settle_s=0"));
+            for (int k = 0; k < 10; ++k) d->step(0.1, 0.2, 0.0, 1);
+        }
+        at_open = a.finish();
+        per_step = (b.finish() - at_open) / 10;
+        REQUIRE(per_step >= 2);
+    }
+    BoardSimOptions o;
+    o.board = "dut-interpolator";
+    o.noise_v = 2e-4;
+    o.drop_after = at_open + 20 * per_step + 1;  // step 21 (the 5th of the second block) fails
+    SimThread sim(o);
+    sc.device = sim.uri("board=dut-interpolator&timeout_ms=100&retries=1");
+    const json r = execute_run(sc);
+    CHECK(r["status"] == "error");
+    CHECK(r["verdict"] == "ERROR");
+    CHECK(r["error"].get<std::string>().find("board dut-interpolator at 127.0.0.1:") != std::string::npos);
+    CHECK(r["samples"]["processed"] == 20);  // 16 before: the block's 4 measured steps were dropped
 }

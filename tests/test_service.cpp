@@ -403,7 +403,7 @@ TEST_CASE("service: a run from a fixture, its reports, and cancel", "[service]")
 TEST_CASE("service: runs on one board queue, simulated runs go in parallel", "[service]") {
     CHECK(device_key("loopback:?adc_bits=12").empty());
     CHECK(device_key("capture:/x.fcap").empty());
-    CHECK(device_key("modbus+tcp://10.0.0.5:502?unit=1") == "modbus+tcp://10.0.0.5:502");
+    CHECK(device_key("modbus+tcp://10.0.0.5:502?unit=1") == "modbus-tcp:10.0.0.5:502:unit1");  // the resolved device (drivers/device.hpp)
     CHECK(device_key("usb:1209:ec01?serial=A") == device_key("usb:1209:ec01?serial=B"));  // one physical bus id: conservative
     TempDir d;
     Service s(config(d));

@@ -58,7 +58,15 @@ Command add_board_sim(CLI::App& app) {
     bs->add_option("--seed", c->o.seed, "Noise seed")->capture_default_str();
     bs->add_option("--exception-every", c->o.exception_every, "Fault: every Nth request answers with a Modbus exception");
     bs->add_option("--delay-ms", c->o.delay_ms, "Fault: delay every reply");
-    bs->add_option("--drop-after", c->o.drop_after, "Fault: after N requests close every connection and stop");
+    bs->add_option("--delay-from", c->o.delay_from, "Fault: --delay-ms starts at request N (counted from 1)")->capture_default_str();
+    bs->add_option("--delay-count", c->o.delay_count, "Fault: --delay-ms applies to this many requests (-1: all)")->capture_default_str();
+    bs->add_option("--trickle-ms", c->o.trickle_ms, "Fault: send every reply one byte at a time, this many ms apart");
+    bs->add_option("--drop-after", c->o.drop_after, "Fault (kill): after N requests close every connection and stop");
+    bs->add_option("--freeze-after", c->o.freeze_after, "Fault: after N requests keep the connections but never answer");
+    bs->add_option("--restart-after", c->o.restart_after, "Fault: after N requests reset every connection, stay away --restart-down-ms, listen again on the same port with fresh registers (TCP, once)");
+    bs->add_option("--restart-down-ms", c->o.restart_down_ms, "Fault: how long a restart keeps the port closed")->capture_default_str();
+    bs->add_option("--stale-adc-after", c->o.stale_adc_after, "Fault: after N ADC conversions the input registers stop updating (old data repeated)");
+    bs->add_option("--nan-adc-after", c->o.nan_adc_after, "Fault: after N ADC conversions sin_in reads NaN (float registers)");
     return {bs, [c] { return run_board_sim_cli(*c); }};
 }
 
