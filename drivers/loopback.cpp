@@ -76,6 +76,8 @@ public:
         cos_offset_v_ = s.at("cos_offset_v").get<double>();
         swap_ = s.at("swap_channels").get<int>() != 0;
         max_play_ = static_cast<std::size_t>(s.at("max_play_samples").get<long long>());
+        glitch_at_ = s.at("glitch_at").get<long long>();
+        glitch_v_ = s.at("glitch_v").get<double>();
     }
     // LSB (V) of the finer of the two converters; 0 when both are ideal.
     double fine_step_v() const {
@@ -280,6 +282,7 @@ public:
             }
             s[m] = swap_ ? v[1] : v[0];
             c[m] = swap_ ? v[0] : v[1];
+            if (static_cast<long long>(m) == glitch_at_) s[m] = glitch_v_;  // one corrupt sample, past the ADC
         }
         return {StreamStatus::Ok, n, 0, 0, {}};
     }
@@ -329,6 +332,8 @@ private:
     std::int64_t last_update_ = -1;
     // own_clock (instrument mode)
     bool own_clock_ = false, swap_ = false, cyclic_ = false;
+    long long glitch_at_ = -1;
+    double glitch_v_ = 0;
     double delay_s_ = 0, clock_ppm_ = 0, gain_ = 1, offset_v_ = 0, cos_gain_ratio_ = 1, cos_offset_v_ = 0, play_fs_ = 0;
     std::size_t max_play_ = 0;
     std::vector<double> played_[2];
@@ -365,6 +370,8 @@ void register_loopback(std::vector<DriverInfo>& r) {
         {"cos_offset_v", "V", ParamType::Number, 0.0, -100.0, 100.0, {}, "own_clock: added to the cos channel's offset"},
         {"swap_channels", "", ParamType::Integer, 0, 0, 1, {}, "own_clock fault: the digitizer's inputs are swapped (sin records cos)"},
         {"max_play_samples", "samples", ParamType::Integer, 0, 0, 9e15, {}, "own_clock: generator memory per channel (0: unlimited)"},
+        {"glitch_at", "samples", ParamType::Integer, -1, -1, 9e15, {}, "own_clock fault: the recorded sin sample at this index reads glitch_v (-1: never)"},
+        {"glitch_v", "V", ParamType::Number, 1e300, -1e308, 1e308, {}, "own_clock fault: the value of that sample"},
     };
     d.open = [](const std::string& uri, const std::string& path, const nlohmann::json& s) -> std::unique_ptr<Device> {
         if (!path.empty()) throw ConfigError("device", "loopback takes no path (got '" + path + "'); use loopback:?key=value");
@@ -375,7 +382,7 @@ void register_loopback(std::vector<DriverInfo>& r) {
             {"drop_after", -1}, {"drop_count", 0}, {"stall_after", -1}, {"saturate_after", -1}};
         static const std::vector<std::pair<std::string, double>> own_only = {
             {"delay_s", 0}, {"clock_ppm", 0}, {"gain", 1}, {"offset_v", 0}, {"cos_gain_ratio", 1}, {"cos_offset_v", 0},
-            {"swap_channels", 0}, {"max_play_samples", 0}};
+            {"swap_channels", 0}, {"max_play_samples", 0}, {"glitch_at", -1}, {"glitch_v", 1e300}};
         for (const auto& [key, def] : own ? streaming_only : own_only)
             if (s.at(key).get<double>() != def)
                 throw ConfigError("device." + key, own ? key + " is not simulated with own_clock=1 (the generator/digitizer pair models delay, clock offset, gain, offset, noise and converters)"

@@ -359,7 +359,10 @@ private:
         const double kappa = a.clock_offset_ppm * 1e-6;
         const double lead_s = static_cast<double>(kLead) / play_fs;
         const double first = std::ceil((lead_s - a.tau0_s) * fs / (1 + kappa) - 1e-9);
-        m0_ = static_cast<std::uint64_t>(std::max(0.0, first));
+        if (first < 0)  // the record started after the run's first sample was played
+            return fail("the record started " + fmt(-a.delay_s) + " s after the output and misses the run's first " + fmt(-first) +
+                        " samples: start the digitizer before the generator (arm it first, or give it a pretrigger)");
+        m0_ = static_cast<std::uint64_t>(first);
         if (m0_ + N > M)
             return fail("the output appeared " + fmt(a.delay_s) + " s after the record started: the record (" + std::to_string(M) +
                         " samples) ends before the run's " + std::to_string(N) + " samples that follow");

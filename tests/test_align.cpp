@@ -17,6 +17,7 @@
 #include <cmath>
 #include <filesystem>
 #include <functional>
+#include <limits>
 #include <random>
 #include <thread>
 #include <unistd.h>
@@ -180,13 +181,14 @@ TEST_CASE("align: what cannot be aligned is refused, naming why", "[align]") {
         std::swap(p.rs, p.rc);
         const auto r = run_align(p, fs, false);
         CHECK_FALSE(r.ok);
-        CHECK_THAT(r.error, Catch::Contains("no correlation") && Catch::Contains("in that order"));
+        CHECK_THAT(r.error, Catch::StartsWith("the input is miswired: sin and cos swapped"));
     }
     SECTION("an inverted channel") {
         l.gc = -1;
         const auto p = make_pair(sine, fs, 20000, 21000, l);
         const auto r = run_align(p, fs, false);
         CHECK_FALSE(r.ok);
+        CHECK_THAT(r.error, Catch::StartsWith("the input is miswired: the cos channel inverted"));
     }
     SECTION("a distorted record") {
         auto p = make_pair(sine, fs, 20000, 21000, l);
@@ -319,7 +321,7 @@ TEST_CASE("run: unalignable instruments end the run as ERROR naming why", "[alig
     sc.device = "loopback:?own_clock=1&swap_channels=1&noise_v=1e-4";
     r = execute_run(sc);
     CHECK(r["verdict"] == "ERROR");
-    CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("no correlation"));
+    CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("miswired: sin and cos swapped"));
     // Two distinct loopbacks are two instances: the input never saw the output.
     sc.device.clear();
     sc.instruments = Scenario::Instruments{"loopback:?own_clock=1", "loopback:?own_clock=1&seed=2", ""};
@@ -448,4 +450,105 @@ TEST_CASE("service: the --allow-device policy holds for output and input instrum
         s.shutdown();
     }
     std::filesystem::remove_all(dir);
+}
+
+// Issue 22: conditions the docs support (clock offsets up to 1000 ppm, a record that starts after
+// the output) were aligned confidently wrong; wiring faults that amount to a phase shift were
+// taken for a delay; a flat channel passed `gain > 0`; one absurd sample broke the correlation.
+TEST_CASE("align: clock offsets across the supported range, a periodic signal", "[align][issue22]") {
+    const double fs = 100000;
+    auto sine = [](double t) { return kTwoPi * 1234.5 * t + 0.4; };  // 81 samples a cycle
+    for (double ppm : {-999.0, -400.0, -150.0, 150.0, 400.0, 999.0}) {
+        for (double delay_s : {1.23456e-3, -0.3e-3}) {  // the record starting before, and after, the output
+            Link l;
+            l.delay_s = delay_s;
+            l.ppm = ppm;
+            l.gs = 0.95; l.gc = 0.93; l.os = 0.002;
+            l.noise_v = 1e-4;
+            const auto p = make_pair(sine, fs, 20000, 21000, l);
+            const auto r = run_align(p, fs, false);
+            INFO("ppm " << ppm << ", delay " << delay_s << ": " << r.error << " (delay " << r.delay_s << ", ppm " << r.clock_offset_ppm << ")");
+            REQUIRE(r.ok);
+            CHECK(std::fabs(r.delay_s - l.delay_s) * fs < 2e-3);
+            CHECK(std::fabs(r.clock_offset_ppm - l.ppm) < 0.05);
+            CHECK(r.ambiguity_z > 10);
+        }
+    }
+}
+
+TEST_CASE("align: refused by name: wiring, flat channels, clock offsets out of range", "[align][issue22]") {
+    const double fs = 100000;
+    auto sine = [](double t) { return kTwoPi * 1234.5 * t + 0.4; };
+    Link l;
+    l.delay_s = 0.321e-3;
+    l.ppm = 25;
+    l.noise_v = 1e-4;
+    auto refused = [&](const Link& link, bool swap, const std::string& text) {
+        auto p = make_pair(sine, fs, 20000, 21000, link);
+        if (swap) std::swap(p.rs, p.rc);
+        const auto r = run_align(p, fs, false);
+        INFO(text << ": got " << (r.ok ? "ok" : r.error) << " (delay " << r.delay_s << " s)");
+        CHECK_FALSE(r.ok);
+        CHECK_THAT(r.error, Catch::Contains(text));
+        return r;
+    };
+    SECTION("both channels inverted: half a period from a delay, told apart by the output's edges") {
+        Link b = l;
+        b.gs = b.gc = -1;
+        refused(b, false, "miswired: both channels inverted");
+        b.ppm = 999;
+        refused(b, false, "miswired: both channels inverted");
+    }
+    SECTION("swapped, one inverted: a quarter period from a delay") {
+        Link b = l;
+        b.gc = -1;  // the record's sin shows -cos after the swap below
+        refused(b, true, "miswired: sin and cos swapped");
+    }
+    SECTION("a flat channel, on several seeds, and one at 5 % of the other") {
+        for (std::uint64_t seed : {1u, 2u, 3u, 4u}) {
+            Link b = l;
+            b.gc = 0;
+            auto p = make_pair(sine, fs, 20000, 21000, b, seed);
+            const auto r = run_align(p, fs, false);
+            INFO("seed " << seed << ": " << r.error);
+            CHECK_FALSE(r.ok);
+            CHECK_THAT(r.error, Catch::StartsWith("the cos channel is flat") && Catch::Contains(" V"));
+        }
+        Link b = l;
+        b.gs = 0.05;
+        refused(b, false, "the sin channel is flat");
+    }
+    SECTION("clock offsets beyond the supported 1000 ppm are named as such") {
+        for (double ppm : {1500.0, -1500.0}) {
+            Link b = l;
+            b.ppm = ppm;
+            const auto r = refused(b, false, "out of the supported range");
+            CHECK(std::fabs(r.clock_offset_ppm - ppm) < 1);
+        }
+    }
+}
+
+TEST_CASE("align: one absurd or non-finite sample is left out", "[align][issue22]") {
+    const double fs = 100000;
+    Link l;
+    l.delay_s = 0.321e-3;
+    l.ppm = 25;
+    l.noise_v = 1e-4;
+    for (double bad : {1e300, -50.0, std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::infinity()}) {
+        auto p = make_pair([](double t) { return kTwoPi * 1234.5 * t; }, fs, 20000, 21000, l);
+        p.rs[5000] = bad;
+        p.rc[9000] = bad;
+        const auto r = run_align(p, fs, false);
+        INFO(bad << ": " << r.error);
+        REQUIRE(r.ok);
+        CHECK(r.outlier_samples == 2);
+        CHECK(std::fabs(r.delay_s - l.delay_s) * fs < 2e-3);
+        CHECK(r.residual_rms_v == Approx(1e-4).epsilon(0.05));
+    }
+    // Many of them are the digitizer's problem, named.
+    auto p = make_pair([](double t) { return kTwoPi * 1234.5 * t; }, fs, 20000, 21000, l);
+    for (std::size_t m = 0; m < p.rs.size(); m += 50) p.rs[m] = 1e300;
+    const auto r = run_align(p, fs, false);
+    CHECK_FALSE(r.ok);
+    CHECK_THAT(r.error, Catch::Contains("are not finite or lie beyond"));
 }
