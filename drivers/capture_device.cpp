@@ -7,6 +7,7 @@
 
 #include "signal_gen/config.hpp"
 
+#include <algorithm>
 #include <limits>
 #include <map>
 #include <optional>
@@ -118,11 +119,16 @@ void register_capture(std::vector<DriverInfo>& r) {
                               std::string("sigrok session (.sr) channel read as column ") + col + " (default: the channel named " + col + ")"});
     d.settings.push_back({"interpolation", "", ParamType::Integer, nullptr, 1, 1000000, {},
                           "the DUT's interpolation factor N: A/B periods per electrical cycle (4N counts); required when the capture has a/b lines"});
+    d.settings.push_back({"max_expanded_mb", "MiB", ParamType::Number, 4096.0, 1, 1.6e7, {},
+                          "most sample data a sigrok session (.sr) may expand to (its members as declared; a limit against ZIP bombs)"});
     d.settings.push_back({"index_count", "", ParamType::Integer, 0, -1e9, 1e9, {}, "the DUT's count at its Z index, mod 4N (docs/abz.md)"});
     d.settings.push_back({"offset_rad", "rad", ParamType::Number, 0.0, -1e3, 1e3, {}, "electrical angle of count 0's lower edge (docs/abz.md)"});
     d.open = [](const std::string& uri, const std::string& path, const nlohmann::json& s) -> std::unique_ptr<Device> {
         if (path.empty()) throw ConfigError("device", "capture needs a file: capture:/path/to/x.fcap");
         CaptureOptions opts;
+        // A replay streams one block at a time: the limit bounds time, not memory. Uploaded
+        // captures were held to the service's own limit when they arrived.
+        opts.max_expanded_bytes = static_cast<std::uint64_t>(std::min(s.value("max_expanded_mb", 4096.0), 1.6e7) * 1048576.0);
         for (const char* col : {"sin", "cos", "theta_true", "omega_true", "index", "a", "b", "z"})
             if (s.contains(col) && s[col].is_string()) opts.channels[col] = s[col].get<std::string>();
         try {

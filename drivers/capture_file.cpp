@@ -224,10 +224,38 @@ std::string quote(const std::string& s) {
 
 constexpr std::uint32_t kMaxMetaBytes = 64u << 20;
 
+// Byte offset where the arrays and objects of a JSON text first nest deeper than max_depth,
+// nullopt if they never do. One pass, no recursion: brackets inside strings do not count. A
+// text that is not JSON may be misread here, but only past the point where the parser would
+// refuse it anyway, so the parser never goes deeper than this says.
+std::optional<std::size_t> json_too_deep_at(const std::string& text, std::size_t max_depth) {
+    std::size_t depth = 0;
+    bool in_string = false, escaped = false;
+    for (std::size_t i = 0; i < text.size(); ++i) {
+        const char c = text[i];
+        if (in_string) {
+            if (escaped) escaped = false;
+            else if (c == '\\') escaped = true;
+            else if (c == '"') in_string = false;
+        } else if (c == '"') {
+            in_string = true;
+        } else if (c == '[' || c == '{') {
+            if (++depth > max_depth) return i;
+        } else if ((c == ']' || c == '}') && depth > 0) {
+            --depth;
+        }
+    }
+    return std::nullopt;
+}
+
 // Metadata (sidecar or .fcap header): UTF-8, a JSON object. `where` names it in messages.
 json parse_meta(const std::string& text, const std::string& where) {
     if (auto bad = first_invalid_utf8(text))
         throw CaptureError(where + " is not valid UTF-8 (byte " + std::to_string(*bad) + ")");
+    // Before parsing: copying, printing or freeing a JSON value recurses once per level.
+    if (auto at = json_too_deep_at(text, kCaptureMaxJsonDepth))
+        throw CaptureError(where + " nests deeper than " + std::to_string(kCaptureMaxJsonDepth) + " levels of arrays and objects (level " +
+                           std::to_string(kCaptureMaxJsonDepth + 1) + " opens at byte " + std::to_string(*at) + ")");
     json j;
     try {
         j = json::parse(text);
@@ -322,7 +350,8 @@ CaptureReader::CaptureReader(const std::string& path, const CaptureOptions& opti
     if (!options.channels.empty() && fmt_ != CaptureFormat::Sigrok)
         throw CaptureError(path + ": a channel map applies to sigrok session files (.sr) only; CSV and .fcap columns are named by fringe");
     if (fmt_ == CaptureFormat::Sigrok) {
-        sr_ = std::make_unique<SigrokSession>(path, options.channels);
+        sr_ = std::make_unique<SigrokSession>(path, options.channels, options.max_expanded_bytes);
+        expanded_bytes_ = sr_->data_bytes();
         for (int f : {kSin, kCos})
             if (!sr_->has(kNames[f])) {
                 std::string known;
@@ -363,6 +392,11 @@ CaptureReader::CaptureReader(const std::string& path, const CaptureOptions& opti
     }
     in_.open(path, std::ios::binary);
     if (!in_) throw CaptureError(path + ": cannot open: " + std::strerror(errno));
+    {
+        std::error_code ec;
+        const auto bytes = std::filesystem::file_size(path, ec);
+        expanded_bytes_ = ec ? 0 : static_cast<std::uint64_t>(bytes);  // not compressed: its size is its data
+    }
     if (fmt_ == CaptureFormat::Csv) {
         const std::string side = sidecar_path(path);
         if (std::filesystem::exists(side)) {

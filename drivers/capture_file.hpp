@@ -35,12 +35,26 @@ public:
     explicit CaptureError(const std::string& message);
 };
 
+// A capture whose sample data would expand beyond CaptureOptions::max_expanded_bytes: refused
+// before any of it is decompressed (ZIP bombs). The message names both sizes.
+class CaptureTooLarge : public CaptureError {
+public:
+    CaptureTooLarge(const std::string& message, std::uint64_t expanded, std::uint64_t limit)
+        : CaptureError(message), expanded_bytes(expanded), limit_bytes(limit) {}
+    std::uint64_t expanded_bytes, limit_bytes;
+};
+
 // Byte offset of the first byte of s that is not valid UTF-8 (RFC 3629), nullopt if none.
 std::optional<std::size_t> first_invalid_utf8_at(const std::string& s);
 
 // Limits shared by both formats (the scenario schema's ranges, docs/schema.md).
 constexpr double kCaptureMinRateHz = 1.0, kCaptureMaxRateHz = 1e10;
 constexpr double kCaptureMaxAbsT0_s = 1e9;
+// The most sample data a compressed capture (.sr) may expand to unless a reader is told
+// otherwise (`fringe estimate --max-expanded-mb`, `fringe serve --max-upload-expanded-mb`).
+constexpr std::uint64_t kCaptureDefaultMaxExpandedBytes = 512ull << 20;
+// JSON metadata (a sidecar, a .fcap header) may nest arrays and objects this deep, no deeper.
+constexpr std::size_t kCaptureMaxJsonDepth = 128;
 
 struct CaptureColumns {
     bool theta_true = false;
@@ -66,6 +80,10 @@ std::string sidecar_path(const std::string& csv_path);      // x.csv -> x.json (
 // column -> channel name, for the columns whose channel is not named like the column.
 struct CaptureOptions {
     std::map<std::string, std::string> channels;
+    // A .sr's sample data (the declared sizes of the members read) beyond this is refused with
+    // CaptureTooLarge before anything is inflated; and no member is ever inflated past its
+    // declared size. .fcap and CSV are not compressed: their size on disk is their data.
+    std::uint64_t max_expanded_bytes = kCaptureDefaultMaxExpandedBytes;
 };
 // "sin=CH1,cos=CH2" (a CLI option, a URI setting) to a channel map; throws CaptureError.
 std::map<std::string, std::string> parse_channel_map(const std::string& text);
@@ -104,6 +122,9 @@ public:
     // From the metadata, or estimated from the first two time stamps (CSV); 0 if unknown.
     double sample_rate_hz() const { return fs_; }
     const std::string& path() const { return path_; }
+    // Bytes of sample data the reader goes through in all: a .sr's members as declared (what
+    // they expand to), a .fcap's payload, a CSV's size (what an upload quota counts).
+    std::uint64_t expanded_bytes() const { return expanded_bytes_; }
 
 private:
     bool read_csv(std::size_t max_frames, CaptureData& out);
@@ -115,6 +136,7 @@ private:
     nlohmann::json meta_ = nlohmann::json::object();
     std::ifstream in_;
     double fs_ = 0, t0_ = 0;
+    std::uint64_t expanded_bytes_ = 0;
     // CSV state
     std::vector<int> col_map_;  // file column -> field id
     std::size_t line_ = 0;
@@ -134,7 +156,7 @@ private:
     std::map<std::string, std::vector<double>> sr_cols_;
 };
 
-// Whole capture in memory.
+// Whole capture in memory (tests and small files; the service validates uploads block by block).
 CaptureData read_capture(const std::string& path, nlohmann::json* meta = nullptr, double* sample_rate_hz = nullptr,
                          const CaptureOptions& options = {});
 

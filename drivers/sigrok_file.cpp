@@ -7,7 +7,9 @@
 #include <algorithm>
 #include <bit>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
+#include <fstream>
 #include <optional>
 #include <set>
 
@@ -72,6 +74,58 @@ double parse_samplerate(const std::string& text) {
     double v = std::stod(whole);
     if (!frac_part.empty()) v += std::stod("0." + frac_part);
     return v * mult;
+}
+
+constexpr std::uint64_t kSaturated = ~std::uint64_t{0};
+std::uint64_t add_capped(std::uint64_t a, std::uint64_t b) { return a > kSaturated - b ? kSaturated : a + b; }
+
+// "1024 MiB", "0.5 MiB": sizes in messages, as the options take them.
+std::string mib(std::uint64_t bytes) {
+    const double v = static_cast<double>(bytes) / (1 << 20);
+    char buf[48];
+    std::snprintf(buf, sizeof buf, v >= 10 || v == std::floor(v) ? "%.0f MiB" : "%.3g MiB", v);
+    return buf;
+}
+
+// The central directory's entry count and size as the archive's end records declare them,
+// read before libzip is given the file: libzip allocates for every entry when it opens an
+// archive, so a file of many tiny entries costs several times its size in memory. Every
+// end-of-central-directory record in the last 64 KiB counts (the largest wins: which one libzip
+// settles on is its business); a ZIP64 record, when located, too. {0, 0} when none is found
+// (libzip then refuses the file with its own message).
+struct DirectorySize {
+    std::uint64_t entries = 0, bytes = 0;
+};
+DirectorySize declared_directory(const std::string& path) {
+    DirectorySize d;
+    std::ifstream f(path, std::ios::binary);
+    if (!f) return d;
+    f.seekg(0, std::ios::end);
+    const auto size = static_cast<std::uint64_t>(f.tellg());
+    const std::uint64_t tail_len = std::min<std::uint64_t>(size, 22 + 65535 + 20);
+    std::string tail(static_cast<std::size_t>(tail_len), '\0');
+    f.seekg(static_cast<std::streamoff>(size - tail_len));
+    if (!f.read(tail.data(), static_cast<std::streamsize>(tail_len))) return d;
+    auto u16 = [](const char* p) { std::uint16_t v; std::memcpy(&v, p, 2); return std::uint64_t{v}; };
+    auto u32 = [](const char* p) { std::uint32_t v; std::memcpy(&v, p, 4); return std::uint64_t{v}; };
+    auto u64 = [](const char* p) { std::uint64_t v; std::memcpy(&v, p, 8); return v; };
+    for (std::size_t at = 0; at + 22 <= tail.size(); ++at) {
+        if (std::memcmp(tail.data() + at, "PK\x05\x06", 4) != 0) continue;
+        const char* e = tail.data() + at;
+        d.entries = std::max(d.entries, u16(e + 10));
+        d.bytes = std::max(d.bytes, u32(e + 12));
+        // ZIP64: the locator sits just before, and names where the ZIP64 record is.
+        if (at >= 20 && std::memcmp(e - 20, "PK\x06\x07", 4) == 0) {
+            const std::uint64_t off = u64(e - 20 + 8);
+            char z[56];
+            if (size >= 56 && off <= size - 56 && f.seekg(static_cast<std::streamoff>(off)) && f.read(z, 56) && std::memcmp(z, "PK\x06\x06", 4) == 0) {
+                d.entries = std::max(d.entries, u64(z + 32));
+                d.bytes = std::max(d.bytes, u64(z + 40));
+            }
+            f.clear();
+        }
+    }
+    return d;
 }
 
 struct Entry {
@@ -164,7 +218,7 @@ struct SigrokSession::Impl {
     }
 };
 
-SigrokSession::SigrokSession(const std::string& path, const std::map<std::string, std::string>& channel_for)
+SigrokSession::SigrokSession(const std::string& path, const std::map<std::string, std::string>& channel_for, std::uint64_t max_data_bytes)
     : impl_(std::make_unique<Impl>()) {
     Impl& m = *impl_;
     m.path = path;
@@ -176,6 +230,9 @@ SigrokSession::SigrokSession(const std::string& path, const std::map<std::string
         if (!known) throw CaptureError(path + ": channel map: unknown column " + quote(col) + " (sin, cos, theta_true, omega_true, index, a, b, z)");
         if (ch.empty()) throw CaptureError(path + ": channel map: empty channel name for column '" + col + "'");
     }
+    if (const DirectorySize dir = declared_directory(path); dir.entries > kSigrokMaxEntries || dir.bytes > kSigrokMaxDirectoryBytes)
+        m.fail("the archive declares " + std::to_string(dir.entries) + " entries in a central directory of " + std::to_string(dir.bytes) +
+               " bytes (at most " + std::to_string(kSigrokMaxEntries) + " entries and " + mib(kSigrokMaxDirectoryBytes) + ")");
     int zerr = 0;
     m.za = zip_open(path.c_str(), ZIP_RDONLY | ZIP_CHECKCONS, &zerr);
     if (!m.za) {
@@ -187,6 +244,8 @@ SigrokSession::SigrokSession(const std::string& path, const std::map<std::string
     }
     const zip_int64_t count = zip_get_num_entries(m.za, 0);
     if (count < 0) m.fail("cannot list the archive: " + m.zip_message());
+    if (static_cast<std::uint64_t>(count) > kSigrokMaxEntries)
+        m.fail("the archive has " + std::to_string(count) + " entries (at most " + std::to_string(kSigrokMaxEntries) + ")");
 
     // Entries by role; names are raw bytes (refused unless UTF-8).
     std::optional<Entry> version, metadata, logic_single;
@@ -350,11 +409,9 @@ SigrokSession::SigrokSession(const std::string& path, const std::map<std::string
         s.chunks = chunks_in_order(it->second, pattern);
         for (const Entry& e : s.chunks) {
             if (e.size % 4 != 0) m.fail("entry " + quote(e.name) + " is " + std::to_string(e.size) + " bytes, not whole float32 samples");
-            s.bytes += e.size;
-            if (s.bytes > kSigrokMaxDataBytes) break;
+            s.bytes = add_capped(s.bytes, e.size);
         }
-        declared += s.bytes;
-        if (declared > kSigrokMaxDataBytes) m.fail("the sample data declares more than " + std::to_string(kSigrokMaxDataBytes >> 30) + " GiB uncompressed (refused: a limit against ZIP bombs)");
+        declared = add_capped(declared, s.bytes);
         agree(s.bytes / 4, "channel '" + std::string(col) + "'");
         m.analog.emplace(col, std::move(s));
     }
@@ -375,13 +432,20 @@ SigrokSession::SigrokSession(const std::string& path, const std::map<std::string
         m.logic.what = "the logic data (logic-1-*)";
         for (const Entry& e : m.logic.chunks) {
             if (e.size % m.unitsize != 0) m.fail("entry " + quote(e.name) + " is " + std::to_string(e.size) + " bytes, not whole samples of unitsize " + std::to_string(m.unitsize));
-            m.logic.bytes += e.size;
-            if (m.logic.bytes > kSigrokMaxDataBytes) break;
+            m.logic.bytes = add_capped(m.logic.bytes, e.size);
         }
-        declared += m.logic.bytes;
-        if (declared > kSigrokMaxDataBytes) m.fail("the sample data declares more than " + std::to_string(kSigrokMaxDataBytes >> 30) + " GiB uncompressed (refused: a limit against ZIP bombs)");
+        declared = add_capped(declared, m.logic.bytes);
         agree(m.logic.bytes / m.unitsize, "the logic data");
     }
+    // Before a sample is inflated: the declared sizes are what the data expands to at most
+    // (read_bytes refuses a member that inflates further), so this bounds time and disk-equivalent
+    // size whatever the archive holds.
+    if (declared > max_data_bytes)
+        throw CaptureTooLarge(path + ": the sample data declares " + (declared == kSaturated ? "more than 2^64" : std::to_string(declared)) +
+                                  " bytes uncompressed (" + mib(declared) + "), more than the " + mib(max_data_bytes) +
+                                  " allowed (a limit against ZIP bombs)",
+                              declared, max_data_bytes);
+    data_bytes_ = declared;
     frames_ = frames.value_or(0);
 }
 

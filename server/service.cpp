@@ -164,7 +164,7 @@ std::optional<HttpResponse> Service::precheck(const HttpRequest& head, std::uint
         if (upload && has_length && content_length > 0) {
             if (const auto room = upload_room(); content_length > room)
                 return json_error(507, "quota_exceeded", "the upload is " + std::to_string(content_length) + " bytes; uploaded captures may take " +
-                                                             std::to_string(cfg_.upload_quota_bytes) + " bytes on disk and " + std::to_string(room) +
+                                                             std::to_string(cfg_.upload_quota_bytes) + " bytes (each counted as it expands) and " + std::to_string(room) +
                                                              " are left (--upload-quota-mb)");
         }
         return std::nullopt;

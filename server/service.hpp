@@ -37,6 +37,9 @@ struct ServiceConfig {
     bool token_for_reads = false;  // bound beyond loopback
     std::size_t max_body_bytes = 1 << 20;             // JSON bodies
     std::uint64_t max_upload_bytes = 256ull << 20;    // capture uploads, streamed to disk
+    // The most sample data one upload may expand to (a .sr's declared member sizes; .fcap and
+    // CSV are their size on disk): 413 capture_too_large beyond it, before anything is inflated.
+    std::uint64_t max_upload_expanded_bytes = 512ull << 20;
     unsigned workers = 2;
     bool allow_external = false;  // the `external` estimator runs a shell command: off over HTTP unless asked for
     // Devices a client's scenario may name besides loopback: and uploaded captures: glob
@@ -54,7 +57,8 @@ struct ServiceConfig {
     std::size_t max_report_bytes = 64u << 20;
     // Runs waiting to start, all together (429 queue_full with Retry-After beyond it; 0: no bound).
     std::size_t max_queued_runs = 64;
-    // Uploaded captures on disk, all together (507 quota_exceeded beyond it).
+    // Uploaded captures, all together, each counted as the larger of its size on disk and what
+    // it expands to (507 quota_exceeded beyond it).
     std::uint64_t upload_quota_bytes = 4ull << 30;
 };
 
@@ -159,6 +163,7 @@ private:
     std::map<std::string, std::pair<std::shared_ptr<const Cached>, std::list<std::string>::iterator>> cache_;
     std::list<std::string> lru_;
     std::mutex upload_mu_;
+    std::mutex upload_quota_mu_;  // an upload's expanded-size check and its info file, as one step
     std::uint64_t upload_counter_ = 0;
 };
 

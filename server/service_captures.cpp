@@ -20,11 +20,23 @@ namespace fringe {
 using namespace service_detail;
 
 std::uint64_t Service::upload_room() const {
+    // Bytes on disk, and for each kept capture what it expands to beyond them (a .sr's sample
+    // data as declared, recorded at upload): a 1 MB ZIP that holds 1 GiB of samples counts 1 GiB.
     std::uint64_t used = 0;
     std::error_code ec;
     for (const auto& e : fs::directory_iterator(fs::path(cfg_.data_dir) / "captures", ec)) {
         std::error_code sec;
-        if (e.is_regular_file(sec)) used += e.file_size(sec);
+        if (!e.is_regular_file(sec)) continue;
+        used += e.file_size(sec);
+        const std::string name = e.path().filename().string();
+        if (name.size() > 12 && name.compare(name.size() - 12, 12, ".upload.json") == 0) {
+            const json info = json::parse(read_file(e.path()), nullptr, false);
+            if (info.is_object() && info.contains("expanded_bytes") && info["expanded_bytes"].is_number_unsigned() &&
+                info.contains("bytes") && info["bytes"].is_number_unsigned()) {
+                const auto expanded = info["expanded_bytes"].get<std::uint64_t>(), bytes = info["bytes"].get<std::uint64_t>();
+                if (expanded > bytes) used += expanded - bytes;
+            }
+        }
     }
     return used >= cfg_.upload_quota_bytes ? 0 : cfg_.upload_quota_bytes - used;
 }
@@ -74,20 +86,47 @@ HttpResponse Service::upload_capture(const HttpRequest& req, const std::map<std:
     const fs::path dst = fs::path(cfg_.data_dir) / "captures" / (id + "." + format);
     fs::rename(src, dst);
     tmp.path = dst.string();
-    json meta;
-    double fs_hz = 0;
-    CaptureData d;
-    try {
-        d = read_capture(dst.string(), &meta, &fs_hz);
-    } catch (const CaptureError& e) {
-        // Name what the client sent, not our file name.
-        std::string msg = e.what();
+    const std::uint64_t disk_bytes = fs::file_size(dst);
+    // Name what the client sent, not our file name.
+    auto client_text = [&](std::string msg) {
         if (auto pos = msg.find(dst.string()); pos != std::string::npos) msg.replace(pos, dst.string().size(), "upload");
-        return json_error(400, "bad_capture", msg);
+        return msg;
+    };
+    auto quota_error = [&](std::uint64_t expanded) {
+        return json_error(507, "quota_exceeded", "the upload expands to " + std::to_string(expanded) + " bytes of sample data; uploaded captures may take " +
+                                                     std::to_string(cfg_.upload_quota_bytes) + " bytes together, counted as they expand, and " +
+                                                     std::to_string(upload_room() + disk_bytes) + " are left (--upload-quota-mb)");
+    };
+    // Validated block by block: memory stays at one block whatever the capture holds, and a
+    // compressed one is refused by its declared sizes before anything is inflated.
+    CaptureOptions opts;
+    opts.max_expanded_bytes = cfg_.max_upload_expanded_bytes;
+    std::uint64_t samples = 0, expanded = 0;
+    double fs_hz = 0;
+    bool has_truth = false;
+    try {
+        CaptureReader reader(dst.string(), opts);
+        expanded = std::max(reader.expanded_bytes(), disk_bytes);
+        if (expanded - disk_bytes > upload_room()) return quota_error(expanded);
+        CaptureData block;
+        while (reader.read(1 << 16, block)) samples += block.size();
+        if (samples == 0) throw CaptureError(dst.string() + ": no samples");
+        fs_hz = reader.sample_rate_hz();
+        has_truth = reader.columns().theta_true;
+    } catch (const CaptureTooLarge& e) {
+        return json_error(413, "capture_too_large", client_text(e.what()) + " (--max-upload-expanded-mb)");
+    } catch (const CaptureError& e) {
+        return json_error(400, "bad_capture", client_text(e.what()));
     }
-    const json info{{"id", id}, {"format", format}, {"samples", d.size()}, {"sample_rate_hz", fs_hz},
-                    {"has_truth", !d.theta_true_rad.empty()}, {"bytes", fs::file_size(dst)}, {"uploaded_at", iso_now()}};
-    write_file_atomic((fs::path(cfg_.data_dir) / "captures" / (id + ".upload.json")).string(), info.dump());
+    const json info{{"id", id}, {"format", format}, {"samples", samples}, {"sample_rate_hz", fs_hz}, {"has_truth", has_truth},
+                    {"bytes", disk_bytes}, {"expanded_bytes", expanded}, {"uploaded_at", iso_now()}};
+    {
+        // Two uploads validated at once each saw the other's file by its disk size only:
+        // decide the expanded quota and record the info as one step.
+        std::lock_guard<std::mutex> l(upload_quota_mu_);
+        if (expanded - disk_bytes > upload_room()) return quota_error(expanded);
+        write_file_atomic((fs::path(cfg_.data_dir) / "captures" / (id + ".upload.json")).string(), info.dump());
+    }
     tmp.path.clear();  // keep it
     auto r = json_ok(info, 201);
     r.headers.emplace_back("Location", "/api/v1/captures/" + id);
@@ -119,6 +158,7 @@ HttpResponse Service::evaluate(const HttpRequest& req, const std::string& id) {
     only_keys(body, {"estimator", "params", "encoder", "settle_s"}, "");
     EvaluateOptions o;
     o.capture_path = cap;
+    o.capture.max_expanded_bytes = cfg_.max_upload_expanded_bytes;  // it was checked against this at upload
     if (!body.contains("estimator") || !body["estimator"].is_string()) throw ConfigError("estimator", "expected an estimator name (GET /api/v1/estimators)");
     o.estimator = body["estimator"].get<std::string>();
     est::find(o.estimator);  // throws ConfigError naming the known ones

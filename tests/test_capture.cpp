@@ -367,3 +367,50 @@ TEST_CASE("metadata that is not UTF-8 is refused with a clean message", "[captur
     CHECK_THAT(error_of(csv), Catch::Contains("sidecar is not a JSON object (got array)"));
     std::filesystem::remove(sidecar_path(csv));
 }
+
+TEST_CASE("capture metadata nesting deeper than 128 levels is refused naming the depth, without recursion", "[capture][validation][hostile]") {
+    // A .fcap whose header nests a key 10^6 levels deep (it crashed the service on upload).
+    const std::size_t deep = 1000000;
+    std::string nested = std::string(deep, '[') + std::string(deep, ']');
+    json h = fcap_header({"sin", "cos"});
+    std::string text = h.dump();
+    text.insert(text.size() - 1, ",\"x\":" + nested);
+    write_fcap(tmp("deep.fcap"), text, 3, 2);
+    const std::string e = error_of(tmp("deep.fcap"));
+    CHECK_THAT(e, Catch::Contains("header nests deeper than 128 levels") && Catch::Contains("level 129 opens at byte"));
+    // Exactly 128 levels (the object itself and 127 arrays) is read; 129 is not.
+    auto nested_key = [&](std::size_t arrays) {
+        std::string t = h.dump();
+        t.insert(t.size() - 1, ",\"x\":" + std::string(arrays, '[') + std::string(arrays, ']'));
+        return t;
+    };
+    write_fcap(tmp("d128.fcap"), nested_key(127), 3, 2);
+    CHECK(read_capture(tmp("d128.fcap")).size() == 3);
+    write_fcap(tmp("d129.fcap"), nested_key(128), 3, 2);
+    CHECK_THAT(error_of(tmp("d129.fcap")), Catch::Contains("nests deeper than 128"));
+    // Brackets inside strings (escaped quotes too) do not count.
+    std::string in_string = h.dump();
+    in_string.insert(in_string.size() - 1, ",\"note\":\"\\\"" + std::string(5000, '[') + "\"");
+    write_fcap(tmp("str.fcap"), in_string, 3, 2);
+    CHECK(read_capture(tmp("str.fcap")).size() == 3);
+    // A CSV's sidecar likewise, objects as well as arrays.
+    write_text(tmp("deep.csv"), "t,sin,cos\n0,0,1\n0.001,0,1\n");
+    std::string side;
+    for (std::size_t i = 0; i < 200000; ++i) side += "{\"a\":";
+    write_text(tmp("deep.json"), side + "1" + std::string(200000, '}'));
+    CHECK_THAT(error_of(tmp("deep.csv")), Catch::Contains("deep.json: sidecar nests deeper than 128 levels"));
+    std::filesystem::remove(tmp("deep.json"));
+}
+
+TEST_CASE("capture: expanded_bytes is what a reader goes through (uncompressed formats: the file's size)", "[capture]") {
+    const std::string path = tmp("size.fcap");
+    {
+        CaptureWriter w(path, {false, false, false}, json{{"sample_rate_hz", 1e5}});
+        w.write(sample_block(1000));
+    }
+    CaptureReader r(path);
+    CHECK(r.expanded_bytes() == std::filesystem::file_size(path));
+    write_text(tmp("size.csv"), "t,sin,cos\n0,0,1\n0.001,0,1\n");
+    std::filesystem::remove(tmp("size.json"));
+    CHECK(CaptureReader(tmp("size.csv")).expanded_bytes() == std::filesystem::file_size(tmp("size.csv")));
+}

@@ -234,7 +234,9 @@ TEST_CASE("sigrok: declared sizes are capped and never read past (ZIP bombs, lyi
         return error_of(d / "p.sr");
     };
     // two channels of nearly 4 GiB each: refused before anything is inflated
-    CHECK_THAT(patched(0xFFFFFFF0u), Catch::Contains("more than 4 GiB uncompressed") && Catch::Contains("ZIP bombs"));
+    CHECK_THAT(patched(0xFFFFFFF0u), Catch::Contains("declares 8589934560 bytes uncompressed (8192 MiB), more than the 512 MiB allowed") &&
+                                         Catch::Contains("ZIP bombs"));
+    CHECK_THROWS_AS(read_capture(d / "p.sr"), CaptureTooLarge);
     // an entry that inflates to more than it declares is refused, not read on
     const std::string more = patched(4096);
     CHECK_FALSE(more.empty());
@@ -569,4 +571,93 @@ TEST_CASE("service: a .sr upload is sniffed, stored and evaluated", "[service][s
     CHECK(json::parse(bad.body)["error"]["code"] == "bad_capture");
     CHECK_THAT(json::parse(bad.body)["error"]["message"].get<std::string>(), Catch::Contains("upload"));
     CHECK(json::parse(req("GET", "/api/v1/captures", "").body)["captures"].size() == 1);
+}
+
+TEST_CASE("sigrok: the expanded-size limit is the caller's and is checked before inflating", "[sigrok][capture][hostile]") {
+    Dir d;
+    const std::string meta = sr_meta("samplerate=100 kHz\ntotal analog=2\nanalog1=sin\nanalog2=cos\n");
+    const std::vector<float> mib(1 << 18, 0.0f);  // 1 MiB of zeros per channel: a 2 KB archive
+    write_zip(d / "z.sr", {{"version", "2"}, {"metadata", meta}, {"analog-1-1-1", floats(mib)}, {"analog-1-2-1", floats(mib)}});
+    REQUIRE(fs::file_size(d / "z.sr") < 20000);
+    CaptureOptions o;
+    o.max_expanded_bytes = 2 << 20;  // exactly what it holds
+    CaptureReader r(d / "z.sr", o);
+    CHECK(r.expanded_bytes() == 2u << 20);
+    o.max_expanded_bytes = (2 << 20) - 1;
+    try {
+        CaptureReader too(d / "z.sr", o);
+        FAIL("a capture over the limit was opened");
+    } catch (const CaptureTooLarge& e) {
+        CHECK(e.expanded_bytes == 2u << 20);
+        CHECK(e.limit_bytes == (2u << 20) - 1);
+        CHECK_THAT(std::string(e.what()), Catch::Contains("declares 2097152 bytes uncompressed (2 MiB), more than the 2 MiB allowed"));
+    }
+    // The channels not read do not count: sin and cos only, the third channel is ignored.
+    const std::string meta3 = sr_meta("samplerate=100 kHz\ntotal analog=3\nanalog1=sin\nanalog2=cos\nanalog3=other\n");
+    write_zip(d / "three.sr", {{"version", "2"}, {"metadata", meta3}, {"analog-1-1-1", floats(mib)}, {"analog-1-2-1", floats(mib)},
+                               {"analog-1-3-1", floats(mib)}});
+    o.max_expanded_bytes = 2 << 20;
+    CHECK(CaptureReader(d / "three.sr", o).expanded_bytes() == 2u << 20);
+}
+
+TEST_CASE("service: uploads are validated block by block within an expanded-size limit and quota", "[service][sigrok][hostile]") {
+    Dir d;
+    const std::string meta = sr_meta("samplerate=100 kHz\ntotal analog=2\nanalog1=sin\nanalog2=cos\n");
+    const std::vector<float> mib(1 << 18, 0.0f);
+    write_zip(d / "z.sr", {{"version", "2"}, {"metadata", meta}, {"analog-1-1-1", floats(mib)}, {"analog-1-2-1", floats(mib)}});
+    ServiceConfig c;
+    c.data_dir = d / "data";
+    c.fixtures_dir = FRINGE_SOURCE_DIR "/fixtures";
+    c.web_dir = FRINGE_SOURCE_DIR "/web";
+    c.token = "0123456789abcdef0123456789abcdef";
+    c.workers = 1;
+    c.max_upload_expanded_bytes = 1 << 20;
+    c.upload_quota_bytes = 3 << 20;
+    auto up = [&](Service& s, const std::string& body) {
+        HttpRequest r;
+        r.method = "POST";
+        r.target = "/api/v1/captures";
+        r.body = body;
+        r.headers["authorization"] = "Bearer " + c.token;
+        return s.handle(r);
+    };
+    const std::string zip = read_file(d / "z.sr");
+    {
+        Service s(c);
+        const auto r = up(s, zip);
+        CHECK(r.status == 413);
+        const json e = json::parse(r.body)["error"];
+        CHECK(e["code"] == "capture_too_large");
+        CHECK_THAT(e["message"].get<std::string>(), Catch::Contains("upload: the sample data declares 2097152 bytes") &&
+                                                         Catch::Contains("more than the 1 MiB allowed") && Catch::Contains("--max-upload-expanded-mb"));
+    }
+    c.max_upload_expanded_bytes = 2 << 20;
+    Service s(c);
+    const auto first = up(s, zip);
+    REQUIRE(first.status == 201);
+    const json info = json::parse(first.body);
+    CHECK(info["samples"] == 1 << 18);
+    CHECK(info["expanded_bytes"] == 2 << 20);
+    CHECK(info["bytes"].get<std::uint64_t>() < 20000);
+    // On disk the two together are a few KB; expanded they are 4 MiB, over the 3 MiB quota.
+    const auto second = up(s, zip);
+    CHECK(second.status == 507);
+    CHECK(json::parse(second.body)["error"]["code"] == "quota_exceeded");
+    CHECK_THAT(json::parse(second.body)["error"]["message"].get<std::string>(), Catch::Contains("expands to 2097152 bytes"));
+    std::size_t kept = 0;
+    for (const auto& e : fs::directory_iterator(d / "data/captures")) kept += e.path().extension() == ".sr";
+    CHECK(kept == 1);
+}
+
+TEST_CASE("sigrok: an archive declaring a huge central directory is refused before libzip opens it", "[sigrok][capture][hostile]") {
+    Dir d;
+    GoodSession g(100);
+    write_zip(d / "g.sr", g.entries);
+    std::string s = read_file(d / "g.sr");
+    const auto eocd = s.rfind(std::string("PK\x05\x06", 4));
+    REQUIRE(eocd != std::string::npos);
+    const std::uint32_t big = 17u << 20;  // the central directory's size
+    std::memcpy(s.data() + eocd + 12, &big, 4);
+    std::ofstream(d / "big.sr", std::ios::binary) << s;
+    CHECK_THAT(error_of(d / "big.sr"), Catch::Contains("a central directory of 17825792 bytes (at most 65536 entries and 16 MiB)"));
 }

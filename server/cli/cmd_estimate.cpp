@@ -6,6 +6,7 @@
 #include "server/scenario.hpp"
 #include "server/text.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <stdexcept>
@@ -23,6 +24,7 @@ struct EstimateOptions {
     long long dut_index_count = 0;
     double dut_offset_rad = 0;
     double settle_s = 0.1;
+    double max_expanded_mb = static_cast<double>(kCaptureDefaultMaxExpandedBytes >> 20);
     bool list = false, json_list = false, quiet = false;
 };
 
@@ -97,10 +99,16 @@ int run_estimate(const EstimateOptions& o) {
     e.settle_s = o.settle_s;
     e.estimates_path = o.output;
     if (!o.channels.empty()) e.capture.channels = parse_channel_map(o.channels);
+    e.capture.max_expanded_bytes = static_cast<std::uint64_t>(std::min(o.max_expanded_mb * 1048576.0, 1.8e19));
     if (o.dut_interpolation > 0) e.abz = AbzConfig{o.dut_interpolation, o.dut_index_count, o.dut_offset_rad};
     Progress progress("estimate", "samples", o.quiet);
     if (progress.active()) e.progress = [&](std::uint64_t done) { progress.update(done); };
-    const json r = evaluate_capture(e);
+    json r;
+    try {
+        r = evaluate_capture(e);
+    } catch (const CaptureTooLarge& t) {
+        throw CaptureError(std::string(t.what()) + " (--max-expanded-mb)");
+    }
     progress.clear();
     if (!o.report.empty()) {
         std::FILE* f = std::fopen(o.report.c_str(), "w");
@@ -192,6 +200,9 @@ Command add_estimate(CLI::App& app) {
     es->add_option("--param", o->params, "Estimator parameter key=value (repeatable)");
     es->add_option("-o,--output", o->output, "Estimates CSV to write: t,theta_rad,omega_rad_s,valid (without -o and --report: the summary only)");
     es->add_option("--report", o->report, "Report JSON to write (scores and bounds when the capture has truth)");
+    es->add_option("--max-expanded-mb", o->max_expanded_mb, "Most sample data a sigrok session (.sr) may expand to, MiB "
+                                                            "(its members as declared; a limit against ZIP bombs)")
+        ->check(kFinitePositive)->capture_default_str();
     es->add_option("--settle-s", o->settle_s, "Seconds from the start excluded from scoring")->check(kFiniteNonNegative);
     es->add_flag("--list", o->list, "List the estimators and their parameters");
     es->add_flag("--json", o->json_list, "With --list: as JSON");

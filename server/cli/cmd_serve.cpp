@@ -21,7 +21,7 @@ using nlohmann::json;
 struct ServeOptions {
     std::string bind = "127.0.0.1:8080", data, store, bench, dut, dut_part, operator_name, token_file, fixtures = FRINGE_SOURCE_DIR "/fixtures", web = FRINGE_SOURCE_DIR "/web";
     unsigned workers = 0, threads = 2;
-    double max_upload_mb = 256, upload_quota_mb = 4096, max_report_mb = 64;
+    double max_upload_mb = 256, max_upload_expanded_mb = 512, upload_quota_mb = 4096, max_report_mb = 64;
     double max_samples = 1e9;
     std::size_t max_estimators = 16, max_limits = 64;
     unsigned max_connections = 256, max_connections_per_client = 32;
@@ -60,6 +60,7 @@ int run_serve(const ServeOptions& o) {
     cfg.web_dir = o.web;
     cfg.workers = o.workers ? o.workers : std::max(1u, std::thread::hardware_concurrency());
     cfg.max_upload_bytes = static_cast<std::uint64_t>(o.max_upload_mb * 1024 * 1024);
+    cfg.max_upload_expanded_bytes = static_cast<std::uint64_t>(std::min(o.max_upload_expanded_mb * 1048576.0, 1.8e19));
     cfg.allow_external = o.allow_external;
     cfg.allow_devices = o.allow_device;
     cfg.allow_hosts = o.allow_host;
@@ -122,7 +123,12 @@ Command add_serve(CLI::App& app) {
     sv->add_option("--workers", o->workers, "Runs executed in parallel (default: cores); runs on one board always queue");
     sv->add_option("--threads", o->threads, "HTTP I/O threads")->check(CLI::Range(1, 64))->capture_default_str();
     sv->add_option("--max-upload-mb", o->max_upload_mb, "Largest capture upload, MiB")->check(kFinitePositive)->capture_default_str();
-    sv->add_option("--upload-quota-mb", o->upload_quota_mb, "All uploaded captures together on disk, MiB (507 quota_exceeded beyond)")
+    sv->add_option("--max-upload-expanded-mb", o->max_upload_expanded_mb,
+                   "Most sample data one upload may expand to, MiB: a sigrok .sr's members as declared (.fcap and CSV: their size); "
+                   "413 capture_too_large beyond, before anything is inflated")
+        ->check(kFinitePositive)->capture_default_str();
+    sv->add_option("--upload-quota-mb", o->upload_quota_mb, "All uploaded captures together, each counted as it expands (at least its size on disk), MiB "
+                                                            "(507 quota_exceeded beyond)")
         ->check(kFinitePositive)->capture_default_str();
     sv->add_option("--max-samples", o->max_samples, "Samples per run (duration_s x sample_rate_hz; 413 too_many_samples beyond)")
         ->check(kFinitePositive)->capture_default_str();
