@@ -265,7 +265,7 @@ private:
             drain_ = true;
             if (file_ && quota_limited_)
                 return respond(json_error(507, "quota_exceeded", "uploaded captures may take " + std::to_string(sh_.svc.config().upload_quota_bytes) +
-                                                                     " bytes on disk; this upload does not fit (--upload-quota-mb)"),
+                                                                     " bytes, each counted as it expands; this upload does not fit (--upload-quota-mb)"),
                                false);
             return respond(json_error(413, "body_too_large", "the body exceeds this endpoint's limit"), false);
         }

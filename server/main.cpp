@@ -26,7 +26,7 @@ namespace {
 class TerminalPayload : public spdlog::custom_flag_formatter {
 public:
     void format(const spdlog::details::log_msg& msg, const std::tm&, spdlog::memory_buf_t& dest) override {
-        const std::string e = term_escape(std::string_view(msg.payload.data(), msg.payload.size()));
+        const std::string e = term_escape(std::string_view(msg.payload.data(), msg.payload.size()), true);
         dest.append(e.data(), e.data() + e.size());
     }
     std::unique_ptr<custom_flag_formatter> clone() const override { return std::make_unique<TerminalPayload>(); }
@@ -51,7 +51,7 @@ int main(int argc, char** argv) {
         const char* spec = std::getenv("FRINGE_USB_EMULATOR");
         usb_emulator = std::make_unique<dev::UsbEmulator>(dev::parse_usb_emulator_options(spec ? spec : ""));
     } catch (const std::exception& e) {
-        std::fprintf(stderr, "error: %s\n", term_escape(e.what()).c_str());
+        std::fprintf(stderr, "error: %s\n", term_escape(e.what(), true).c_str());
         return 2;
     }
 #endif

@@ -74,6 +74,14 @@ std::string num(const json& v) {
     os << v.get<double>();
     return os.str();
 }
+// A 95 % interval [lo, hi] as "lo..hi", "" when there is none.
+std::string interval(const json& iv) {
+    if (!iv.is_array() || iv.size() != 2 || !iv[0].is_number() || !iv[1].is_number()) return "";
+    std::ostringstream os;
+    os.precision(4);
+    os << iv[0].get<double>() << ".." << iv[1].get<double>();
+    return os.str();
+}
 }  // namespace
 
 std::string junit_xml(const json& r) {
@@ -110,6 +118,8 @@ std::string junit_xml(const json& r) {
         x << "      <properties>\n";
         x << "        <property name=\"value\" value=\"" << num(m["value"]) << "\"/>\n";
         x << "        <property name=\"unit\" value=\"" << xml_escape(m["unit"].get<std::string>()) << "\"/>\n";
+        if (const std::string iv = interval(m.value("interval_95", json())); !iv.empty())
+            x << "        <property name=\"interval_95\" value=\"" << iv << "\"/>\n";
         if (m["limit"].contains("max")) x << "        <property name=\"max\" value=\"" << num(m["limit"]["max"]) << "\"/>\n";
         if (m["limit"].contains("min")) x << "        <property name=\"min\" value=\"" << num(m["limit"]["min"]) << "\"/>\n";
         x << "        <property name=\"marginal_fraction\" value=\"" << num(m["limit"]["marginal_fraction"]) << "\"/>\n";
@@ -117,8 +127,9 @@ std::string junit_xml(const json& r) {
         if (m.value("implicit", false)) x << "        <property name=\"evidence\" value=\"true\"/>\n";
         if (m.contains("reason")) x << "        <property name=\"reason\" value=\"" << xml_escape(m["reason"].get<std::string>()) << "\"/>\n";
         x << "      </properties>\n";
+        const std::string iv = interval(m.value("interval_95", json()));
         const std::string what = est + " " + metric + " = " + (m["value"].is_number() ? num(m["value"]) : std::string("unmeasured")) + " " +
-                                 m["unit"].get<std::string>();
+                                 m["unit"].get<std::string>() + (iv.empty() ? std::string() : " (95 % " + iv + ")");
         // The limit it was held to, in the message a CI log shows (not only in the properties).
         std::string unit;
         if (!m["unit"].get<std::string>().empty()) {
@@ -645,7 +656,9 @@ std::string report_html(const json& r) {
             lim += xml_escape(m["unit"].get<std::string>());
         }
         h << "<tr><td>" << xml_escape(m["estimator"].get<std::string>()) << "</td><td>" << xml_escape(m["metric"].get<std::string>()) << "</td><td>"
-          << (m["value"].is_number() ? num(m["value"]) : std::string("not measured")) << "</td><td>" << xml_escape(m["unit"].get<std::string>()) << "</td><td>" << lim
+          << (m["value"].is_number() ? num(m["value"]) : std::string("not measured"))
+          << (interval(m.value("interval_95", json())).empty() ? std::string() : " <span class=\"iv\">(95 % " + interval(m["interval_95"]) + ")</span>")
+          << "</td><td>" << xml_escape(m["unit"].get<std::string>()) << "</td><td>" << lim
           << (m.value("implicit", false) ? " (evidence)" : "") << "</td><td class=\""
           << xml_escape(m["outcome"].get<std::string>()) << "\">" << xml_escape(m["outcome"].get<std::string>())
           << (m.contains("reason") ? ": " + xml_escape(m["reason"].get<std::string>()) : std::string()) << "</td></tr>\n";
@@ -657,7 +670,9 @@ std::string report_html(const json& r) {
         const auto& b = e["bounds"];
         const json ev = m.value("evidence", json::object());
         auto bget = [&](const char* k) { return b.is_object() && b.contains(k) ? num(b[k]) : std::string(); };
-        h << "<tr><td>" << xml_escape(e["label"].get<std::string>()) << "</td><td>" << num(sub(m, "rms", "rad")) << "</td><td>" << num(sub(m, "max_abs", "rad"))
+        const std::string rms_iv = interval(m.value("uncertainty", json::object()).value("rms_rad", json()));
+        h << "<tr><td>" << xml_escape(e["label"].get<std::string>()) << "</td><td>" << num(sub(m, "rms", "rad"))
+          << (rms_iv.empty() ? std::string() : " <span class=\"iv\">(95 % " + rms_iv + ")</span>") << "</td><td>" << num(sub(m, "max_abs", "rad"))
           << "</td><td>" << num(sub(m, "rms", "percent_period")) << "</td><td>" << num(sub(m, "rms", "arcsec_mech")) << "</td><td>" << count(m.value("slipped_samples", json()))
           << "</td><td>" << count(ev.value("scored_samples", json())) << "</td><td>" << num(ev.value("scored_cycles", json()))
           << "</td><td>" << (ev.value("valid_fraction", json()).is_number() ? num(100.0 * ev["valid_fraction"].get<double>()) + " %" : std::string())

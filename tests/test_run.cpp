@@ -245,11 +245,16 @@ TEST_CASE("report renderings: JUnit testcases per measurement, HTML with plots",
     Scenario sc = short_run();
     const auto r = execute_run(sc);
     const std::string x = junit_xml(r);
-    // 4 limits plus 3 evidence checks for each of the 3 estimators
+    // 4 limits plus 5 evidence checks for each of the 3 estimators
     CHECK_THAT(x, Catch::Contains("<testsuite name=\"fig10c-loopback\" tests=\"19\" failures=\"0\""));
     CHECK_THAT(x, Catch::Contains("name=\"rms_rad\""));
     CHECK_THAT(x, Catch::Contains("<property name=\"unit\" value=\"rad\"/>"));
+    // every error figure with its 95 % interval, in every rendering
+    CHECK_THAT(x, Catch::Contains("<property name=\"interval_95\" value=\""));
     const std::string h = report_html(r);
+    std::size_t estimator_ivs = 0;
+    for (auto p = h.find("id=\"estimators\""); (p = h.find("(95 % ", p + 1)) != std::string::npos;) ++estimator_ivs;
+    CHECK(estimator_ivs >= r["estimators"].size());
     CHECK_THAT(h, Catch::Contains("Lissajous") && Catch::Contains("Error vs electrical angle") && Catch::Contains("<circle"));
     CHECK_THAT(h, Catch::Contains("<polyline") && Catch::Contains("Error harmonics"));
     // self-contained: no scripts, stylesheets or images fetched from anywhere
@@ -470,7 +475,7 @@ TEST_CASE("run history: provenance columns, filters, the forward state, an inter
     std::filesystem::remove_all(dir);
 }
 
-TEST_CASE("store URIs: passwords redacted however they are written; URIs libpq would misread refused by name", "[store][redact]") {
+TEST_CASE("store URIs: passwords redacted however they are written, and URIs libpq would misread refused by name", "[store][redact]") {
     // A raw '/' or '@' in the password: everything up to the last '@' is hidden.
     CHECK(redact_store_uri("postgresql://f:pa/ss@db/runs") == "postgresql://f:***@db/runs");
     CHECK(redact_store_uri("postgresql://f:p@ss@db/runs") == "postgresql://f:***@db/runs");

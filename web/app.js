@@ -157,13 +157,19 @@ export function measurementOrder(ms) {
   const rank = (m) => (m.outcome in OUTCOME_RANK ? OUTCOME_RANK[m.outcome] : m.implicit ? 4 : 3);
   return (ms || []).map((m, i) => [m, i]).sort((a, b) => rank(a[0]) - rank(b[0]) || a[1] - b[1]).map((x) => x[0]);
 }
+// A figure's 95 % interval beside it (docs/model.md "Uncertainty"); '' when it has none.
+function intervalSpan(iv) {
+  if (!Array.isArray(iv) || iv.length !== 2 || typeof iv[0] !== 'number' || typeof iv[1] !== 'number') return '';
+  return h('span', { class: 'muted iv', title: '95 % interval from the number of independent samples the figure rests on' }, ` (95 % ${sig(iv[0])}..${sig(iv[1])})`);
+}
+
 function measurementsTable(r) {
   const cell = (label, attrs, ...c) => h('td', { ...attrs, 'data-label': label }, ...c);
   return scroller(h('table', { id: 'measurements', class: 'cards' },
     h('thead', {}, h('tr', {}, ['estimator', 'metric', 'value', 'limit', 'outcome'].map((c) => h('th', {}, c)))),
     h('tbody', {}, measurementOrder(r.measurements).map((m) => h('tr', { class: `${m.implicit ? 'evidence' : ''} o-${m.outcome || 'none'}`, 'data-outcome': m.outcome || '' },
       cell('estimator', { class: 'est' }, m.estimator), cell('metric', { class: 'metric' }, m.metric, m.implicit ? h('span', { class: 'muted', title: 'implicit check: a verdict needs this much evidence' }, ' (evidence)') : ''),
-      cell('value', { class: 'num value', 'data-value': m.value == null ? '' : String(m.value) }, m.value == null ? 'not measured' : withUnit(m.value, m.unit)),
+      cell('value', { class: 'num value', 'data-value': m.value == null ? '' : String(m.value) }, m.value == null ? 'not measured' : withUnit(m.value, m.unit), intervalSpan(m.interval_95)),
       cell('limit', { class: 'num limit' }, limitText(m.limit, m.unit)),
       cell('outcome', { class: 'outcome' }, verdictBadge(m.outcome), m.reason ? h('span', { class: 'muted reason' }, ` ${m.reason}`) : ''))))));
 }
@@ -183,8 +189,8 @@ function estimatorsTable(r) {
     h('tbody', {}, (r.estimators || []).map((e) => {
       const m = e.metrics || {}, b = e.bounds || {}, ev = m.evidence || {};
       const eff = b.efficiency == null ? h('span', { class: 'muted', title: b.efficiency_against ? `graded against: ${b.efficiency_against}` : 'no bound to grade against' }, 'n/a') : sig(b.efficiency);
-      return h('tr', {}, h('td', {}, e.label), h('td', { class: 'num' }, withUnit(m.rms && m.rms.rad, 'rad')), h('td', { class: 'num' }, withUnit(m.max_abs && m.max_abs.rad, 'rad')),
-        h('td', { class: 'num' }, withUnit(m.mean && m.mean.rad, 'rad')), h('td', { class: 'num' }, fmt(m.slipped_samples)),
+      return h('tr', {}, h('td', {}, e.label), h('td', { class: 'num rms' }, withUnit(m.rms && m.rms.rad, 'rad'), intervalSpan((m.uncertainty || {}).rms_rad)), h('td', { class: 'num' }, withUnit(m.max_abs && m.max_abs.rad, 'rad')),
+        h('td', { class: 'num' }, withUnit(m.mean && m.mean.rad, 'rad'), intervalSpan((m.uncertainty || {}).mean_rad)), h('td', { class: 'num' }, fmt(m.slipped_samples)),
         h('td', { class: 'num' }, fmt(ev.scored_samples)), h('td', { class: 'num' }, fmt(ev.scored_cycles)),
         h('td', { class: 'num' }, ev.valid_fraction == null ? '' : `${sig(100 * ev.valid_fraction)} %`), h('td', { class: 'num' }, withUnit(b.pcrb_rad, 'rad')),
         h('td', { class: 'num' }, eff), h('td', { class: 'num' }, withUnit(m.lock_time_s, 's')));

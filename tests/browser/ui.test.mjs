@@ -259,7 +259,8 @@ try {
   // Readable values: 3 significant digits with the unit, the limit and the outcome beside each.
   const rmsRow = await page.$$eval('#measurements tbody tr', (rows) => rows.map((r) => [...r.querySelectorAll('td')].map((td) => td.textContent))
     .find((c) => c[0] === 'ekf-diffraction' && c[1] === 'rms_rad'));
-  check(rmsRow && /^\d\.\d\de-\d rad$/.test(rmsRow[2]) && rmsRow[3].startsWith('≤ 4.00e-5 rad') && rmsRow[4].startsWith('PASS'),
+  // (the value with its 95 % interval beside it)
+  check(rmsRow && /^\d\.\d\de-\d rad \(95 % \d\.\d\de-\d\.\.\d\.\d\de-\d\)$/.test(rmsRow[2]) && rmsRow[3].startsWith('≤ 4.00e-5 rad') && rmsRow[4].startsWith('PASS'),
     `a measurement reads "${rmsRow && rmsRow.join(' | ')}"`);
 
   // The offline HTML report fits a 1280 px window, with gridlines and tick labels on its axes.
