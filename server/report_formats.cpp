@@ -691,6 +691,25 @@ std::string report_html(const json& r) {
         h << svg_bars(r["estimators"]);
         h << svg_spectrum(r["estimators"]);
     }
+    // The harmonics' figures with their 95 % intervals (the bars above show the amplitudes).
+    {
+        std::ostringstream t;
+        for (const auto& e : r["estimators"]) {
+            const json& m = e["metrics"];
+            if (!m.is_object() || !m.contains("harmonics") || !m["harmonics"].is_array()) continue;
+            const json unc = m.value("uncertainty", json::object());
+            for (const auto& x : m["harmonics"]) {
+                std::string iv;
+                for (const auto& u : unc.value("harmonics", json::array()))
+                    if (u.value("order", 0) == x.value("order", 0)) iv = interval(u.value("amplitude_rad", json()));
+                t << "<tr><td>" << xml_escape(e["label"].get<std::string>()) << "</td><td>" << x.value("order", 0) << "x</td><td>"
+                  << num(sub(x, "amplitude", "rad")) << (iv.empty() ? std::string() : " <span class=\"iv\">(95 % " + iv + ")</span>") << "</td></tr>\n";
+            }
+        }
+        if (!t.str().empty())
+            h << "</div>\n<h2>Error harmonics</h2><div class=\"table-wrap\"><table id=\"harmonics\"><tr><th>estimator</th><th>order</th><th>amplitude (rad)</th></tr>\n"
+              << t.str() << "</table></div>\n<div class=\"plots\">";
+    }
     // dump() escapes every control character inside strings: its own line breaks stay raw.
     std::string scenario = r["scenario"].dump(2, ' ', false, json::error_handler_t::replace), pre;
     for (std::size_t pos = 0; pos <= scenario.size();) {

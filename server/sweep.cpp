@@ -136,9 +136,14 @@ SweepResult sweep_result(const Sweep& s, const SweepRow& row, const json& rep) {
     if (rep.contains("error") && rep["error"].is_string()) res.error = rep["error"];
     for (const auto& c : s.columns) {
         std::optional<double> v;
+        std::optional<std::pair<double, double>> iv;
         for (const auto& e : rep.value("estimators", json::array()))
-            if (e["label"] == c.estimator) v = metric_value(c.metric, e["metrics"], e["bounds"]);
+            if (e["label"] == c.estimator) {
+                v = metric_value(c.metric, e["metrics"], e["bounds"]);
+                if (v) iv = metric_interval(c.metric, e["metrics"], *v);
+            }
         res.values.push_back(v);
+        res.intervals.push_back(iv);
     }
     res.wall_s = rep.value("wall_s", 0.0);
     return res;
@@ -257,11 +262,20 @@ std::string sweep_csv(const Sweep& s, const std::vector<SweepResult>& rs) {
     o << "label";
     for (const auto& c : s.columns) o << "," << c.estimator << ":" << c.metric;
     for (const auto& n : s.reference_names) o << "," << n;
+    // Each column's 95 % interval (empty where the metric has none: counts, extremes, bounds).
+    for (const auto& c : s.columns) o << "," << c.estimator << ":" << c.metric << ":lo95," << c.estimator << ":" << c.metric << ":hi95";
     o << ",verdict,wall_s\n";
     for (const auto& r : rs) {
         o << '"' << r.row.label << '"';
         for (const auto& v : r.values) { o << ","; if (v) o << *v; }
         for (const auto& n : s.reference_names) { o << ","; if (auto x = ref(r.row, n)) o << *x; }
+        for (std::size_t i = 0; i < s.columns.size(); ++i) {
+            const auto iv = i < r.intervals.size() ? r.intervals[i] : std::nullopt;
+            o << ",";
+            if (iv) o << iv->first;
+            o << ",";
+            if (iv) o << iv->second;
+        }
         o << "," << r.verdict << "," << r.wall_s << "\n";
     }
     return o.str();
@@ -278,7 +292,12 @@ std::string sweep_markdown(const Sweep& s, const std::vector<SweepResult>& rs) {
     o << "\n";
     for (const auto& r : rs) {
         o << "| " << r.row.label << (r.error.empty() ? "" : " (" + r.verdict + ": " + r.error + ")") << " |";
-        for (const auto& v : r.values) o << " " << fmt(v) << " |";
+        for (std::size_t i = 0; i < r.values.size(); ++i) {
+            o << " " << fmt(r.values[i]);
+            // "± h": half the width of the value's 95 % interval
+            if (i < r.intervals.size() && r.intervals[i]) o << " ± " << fmt((r.intervals[i]->second - r.intervals[i]->first) / 2);
+            o << " |";
+        }
         for (const auto& n : s.reference_names) o << " " << fmt(ref(r.row, n)) << " |";
         if (!s.reference_names.empty()) {
             const auto m = r.values.empty() ? std::nullopt : r.values.front();

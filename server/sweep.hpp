@@ -45,6 +45,7 @@ struct SweepResult {
     SweepRow row;
     std::string verdict, status, error;
     std::vector<std::optional<double>> values;  // per column
+    std::vector<std::optional<std::pair<double, double>>> intervals;  // per column: its 95 % interval, where the metric has one
     double wall_s = 0;
 };
 

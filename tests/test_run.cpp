@@ -255,6 +255,9 @@ TEST_CASE("report renderings: JUnit testcases per measurement, HTML with plots",
     std::size_t estimator_ivs = 0;
     for (auto p = h.find("id=\"estimators\""); (p = h.find("(95 % ", p + 1)) != std::string::npos;) ++estimator_ivs;
     CHECK(estimator_ivs >= r["estimators"].size());
+    const auto ht = h.find("id=\"harmonics\"");
+    REQUIRE(ht != std::string::npos);
+    CHECK(h.find("(95 % ", ht) < h.find("</table>", ht));
     CHECK_THAT(h, Catch::Contains("Lissajous") && Catch::Contains("Error vs electrical angle") && Catch::Contains("<circle"));
     CHECK_THAT(h, Catch::Contains("<polyline") && Catch::Contains("Error harmonics"));
     // self-contained: no scripts, stylesheets or images fetched from anywhere

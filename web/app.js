@@ -197,6 +197,23 @@ function estimatorsTable(r) {
     }))));
 }
 
+// Every fitted harmonic of each estimator's error, with its 95 % interval (the bars in the
+// plots show the amplitudes).
+function harmonicsTable(r) {
+  const rows = [];
+  for (const e of r.estimators || []) {
+    const m = e.metrics || {}, u = (m.uncertainty || {}).harmonics || [];
+    for (const x of m.harmonics || []) {
+      const iv = (u.find((y) => y.order === x.order) || {}).amplitude_rad;
+      rows.push(h('tr', {}, h('td', {}, e.label), h('td', { class: 'num' }, `${x.order}x`),
+        h('td', { class: 'num' }, withUnit(x.amplitude && x.amplitude.rad, 'rad'), intervalSpan(iv))));
+    }
+  }
+  if (!rows.length) return '';
+  return h('div', {}, h('h2', {}, 'Error harmonics'), scroller(h('table', { id: 'harmonics' },
+    h('thead', {}, h('tr', {}, ['estimator', 'order', 'amplitude'].map((c) => h('th', {}, c)))), h('tbody', {}, rows))));
+}
+
 async function report(id, into) {
   let r, tr;
   try {
@@ -214,7 +231,7 @@ async function report(id, into) {
       h('a', { href: `${base}/report.html?download=1`, download: '', id: 'dl-html' }, 'HTML'),
       h('a', { href: `#/compare/${id}` }, 'compare with…')),
     h('h2', {}, 'Measurements'), measurementsTable(r),
-    h('h2', {}, 'Estimators'), estimatorsTable(r),
+    h('h2', {}, 'Estimators'), estimatorsTable(r), harmonicsTable(r),
     h('h2', {}, 'Plots'), plotBox);
   const t = tr.traces || {};
   const empty = !t.t_s || !t.t_s.length;
