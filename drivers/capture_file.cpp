@@ -1,5 +1,7 @@
 #include "capture_file.hpp"
 
+#include "signal_gen/json_bounded.hpp"
+
 #include "sigrok_file.hpp"
 
 #include <bit>
@@ -263,6 +265,12 @@ json parse_meta(const std::string& text, const std::string& where) {
         std::string detail = e.what();
         if (auto pos = detail.find("] "); detail.rfind("[json.exception", 0) == 0 && pos != std::string::npos) detail.erase(0, pos + 2);
         throw CaptureError(where + " is not a JSON object (" + detail + ")");
+    }
+    // Each key once, as in scenarios (a repeated sample_rate_hz silently took the last value).
+    try {
+        parse_json_bounded(text, "", kCaptureMaxJsonDepth);
+    } catch (const ConfigError& e) {
+        throw CaptureError(where + ": " + e.what());
     }
     if (!j.is_object()) throw CaptureError(where + " is not a JSON object (got " + j.type_name() + ")");
     return j;

@@ -49,6 +49,14 @@ std::optional<std::pair<double, double>> metric_interval(const std::string& name
     if (name == "std_rad") return iv(u.value("std_rad", json()));
     if (name == "mean_rad") return iv(u.value("mean_rad", json()));
     if (name == "broadband_rms_rad") return iv(u.value("broadband_rms_rad", json()));
+    // efficiency = bound / rms^2: its interval follows the rms's
+    if (name == "efficiency") {
+        const auto r = iv(u.value("rms_rad", json()));
+        const json s = metrics.value("rms", json());
+        if (!r || !s.is_object() || !s.value("rad", json()).is_number() || r->first <= 0) return std::nullopt;
+        const double rms = s["rad"].get<double>();
+        return std::make_pair(value * (rms / r->second) * (rms / r->second), value * (rms / r->first) * (rms / r->first));
+    }
     if (const int k = harmonic_order(name)) {
         for (const auto& h : u.value("harmonics", json::array()))
             if (h.value("order", 0) == k) return iv(h.value("amplitude_rad", json()));

@@ -34,6 +34,12 @@ json load_json_file(const std::string& path) {
     // a scenario whose "encoder" is "" names its own folder)
     std::error_code ec;
     if (fs::is_directory(path, ec)) throw ConfigError("", "'" + path + "' is a directory, not a JSON file");
+    // A device or a FIFO (/dev/zero, a pipe) never ends or never answers: only regular files,
+    // and no larger than any scenario, profile or sweep needs.
+    constexpr std::uintmax_t kMaxJsonFileBytes = 16u << 20;
+    if (fs::exists(path, ec) && !fs::is_regular_file(path, ec)) throw ConfigError("", "'" + path + "' is not a regular file (a device, FIFO or socket), not a JSON file");
+    if (const auto size = fs::file_size(path, ec); !ec && size > kMaxJsonFileBytes)
+        throw ConfigError("", "'" + path + "' is " + std::to_string(size) + " bytes: more than the " + std::to_string(kMaxJsonFileBytes >> 20) + " MiB a JSON file here may hold");
     std::ifstream in(path, std::ios::binary);
     if (!in) throw ConfigError("", "cannot open '" + path + "'");
     std::ostringstream text;

@@ -230,16 +230,33 @@ ErrorMetrics Scorer::finish() {
         // Correlation time from batch means (the Bartlett estimate of the spectral density at 0).
         const double var = m2_ / static_cast<double>(m.scored);
         if (var > 0) {
-            for (int l = kBatchLevels - 1; l >= 0; --l) {
+            auto tau_at = [&](int l) {
                 const BatchLevel& b = batches_[l];
-                const std::uint64_t need = l == 0 ? 4 : 32;
-                if (b.n < need) continue;
                 const double nb = static_cast<double>(b.n);
                 const double vb = std::max(0.0, (b.s2 - b.s1 * b.s1 / nb) / (nb - 1));
-                const double size = static_cast<double>(kBatch0) * std::ldexp(1.0, l);
-                m.correlation_samples = std::clamp(size * vb / var, 1.0, static_cast<double>(m.scored));
-                m.correlation_batch = static_cast<std::uint64_t>(size);
+                return static_cast<double>(kBatch0) * std::ldexp(1.0, l) * vb / var;
+            };
+            for (int l = kBatchLevels - 1; l >= 0; --l) {
+                if (batches_[l].n < 32) continue;
+                m.correlation_samples = std::clamp(tau_at(l), 1.0, static_cast<double>(m.scored));
+                m.correlation_batch = static_cast<std::uint64_t>(kBatch0) << l;
                 break;
+            }
+            // A short run (no level with 32 batches): batches too short to see a tracker's
+            // correlation, so the largest tau of any level with at least 4 batches (conservative;
+            // the interval is marked approximate).
+            if (!m.correlation_samples) {
+                for (int l = 0; l < kBatchLevels && batches_[l].n >= 4; ++l) {
+                    const double t = tau_at(l);
+                    if (!m.correlation_samples || t > *m.correlation_samples) {
+                        m.correlation_samples = t;
+                        m.correlation_batch = static_cast<std::uint64_t>(kBatch0) << l;
+                    }
+                }
+                if (m.correlation_samples) {
+                    m.correlation_samples = std::clamp(*m.correlation_samples, 1.0, static_cast<double>(m.scored));
+                    m.correlation_approximate = true;
+                }
             }
         }
         if (om_n_) {
@@ -351,6 +368,8 @@ nlohmann::json uncertainty_json(const ErrorMetrics& m) {
     u["correlation_samples"] = tau;
     u["correlation_batch_samples"] = m.correlation_batch;
     u["independent_samples"] = nu;
+    if (m.correlation_approximate)
+        u["note"] = "approximate: fewer than 2048 scored samples, too few to resolve the error's correlation time; tau is the largest of the batch lengths tried (a longer run narrows and firms the interval)";
     if (nu < 3) {
         u["note"] = "fewer than 3 independent samples: no interval";
         return u;

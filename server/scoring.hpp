@@ -62,6 +62,7 @@ struct ErrorMetrics {
     // nullopt when fewer than 4 batches of 64 were scored. independent = scored / tau.
     std::optional<double> correlation_samples;
     std::uint64_t correlation_batch = 0;  // B used
+    bool correlation_approximate = false;  // fewer than 32 batches of 64: the largest tau of the levels
 
     // valid share of the samples after the settle time; nullopt when there were none.
     std::optional<double> valid_fraction() const {

@@ -111,6 +111,14 @@ expect_error "keep.json: sidecar is a fringe.estimate report, not a capture's me
 cp "$SRC/fixtures/scenarios/paper-duty1p6.json" "$dir/scen.json"
 expect_error "output's sidecar: .*scen.json is the scenario" "$FRINGE" gen "$dir/scen.json" -o "$dir/scen.csv" -q --samples 100
 expect_error "report: .*scen.json is the scenario" "$FRINGE" run "$dir/scen.json" --report "$dir/scen.json" --data "$dir/data"
+# a CSV recording writes x.json beside x.csv: over the scenario, or over the report (a new user's trial lost both)
+expect_error "record (its sidecar): .*scen.json is the scenario" "$FRINGE" run "$dir/scen.json" --record "$dir/scen.csv" --no-db
+expect_error "record (its sidecar): .*o.json is also the report" "$FRINGE" run "$dir/scen.json" --report "$dir/o.json" --record "$dir/o.csv" --no-db
+[ ! -e "$dir/o.json" ] && [ ! -e "$dir/o.csv" ] || fail "run wrote before refusing"
+# a device or FIFO as a JSON file: refused at once, not read forever
+expect_error "is not a regular file" "$FRINGE" run /dev/zero --no-db
+mkfifo "$dir/fifo.json"
+expect_error "fifo.json' is not a regular file" timeout 10 "$FRINGE" run "$dir/fifo.json" --no-db
 cmp -s "$SRC/fixtures/scenarios/paper-duty1p6.json" "$dir/scen.json" || fail "the scenario was overwritten"
 [ ! -e "$dir/scen.csv" ] || fail "gen wrote its capture before refusing"
 # numbers on the command line are finite

@@ -283,6 +283,8 @@ TEST_CASE("binary capture: sample rate and t0 must be finite and in range", "[ca
     CHECK_THAT(with("sample_rate_hz", "1e300"), Catch::Contains("header.sample_rate_hz = 1e+300 is outside"));
     CHECK_THAT(with("sample_rate_hz", "\"fast\""), Catch::Contains("header.sample_rate_hz must be a number, got string"));
     CHECK_THAT(with("t0_s", "\"zero\""), Catch::Contains("header.t0_s must be a number"));
+    // a key given twice is refused, naming it (the last one used to win)
+    CHECK_THAT(with("sample_rate_hz", "1000, \"sample_rate_hz\": 2000"), Catch::Contains("duplicate key 'sample_rate_hz'"));
     CHECK(with("sample_rate_hz", "1e10") == "<no error>");
     CHECK_THAT(with("sample_rate_hz", "1.00001e10"), Catch::Contains("header.sample_rate_hz = 1.00001e+10 is outside [1, 1e+10] Hz"));
     CHECK_THAT(with("t0_s", "-1e10"), Catch::Contains("header.t0_s = -1e+10 is outside [-1e+09, 1e+09] s"));
@@ -365,6 +367,8 @@ TEST_CASE("metadata that is not UTF-8 is refused with a clean message", "[captur
     CHECK_THAT(error_of(csv), Catch::Contains("sidecar is not a JSON object (parse error at line 1"));
     write_text(sidecar_path(csv), "[1, 2]");
     CHECK_THAT(error_of(csv), Catch::Contains("sidecar is not a JSON object (got array)"));
+    write_text(sidecar_path(csv), "{\"sample_rate_hz\": 1000, \"sample_rate_hz\": 2000}");
+    CHECK_THAT(error_of(csv), Catch::Contains("sidecar") && Catch::Contains("duplicate key 'sample_rate_hz'"));
     std::filesystem::remove(sidecar_path(csv));
 }
 

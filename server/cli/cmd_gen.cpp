@@ -2,6 +2,7 @@
 #include "server/cli/commands.hpp"
 #include "drivers/capture_file.hpp"
 #include "server/scenario.hpp"
+#include "server/text.hpp"
 #include "signal_gen/analysis.hpp"
 #include "signal_gen/config.hpp"
 #include "signal_gen/fastmath.hpp"
@@ -93,7 +94,7 @@ int run_gen(const GenOptions& o) {
         std::printf("wrote %s: %llu samples, %.6g s at %.6g Hz, seed %llu (%.2f s)\n", o.output.c_str(),
                     static_cast<unsigned long long>(total), static_cast<double>(total) / sc.sample_rate_hz,
                     sc.sample_rate_hz, static_cast<unsigned long long>(sc.seed), secs);
-        std::printf("encoder %s (%s), %d lines, kappa %.4f, fundamental %.4f V\n", sc.encoder.name.c_str(),
+        std::printf("encoder %s (%s), %d lines, kappa %.4f, fundamental %.4f V\n", term_escape(sc.encoder.name).c_str(),
                     sc.encoder.model == ModelKind::Ideal ? "ideal" : "diffraction", sc.encoder.lines_per_rev,
                     sc.encoder.kappa_nominal(), sc.encoder.fundamental_amplitude_v());
         if (summary.contains("duty_cycle"))

@@ -1,5 +1,6 @@
 // fringe run: one scenario, here or on a fringe serve (--server); exit 0 PASS/MARGINAL, 1 FAIL, 2 ERROR.
 #include "server/cli/commands.hpp"
+#include "drivers/capture_file.hpp"
 #include "signal_gen/config.hpp"
 #include "server/forward.hpp"
 #include "server/instance_lock.hpp"
@@ -71,7 +72,11 @@ int run_run_remote(const RunCliOptions& o, const Scenario& sc) {
 
 int run_run(const RunCliOptions& o) {
     // checked before the run: a report written over the scenario (or over another report) is lost work
-    refuse_overwrite({{"report", o.report}, {"junit", o.junit}, {"html", o.html}}, {{"scenario", o.scenario}});
+    // A CSV recording writes its sidecar x.json beside it, over a scenario or report of that name.
+    const std::string record_sidecar =
+        !o.record.empty() && std::filesystem::path(o.record).extension() != ".fcap" ? sidecar_path(o.record) : std::string();
+    refuse_overwrite({{"report", o.report}, {"junit", o.junit}, {"html", o.html}, {"record", o.record}, {"record (its sidecar)", record_sidecar}},
+                     {{"scenario", o.scenario}});
     Scenario sc = load_scenario(o.scenario);
     if (o.seed >= 0) sc.seed = static_cast<std::uint64_t>(o.seed);
     if (!o.device.empty()) {

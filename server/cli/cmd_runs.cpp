@@ -35,7 +35,9 @@ int run_runs(const RunsOptions& o) {
             if (store.row(o.show)) throw ConfigError("id", "run '" + o.show + "' has no report yet (it is queued or running, or ended without one)");
             throw ConfigError("id", "no run '" + o.show + "' in this history (fringe runs lists them)");
         }
-        if (o.as_json) std::printf("%s\n", r->dump(2, ' ', false, json::error_handler_t::replace).c_str());
+        // ensure_ascii: every non-ASCII character as \uXXXX, so no C1 control or bidi override
+        // reaches the terminal raw (JSON already escapes ESC and the other C0 controls).
+        if (o.as_json) std::printf("%s\n", r->dump(2, ' ', true, json::error_handler_t::replace).c_str());
         else print_run_summary(*r, (*r)["scenario"].is_object() ? (*r)["scenario"].value("name", std::string("run")) : std::string("run"));
         return kExitOk;
     }
@@ -57,7 +59,7 @@ int run_runs(const RunsOptions& o) {
         for (const auto& r : rows)
             a.push_back({{"id", r.id}, {"created_at", r.created_at}, {"scenario", r.scenario}, {"dut", r.dut}, {"status", r.status}, {"verdict", r.verdict},
                          {"bench", r.bench}, {"host", r.host}, {"dut_part", r.dut_part}, {"operator", r.operator_name}, {"forward", r.forward}, {"forward_store", r.forward_store}});
-        std::printf("%s\n", a.dump(2, ' ', false, json::error_handler_t::replace).c_str());
+        std::printf("%s\n", a.dump(2, ' ', true, json::error_handler_t::replace).c_str());
         return kExitOk;
     }
     // Columns as wide as their widest cell; names, DUTs (an instrument's *IDN?) and benches come
