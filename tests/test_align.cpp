@@ -458,7 +458,12 @@ TEST_CASE("service: the --allow-device policy holds for output and input instrum
 TEST_CASE("align: clock offsets across the supported range, a periodic signal", "[align][issue22]") {
     const double fs = 100000;
     auto sine = [](double t) { return kTwoPi * 1234.5 * t + 0.4; };  // 81 samples a cycle
-    for (double ppm : {-999.0, -400.0, -150.0, 150.0, 400.0, 999.0}) {
+#ifdef FRINGE_SANITIZED_BUILD
+    const std::vector<double> ppms = {-999.0, 999.0};  // the ends of the range; Release sweeps it
+#else
+    const std::vector<double> ppms = {-999.0, -400.0, -150.0, 150.0, 400.0, 999.0};
+#endif
+    for (double ppm : ppms) {
         for (double delay_s : {1.23456e-3, -0.3e-3}) {  // the record starting before, and after, the output
             Link l;
             l.delay_s = delay_s;
