@@ -375,12 +375,7 @@ PgStore::PgStore(const std::string& uri) : conn_(std::make_unique<PgConn>(uri)),
             for (const char* sql : kSchema) conn_->exec(sql);
             conn_->exec("COMMIT");
         } catch (...) {
-            if (conn_->ok()) {
-                try {
-                    conn_->exec("ROLLBACK");
-                } catch (const StoreError&) {
-                }
-            }
+            rollback_quietly();
             throw;
         }
     } catch (const StoreUnreachable&) {
@@ -392,6 +387,14 @@ PgStore::PgStore(const std::string& uri) : conn_(std::make_unique<PgConn>(uri)),
 }
 
 PgStore::~PgStore() = default;
+
+void PgStore::rollback_quietly() {
+    if (!conn_->ok()) return;
+    try {
+        conn_->exec("ROLLBACK");
+    } catch (const StoreError&) {
+    }
+}
 
 std::string PgStore::describe() const { return conn_->describe(); }
 bool PgStore::connected() const { return conn_->ok(); }
@@ -466,12 +469,7 @@ PgStore::Put PgStore::put(const json& report) {
         conn_->exec("COMMIT");
         return out;
     } catch (...) {
-        if (conn_->ok()) {
-            try {
-                conn_->exec("ROLLBACK");
-            } catch (const StoreError&) {
-            }
-        }
+        rollback_quietly();
         throw;
     }
 }

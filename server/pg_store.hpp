@@ -118,6 +118,9 @@ public:
     std::map<std::string, std::string> stored_checksums(const std::vector<std::string>& ids);
 
 private:
+    // After a failed statement inside BEGIN: ROLLBACK if the connection still stands (its own
+    // failure is ignored: the caller rethrows the first error).
+    void rollback_quietly();
     std::unique_ptr<PgConn> conn_;
     std::string uri_;
 };
