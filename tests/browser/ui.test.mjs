@@ -109,7 +109,7 @@ async function runFromForm(page, url, seed, duration = 0.5) {
   // selectOption fires change even for the fixture already shown: it reloads, and the fields are
   // disabled until it has (a fill before that was overwritten under ASan: run B ran 1 s, not 0.6).
   await page.waitForSelector('#new-run[aria-busy="false"]');
-  await page.waitForFunction(() => document.querySelector('input[name="seed"]').value !== '');
+  await page.waitForFunction(() => document.querySelector('input[name="seed"]')?.value > '');
   await page.fill('input[name="seed"]', String(seed));
   await page.fill('input[name="duration_s"]', String(duration));
   const t0 = Date.now();
@@ -150,7 +150,7 @@ try {
   // Without the token the page asks for it in words before anything is sent.
   await page.goto(`${url}#/new`);
   await page.waitForSelector('#fixture option[value="fig10c-loopback"]', { state: 'attached' });
-  await page.waitForFunction(() => document.querySelector('input[name="seed"]').value !== '');
+  await page.waitForFunction(() => document.querySelector('input[name="seed"]')?.value > '');
   // Only the ticked estimators show their parameters (.params{display:grid} hid nothing before).
   const shown = await page.$$eval('#estimators-box .estimator', (ds) => ds.map((d) => [d.querySelector('[data-estimator]').checked, d.querySelector('.params').offsetHeight > 0]));
   check(shown.length >= 5 && shown.every(([ticked, visible]) => ticked === visible),
@@ -314,7 +314,7 @@ try {
   // PASS if the rms error is below 1e-3 rad.
   await page.goto(`${url}#/new`);
   await page.waitForSelector('#fixture option[value="fig10c-loopback"]', { state: 'attached' });
-  await page.waitForFunction(() => document.querySelector('input[name="seed"]').value !== '');
+  await page.waitForFunction(() => document.querySelector('input[name="seed"]')?.value > '');
   await page.fill('#sc-name', 'my-board');
   await page.selectOption('#encoder-source', '');
   await page.selectOption('select[name="encoder.model"]', 'ideal');
@@ -374,7 +374,7 @@ try {
 
   // Capture upload: by the file picker, then by drag and drop; the scenario takes its rate.
   await page.goto(`${url}#/new`);
-  await page.waitForFunction(() => document.querySelector('input[name="seed"]') && document.querySelector('input[name="seed"]').value !== '');
+  await page.waitForFunction(() => document.querySelector('input[name="seed"]') && document.querySelector('input[name="seed"]')?.value > '');
   await page.selectOption('#driver', 'capture');
   await page.waitForSelector('#capture-drop', { state: 'visible' });
   await page.setInputFiles('#capture-file', { name: 'bench.csv', mimeType: 'text/csv', buffer: Buffer.from(captureCsv(20000, 500)) });

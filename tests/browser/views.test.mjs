@@ -122,7 +122,7 @@ try {
   await page.waitForFunction(() => /^0 runs/.test(document.querySelector('#status').textContent));
   await page.goto(`${url}#/new`);
   await page.waitForSelector('#new-run[aria-busy="false"]');
-  await page.waitForFunction(() => document.querySelector('input[name="seed"]').value !== '');
+  await page.waitForFunction(() => document.querySelector('input[name="seed"]')?.value > '');
 
   // ---- New run: words, own_clock, fixture text --------------------------------------------------
   const tip = await page.getAttribute('#save', 'title');
