@@ -1026,6 +1026,8 @@ void register_ekf_auto(std::vector<EstimatorInfo>& r) {
                  "least-squares identifier against a cycle-centred smoothed phase; measures its own noise; guarded by a "
                  "loss-of-lock monitor",
                  EkfAuto::params(), [] { return std::make_unique<EkfAuto>(); }});
+    r.back().traits.learns_over_cycles = 50;  // docs/estimators.md "ekf-auto"
+    r.back().traits.told_param = "start_from_profile";
 }
 
 }  // namespace fringe::est

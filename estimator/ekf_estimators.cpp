@@ -431,6 +431,7 @@ void add(std::vector<EstimatorInfo>& r, const std::string& name, const std::stri
 void register_ekf(std::vector<EstimatorInfo>& r) {
     add(r, "ekf-ideal", "EKF with the ideal-sine measurement model (Zimmerman-style), CV or CA; optional gain and offset states",
         {Variant::TwoChannel, Kind::Ideal, false});
+    r.back().traits.assumes_ideal_sinusoids = true;
     add(r, "ekf-diffraction", "EKF with the paper's diffraction measurement model (kappa, w, Vmax), CV or CA, Joseph form; optional gain (AGC), kappa (gap) and offset states",
         {Variant::TwoChannel, Kind::Diffraction, false});
     add(r, "ekf-sin-only", "EKF on the sin channel alone (Fig. 10): coasts through the sin extrema where the channel carries no phase information",

@@ -8,7 +8,17 @@ namespace fringe::est {
 using nlohmann::json;
 
 void to_json(json& j, const EstimatorInfo& e) {
-    j = json{{"name", e.name}, {"summary", e.summary}, {"params", e.params}};
+    const auto& t = e.traits;
+    json traits{{"assumes_ideal_sinusoids", t.assumes_ideal_sinusoids}, {"child_process", t.child_process},
+                {"learns_over_cycles", t.learns_over_cycles > 0 ? json(t.learns_over_cycles) : json()}};
+    if (!t.told_param.empty()) traits["told_param"] = t.told_param;
+    j = json{{"name", e.name}, {"summary", e.summary}, {"params", e.params}, {"traits", traits}};
+}
+
+EstimatorTraits traits_of(const std::string& name) {
+    for (const auto& e : registry())
+        if (e.name == name) return e.traits;
+    return {};
 }
 
 const EstimatorInfo& find(const std::string& name) {

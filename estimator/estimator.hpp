@@ -88,18 +88,52 @@ public:
     virtual nlohmann::json state() const { return nlohmann::json::object(); }
 };
 
+// What the engine asks about an estimator instead of comparing names (preflight, efficiency,
+// the service's permission for child processes, the learning warning).
+struct EstimatorTraits {
+    // Its measurement model is an ideal sinusoid pair: on a signal with harmonics (a diffraction
+    // encoder) its error is the model mismatch, not noise (preflight "model_mismatch").
+    bool assumes_ideal_sinusoids = false;
+    // Learns the waveform shape from the signal over about this many electrical cycles of motion
+    // (0: does not learn); told_param names the boolean parameter that gives it the shape instead.
+    double learns_over_cycles = 0;
+    std::string told_param;
+    // Runs a command on this host: a service allows it only when started with --allow-external,
+    // and its bound class and tracking prior are what its parameters declare (params.model,
+    // params.natural_freq_hz), not what the object knows.
+    bool child_process = false;
+};
+
 struct EstimatorInfo {
     std::string name;
     std::string summary;
     std::vector<ParamInfo> params;
     std::function<std::unique_ptr<Estimator>()> make;
+    EstimatorTraits traits = {};
 };
 void to_json(nlohmann::json& j, const EstimatorInfo& e);
 
-// All registered estimators, in a stable order.
+// All registered estimators, in a stable order: the built-in ones, then any registered.
 const std::vector<EstimatorInfo>& registry();
+// Adds an estimator (a name already taken is refused with std::invalid_argument). Register
+// before any run starts: the registry is read without a lock. ScopedEstimator registers for
+// the lifetime of an object (a test's estimator, a plug-in's).
+void register_estimator(EstimatorInfo info);
+void unregister_estimator(const std::string& name);
+class ScopedEstimator {
+public:
+    explicit ScopedEstimator(EstimatorInfo info) : name_(info.name) { register_estimator(std::move(info)); }
+    ~ScopedEstimator() { unregister_estimator(name_); }
+    ScopedEstimator(const ScopedEstimator&) = delete;
+    ScopedEstimator& operator=(const ScopedEstimator&) = delete;
+
+private:
+    std::string name_;
+};
 // Throws ConfigError("estimator", ...) listing the known names.
 const EstimatorInfo& find(const std::string& name);
+// The traits of a registered estimator; an unknown name has none set (it is refused elsewhere).
+EstimatorTraits traits_of(const std::string& name);
 // find + make + reset.
 std::unique_ptr<Estimator> make(const std::string& name, const EstimatorConfig& config);
 

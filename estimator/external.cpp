@@ -311,6 +311,7 @@ private:
 void register_external(std::vector<EstimatorInfo>& r) {
     r.push_back({"external", "Your own estimator as a child process (e.g. host-compiled firmware): samples on stdin, estimates on stdout; see docs/external-estimator.md",
                  External::params(), [] { return std::make_unique<External>(); }});
+    r.back().traits.child_process = true;
 }
 
 }  // namespace fringe::est

@@ -146,6 +146,7 @@ private:
 void register_tracking_loop(std::vector<EstimatorInfo>& r) {
     r.push_back({"pll2", "Ratiometric type-II tracking loop (docs/model.md), natural frequency and damping as parameters",
                  Pll2::params(), [] { return std::make_unique<Pll2>(); }});
+    r.back().traits.assumes_ideal_sinusoids = true;
 }
 
 }  // namespace fringe::est

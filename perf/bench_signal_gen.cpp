@@ -10,8 +10,8 @@ using namespace fringe;
 namespace {
 const std::string kSrc = FRINGE_SOURCE_DIR;
 
-void run(benchmark::State& state, EncoderProfile enc) {
-    Scenario sc = load_scenario(kSrc + "/fixtures/scenarios/paper-duty1p6.json");
+void run(benchmark::State& state, EncoderProfile enc, const std::string& scenario = "paper-duty1p6.json") {
+    Scenario sc = load_scenario(kSrc + "/fixtures/scenarios/" + scenario);
     Generator gen(std::move(enc), sc.motion, sc.sample_rate_hz, 1);
     const std::size_t n = static_cast<std::size_t>(state.range(0));
     Block b;
@@ -29,6 +29,11 @@ void run(benchmark::State& state, EncoderProfile enc) {
 void BM_paper_diffraction(benchmark::State& state) {
     run(state, load_encoder(kSrc + "/fixtures/encoders/paper-d2-duty1p6.json"));
 }
+// The encoder and motion of perf-1e7.json (perf/harness_ratio.sh: the generator's own time).
+void BM_perf_1e7(benchmark::State& state) {
+    const Scenario sc = load_scenario(kSrc + "/fixtures/scenarios/perf-1e7.json");
+    run(state, sc.encoder, "perf-1e7.json");
+}
 void BM_ideal(benchmark::State& state) {
     run(state, load_encoder(kSrc + "/fixtures/encoders/ideal.json"));
 }
@@ -42,5 +47,6 @@ void BM_diffraction_runout_eccentricity(benchmark::State& state) {
 
 BENCHMARK(BM_paper_diffraction)->Arg(4096)->Arg(65536);
 BENCHMARK(BM_ideal)->Arg(65536);
+BENCHMARK(BM_perf_1e7)->Arg(65536);
 BENCHMARK(BM_diffraction_runout_eccentricity)->Arg(65536);
 BENCHMARK_MAIN();

@@ -21,10 +21,6 @@ std::string fmt(double v) {
     return b;
 }
 
-// Estimators that assume ideal sinusoids: on a diffraction encoder their error is dominated
-// by model mismatch (MODEL.md 5: ekf-ideal 1.6e-2 rad on the paper's signal).
-bool assumes_ideal_sinusoids(const std::string& name) { return name == "ekf-ideal" || name == "pll2"; }
-
 // Peak |v| of the noise-free channels over one electrical cycle (V), with the Lissajous
 // offsets and gains.
 double peak_signal_v(const EncoderProfile& enc) {
@@ -110,10 +106,11 @@ std::vector<Finding> preflight(const Scenario& sc) {
                              e.label + ": tracker natural frequency " + fmt(fn) + " Hz is within a factor 20 of the sample rate " +
                                  fmt(sc.sample_rate_hz) + " Hz: the loop is barely discrete-time stable and its bound assumptions fail"});
         }
-        if (e.name == "ekf-auto") {
-            // told nothing, it learns the shape from ~50 electrical cycles of motion (docs/estimators.md)
-            const bool told = e.params.is_object() && e.params.contains("start_from_profile") &&
-                              e.params["start_from_profile"].is_boolean() && e.params["start_from_profile"].get<bool>();
+        const est::EstimatorTraits traits = est::traits_of(e.name);
+        if (traits.learns_over_cycles > 0) {
+            // told nothing, it learns the shape from the motion (ekf-auto: ~50 electrical cycles, docs/estimators.md)
+            const std::string& tp = traits.told_param;
+            const bool told = !tp.empty() && e.params.is_object() && e.params.contains(tp) && e.params[tp].is_boolean() && e.params[tp].get<bool>();
             // the distance travelled, not the net one: a swinging motion learns on every swing
             constexpr std::size_t kN = 4001;
             std::vector<double> t(kN), ph(kN), om(kN), al(kN);
@@ -123,13 +120,14 @@ std::vector<Finding> preflight(const Scenario& sc) {
             double travelled_rad = 0;
             for (std::size_t k = 1; k < kN; ++k) travelled_rad += std::fabs(ph[k] - ph[k - 1]);
             const double cycles = travelled_rad * static_cast<double>(sc.encoder.lines_per_rev) / kTwoPi;
-            if (!told && cycles < 50)
+            if (!told && cycles < traits.learns_over_cycles)
                 w.push_back({false, "scores_learning", "settle_s",
-                             e.label + " (ekf-auto) learns the waveform shape over about 50 electrical cycles of motion; the settle time of " +
+                             e.label + " (" + e.name + ") learns the waveform shape over about " + fmt(traits.learns_over_cycles) +
+                                 " electrical cycles of motion; the settle time of " +
                                  fmt(sc.settle_s) + " s covers " + fmt(cycles) +
                                  " electrical cycles of travel, so its score includes its learning (raise settle_s)"});
         }
-        if (assumes_ideal_sinusoids(e.name) && sc.encoder.model == ModelKind::Diffraction) {
+        if (traits.assumes_ideal_sinusoids && sc.encoder.model == ModelKind::Diffraction) {
             bool limited = false;
             for (const auto& l : sc.limits) limited |= (l.estimator == "*" || l.estimator == e.label) && l.max;
             if (limited)

@@ -8,6 +8,8 @@
 #include "scoring.hpp"
 #include "spectrum.hpp"
 #include "traces.hpp"
+#include "server/analysis/analyser.hpp"
+#include "server/analysis/task_pool.hpp"
 #include "signal_gen/config.hpp"
 #include "signal_gen/fastmath.hpp"
 
@@ -16,6 +18,7 @@
 #include <ctime>
 #include <limits>
 #include <random>
+#include <thread>
 
 #include "provenance.hpp"
 
@@ -50,9 +53,9 @@ est::EstimatorConfig estimator_config(const Scenario& sc, const EstimatorSpec& s
 
 // Can this estimator be given an efficiency? (A tracker must declare its prior.)
 std::string why_no_efficiency(const EstimatorSpec& spec, const Scenario& sc) {
-    if (spec.name == "external") {
+    if (est::traits_of(spec.name).child_process) {
         const std::string model = spec.params.is_object() ? spec.params.value("model", std::string("unknown")) : "unknown";
-        return model == "unknown" ? "the external estimator declares no model: set params.model (memoryless, tracker-cv or tracker-ca) "
+        return model == "unknown" ? "the " + spec.name + " estimator declares no model: set params.model (memoryless, tracker-cv or tracker-ca) "
                                     "and, for a tracker, params.natural_freq_hz (docs/external-estimator.md)"
                                   : "";
     }
@@ -70,7 +73,7 @@ std::vector<Finding> validate_run(const Scenario& sc) {
         try {
             const auto& info = est::find(spec.name);
             const Params p = resolve_params(info.params, spec.params);  // cheap checks first; external is not started here
-            if (spec.name != "external") est::make(spec.name, estimator_config(sc, spec));
+            if (!info.traits.child_process) est::make(spec.name, estimator_config(sc, spec));
             else if (p.string("model").rfind("tracker", 0) == 0 && !(p.number("natural_freq_hz") > 0))
                 throw ConfigError("params.natural_freq_hz", "a tracker's declared prior needs its natural frequency (> 0 Hz)");
         } catch (const ConfigError& e) {
@@ -142,24 +145,18 @@ json unstarted_report(const Scenario& sc, const std::string& id, const std::stri
 
 namespace {
 
-// One estimator under test (or the DUT's own position) with its scoring.
+// One estimator under test (or the DUT's own position) with its analysers. Its output for a
+// block stays in one of two slots while the traces of that block are drawn beside the next.
 struct Lane {
     const EstimatorSpec* spec;
     std::unique_ptr<est::Estimator> e;  // null: the DUT's own position
-    Scorer scorer;
-    ConventionCheck conventions;
+    AnalyserSet analysers;
     std::vector<double> th, om;
     std::vector<std::uint8_t> valid;
-    std::vector<double> err;  // theta_hat - theta_true, NaN where invalid (plot traces)
-    // The error spectrum at the full rate, fed by the scorer with the scored errors in order.
-    std::unique_ptr<ErrorSpectrum> spectrum;
-    Lane(const EstimatorSpec* s, const Scenario& sc, std::size_t segment)
-        : spec(s), scorer(ScoringOptions{sc.settle_s, 0.1, sc.scoring.max_harmonic}),
-          spectrum(std::make_unique<ErrorSpectrum>(sc.sample_rate_hz, segment)) {
-        scorer.set_sink([this](std::size_t n, const double* e_rad, const std::uint8_t* ok) { spectrum->add(n, e_rad, ok); });
-    }
+    std::vector<double> err[2];  // theta_hat - theta_true, NaN where invalid (plot traces), per slot
+    Lane(const EstimatorSpec* s, const LaneContext& ctx) : spec(s), analysers(ctx) {}
 
-    void process(const Frames& f) {
+    void process(const Frames& f, int slot) {
         const std::size_t m = f.size();
         th.resize(m); om.resize(m); valid.resize(m);
         if (!e) {  // the DUT's own position: no rate
@@ -172,10 +169,21 @@ struct Lane {
             e->process({std::span(f.sin_v), std::span(f.cos_v)}, {std::span(th), std::span(om), std::span(valid)});
         }
         for (std::size_t i = 0; i < m; ++i) valid[i] = valid[i] && f.truth_known[i];
-        scorer.add(m, f.t_s.data(), f.theta_true_rad.data(), f.omega_true_rad_s.data(), th.data(), e ? om.data() : nullptr, valid.data());
-        conventions.add(m, f.theta_true_rad.data(), th.data(), valid.data());
-        err.resize(m);
-        for (std::size_t i = 0; i < m; ++i) err[i] = valid[i] ? th[i] - f.theta_true_rad[i] : std::numeric_limits<double>::quiet_NaN();
+        LaneBlock b;
+        b.n = m;
+        b.t_s = f.t_s.data();
+        b.sin_v = f.sin_v.data();
+        b.cos_v = f.cos_v.data();
+        b.theta_true_rad = f.theta_true_rad.data();
+        b.omega_true_rad_s = f.omega_true_rad_s.data();
+        b.truth_known = f.truth_known.data();
+        b.theta_hat_rad = th.data();
+        b.omega_hat_rad_s = e ? om.data() : nullptr;
+        b.valid = valid.data();
+        analysers.add(b);
+        auto& out = err[slot];
+        out.resize(m);
+        for (std::size_t i = 0; i < m; ++i) out[i] = valid[i] ? th[i] - f.theta_true_rad[i] : std::numeric_limits<double>::quiet_NaN();
     }
 };
 
@@ -223,7 +231,8 @@ json score_lanes(const Scenario& sc, const dev::DeviceInfo& dinfo, std::vector<s
     const EncoderProfile delivered = delivered_profile(sc.encoder, dinfo.converter, &basis);
     json out = json::array();
     for (auto& lane : lanes) {
-        const ErrorMetrics m = lane->scorer.finish();
+        const LaneResults res = lane->analysers.finish();
+        const ErrorMetrics m = res.error.value_or(ErrorMetrics{});
         json ej;
         ej["label"] = lane->spec->label;
         ej["name"] = lane->spec->name;
@@ -246,7 +255,8 @@ json score_lanes(const Scenario& sc, const dev::DeviceInfo& dinfo, std::vector<s
                                     {"message", "dut: the count was off at " + std::to_string(index_errors) + " index pulses (by up to " +
                                                 std::to_string(dut_readout.value("max_index_error_counts", 0LL)) + " counts) and was reset there"}});
         }
-        ej["spectrum"] = lane->spectrum->to_json(m.mean_abs_omega_true_rad_s / kTwoPi);
+        ej["spectrum"] = res.spectrum;
+        if (!res.extra.empty()) ej["analysers"] = res.extra;
         if (m.scored > 0 && lane->e) {
             ej["bounds"] = bounds_json(delivered, *lane->e, sc.sample_rate_hz, m.scored, m.rms_rad);
             ej["bounds"]["signal_as_delivered"] = basis;
@@ -254,9 +264,8 @@ json score_lanes(const Scenario& sc, const dev::DeviceInfo& dinfo, std::vector<s
             ej["bounds"] = nullptr;
         }
         json diag = json::array();
-        const auto findings = lane->conventions.findings();
-        ej["metrics"]["convention_violations"] = findings.size();
-        for (const auto& f : findings) {
+        ej["metrics"]["convention_violations"] = res.conventions.size();
+        for (const auto& f : res.conventions) {
             diag.push_back({{"code", f.code}, {"message", f.message}});
             warnings.push_back({{"severity", "warning"}, {"code", f.code}, {"field", "estimators." + lane->spec->label}, {"message", lane->spec->label + ": " + f.message}});
         }
@@ -349,13 +358,14 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
         for (auto* d : {device.get(), input_device.get()})
             if (d) d->set_cancel(o.cancel);  // a device waiting on a failing board sees a cancel
         for (const auto& f : preflight_device(sc, dinfo)) warnings.push_back(f);
+        const LaneContext lane_ctx{sc.sample_rate_hz, sc.settle_s, sc.scoring.max_harmonic, segment};
         for (const auto& spec : sc.estimators) {
-            auto lane = std::make_unique<Lane>(&spec, sc, segment);
+            auto lane = std::make_unique<Lane>(&spec, lane_ctx);
             lane->e = est::make(spec.name, estimator_config(sc, spec));
             lanes.push_back(std::move(lane));
         }
         // A board that reports its own interpolated position is scored like an estimator, "dut".
-        if (dinfo.dut_position) lanes.push_back(std::make_unique<Lane>(&dut_spec, sc, segment));
+        if (dinfo.dut_position) lanes.push_back(std::make_unique<Lane>(&dut_spec, lane_ctx));
         {
             std::vector<std::string> labels;
             for (auto& lane : lanes) labels.push_back(lane->spec->label);
@@ -373,24 +383,68 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
         if (report.contains("provenance") && report["provenance"]["dut"]["serial"] == "") report["provenance"]["dut"]["serial"] = dinfo.board_id;
         std::optional<Recorder> recorder;
         if (!o.record_path.empty()) recorder.emplace(o.record_path, sc, dinfo, report["id"]);
-        Frames f;
-        while (processed < total) {
-            if (o.cancel && o.cancel->load()) { status = RunStatus::Aborted; error = "cancelled"; break; }
-            const SourceStatus st = source->next(o.block, f);
-            alignment = source->alignment();
-            // Frames delivered before a fault are scored and recorded: a partial capture survives.
-            if (f.size()) {
-                if (recorder) recorder->add(f);
-                for (auto& lane : lanes) lane->process(f);
-                std::vector<const double*> errs;
-                for (auto& lane : lanes) errs.push_back(lane->err.data());
-                traces->add(f.size(), f.t_s.data(), f.sin_v.data(), f.cos_v.data(), f.theta_true_rad.data(), f.truth_known.data(), errs);
-                processed += f.size();
+        // The pipeline, one step per block: the source fills block k+1, the lanes process block
+        // k (each lane a task of its own), and block k-1 goes to the recorder and the traces,
+        // all side by side; each task touches only its own slot, so the report is the same for
+        // any thread count. Frames delivered before a fault or a cancel are processed.
+        TaskPool pool(o.threads ? o.threads : std::max(1u, std::thread::hardware_concurrency()));
+        Frames slot[3];
+        SourceStatus st;
+        bool source_done = false;
+        std::exception_ptr source_failure;
+        std::uint64_t produced = 0, laned = 0;  // frames delivered by the source, and through the lanes
+        std::size_t have[3] = {0, 0, 0};  // frames in each slot
+        std::vector<std::function<void()>> tasks;
+        std::vector<std::exception_ptr> errors;
+        for (std::uint64_t step = 0;; ++step) {
+            if (!source_done && o.cancel && o.cancel->load()) { status = RunStatus::Aborted; error = "cancelled"; source_done = true; }
+            const bool produce = !source_done && produced < total;
+            const bool lane_step = step >= 1 && have[(step - 1) % 3] > 0;  // block step-1
+            const bool trace_step = step >= 2 && have[(step - 2) % 3] > 0;  // block step-2
+            if (!produce && !lane_step && !trace_step) break;
+            tasks.clear();
+            if (produce)
+                tasks.emplace_back([&, k = step % 3] {
+                    st = source->next(o.block, slot[k]);
+                    alignment = source->alignment();
+                });
+            if (lane_step)
+                for (auto& lane : lanes)
+                    tasks.emplace_back([&, l = lane.get(), k = (step - 1) % 3] { l->process(slot[k], static_cast<int>((step - 1) % 2)); });
+            if (trace_step)
+                tasks.emplace_back([&, k = (step - 2) % 3] {
+                    const Frames& f = slot[k];
+                    if (recorder) recorder->add(f);
+                    std::vector<const double*> errs;
+                    for (auto& lane : lanes) errs.push_back(lane->err[(step - 2) % 2].data());
+                    traces->add(f.size(), f.t_s.data(), f.sin_v.data(), f.cos_v.data(), f.theta_true_rad.data(), f.truth_known.data(), errs);
+                });
+            pool.run(tasks, errors);
+            std::size_t t = 0;
+            if (trace_step) have[(step - 2) % 3] = 0;
+            if (produce) {
+                if (errors[t]) {
+                    source_failure = errors[t];  // like a fault: what came before is still processed
+                    have[step % 3] = 0;
+                    source_done = true;
+                } else {
+                    have[step % 3] = slot[step % 3].size();
+                    produced += have[step % 3];
+                    if (!st.ok) { status = RunStatus::Error; error = st.error; source_done = true; }
+                    if (st.end) source_done = true;
+                }
+                ++t;
+            }
+            if (lane_step) {
+                for (std::size_t j = 0; j < lanes.size(); ++j, ++t)
+                    if (errors[t]) std::rethrow_exception(errors[t]);  // an estimator failed: the run ends here
+                laned += have[(step - 1) % 3];
+                processed = laned;
                 if (o.progress) o.progress(processed, total);
             }
-            if (!st.ok) { status = RunStatus::Error; error = st.error; break; }
-            if (st.end) break;
+            if (trace_step && errors[t]) std::rethrow_exception(errors[t]);
         }
+        if (source_failure) std::rethrow_exception(source_failure);
         source->stop();
         if (dinfo.dut_position) dut_readout = device->dut_readout();
         if (status == RunStatus::Done)

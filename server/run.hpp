@@ -28,6 +28,9 @@ struct RunOptions {
     // Where the run came from (provenance.hpp): copied into report["provenance"]; its DUT
     // serial is filled from the device's board id when neither scenario nor bench set one.
     nlohmann::json provenance;
+    // Threads for the pipeline (the source, the lanes and the traces side by side); 0: one per
+    // hardware thread. The report does not depend on it.
+    unsigned threads = 0;
 };
 
 // Validates a scenario for running (estimators exist and accept their parameters, limits

@@ -23,45 +23,137 @@ Scorer::Scorer(ScoringOptions o) : o_(o) {
     m_.harmonics_requested = o_.max_harmonic;
 }
 
+namespace {
+
+// Chan's merge of a block's count, mean and sum of squared deviations into running ones: the
+// two-pass block moments are exact to rounding and need no division per sample (Welford's do).
+void merge_moments(std::uint64_t& n, double& mean, double& m2, std::size_t nb, double mean_b, double m2_b) {
+    if (!nb) return;
+    const double na = static_cast<double>(n), nbd = static_cast<double>(nb), nt = na + nbd;
+    const double delta = mean_b - mean;
+    mean += delta * (nbd / nt);
+    m2 += m2_b + delta * delta * (na * nbd / nt);
+    n += nb;
+}
+
+// Mean and sum of squared deviations of x[0..n) (two passes).
+void block_moments(const double* x, std::size_t n, double& mean, double& m2) {
+    double s = 0;
+#pragma omp simd reduction(+ : s)
+    for (std::size_t i = 0; i < n; ++i) s += x[i];
+    const double mu = n ? s / static_cast<double>(n) : 0.0;
+    double q = 0;
+#pragma omp simd reduction(+ : q)
+    for (std::size_t i = 0; i < n; ++i) { const double d = x[i] - mu; q += d * d; }
+    mean = mu;
+    m2 = q;
+}
+
+}  // namespace
+
 void Scorer::add(std::size_t n, const double* t, const double* th_true, const double* om_true,
                  const double* th_hat, const double* om_hat, const std::uint8_t* valid) {
-    if (n && !have_t0_) { t0_ = t[0]; have_t0_ = true; }
-    std::vector<double> e_raw, th;
-    std::vector<std::uint8_t> ok;
-    e_raw.reserve(n); th.reserve(n); ok.reserve(n);
+    if (!n) return;
+    if (!have_t0_) { t0_ = t[0]; have_t0_ = true; }
+    m_.samples += n;
+    // The raw error and whether it is usable (finite and marked valid), and how many samples
+    // are unlocked (unusable, or off by more than the lock threshold once wrapped): one pass
+    // of plain arithmetic that vectorises (rounding by adding 1.5*2^52, no remainder()).
+    constexpr double kRound = 6755399441055744.0;
+    blk_e_.resize(n);
+    blk_ok_.resize(n);
+    std::size_t unlocked = 0, before_settle = 0;
+    double* be = blk_e_.data();
+    std::uint8_t* bok = blk_ok_.data();
+    const double thr = o_.lock_threshold_rad, t0 = t0_, settle = o_.settle_s;
+#pragma omp simd reduction(+ : unlocked, before_settle)
     for (std::size_t i = 0; i < n; ++i) {
-        ++m_.samples;
         const double e = th_hat[i] - th_true[i];
-        const bool good = valid[i] && std::isfinite(e);
-        // lock: every sample after lock_time has |wrap(e)| <= threshold and is valid
-        if (!good || std::fabs(wrap_pi(e)) > o_.lock_threshold_rad) locked_now_ = false;
-        else if (!locked_now_) { locked_now_ = true; first_t_after_ = t[i]; }
-        if (t[i] - t0_ < o_.settle_s) continue;
-        ++m_.after_settle;
-        e_raw.push_back(good ? e : 0.0);
-        th.push_back(th_true[i]);
-        ok.push_back(good ? 1 : 0);
-        if (!good) { ++m_.invalid_after_settle; continue; }
-        if (om_true && std::isfinite(om_true[i])) {
-            sum_omega_true_ += om_true[i];
-            sum_abs_omega_true_ += std::fabs(om_true[i]);
+        const bool ok = valid[i] != 0 && (e - e) == 0.0;  // e - e is NaN for inf and NaN
+        const double turns = e * (1 / kTwoPi);
+        const double wrapped = e - kTwoPi * ((turns + kRound) - kRound);
+        be[i] = e;
+        bok[i] = ok;
+        unlocked += !ok || std::fabs(wrapped) > thr || std::fabs(turns) > 1e15;
+        before_settle += t[i] - t0 < settle;
+    }
+    // Lock: locked from the sample after the last unlocked one (searched from the end, only when
+    // there is one); a block without any continues the lock or starts it at its first sample.
+    if (unlocked) {
+        std::size_t last = n;
+        for (std::size_t i = n; i-- > 0;) {
+            const double e = blk_e_[i];
+            if (!blk_ok_[i] || std::fabs(wrap_pi(e)) > o_.lock_threshold_rad) { last = i; break; }
+        }
+        if (last < n) {
+            locked_now_ = last + 1 < n;
+            if (locked_now_) first_t_after_ = t[last + 1];
+        } else if (!locked_now_) {
+            locked_now_ = true;
+            first_t_after_ = t[0];
+        }
+    } else if (!locked_now_) {
+        locked_now_ = true;
+        first_t_after_ = t[0];
+    }
+    // The samples at or after the settle time, in order (the whole block once settled).
+    const double* e_after = blk_e_.data();
+    const double* th_after = th_true;
+    const double* omt_after = om_true;
+    const double* omh_after = om_hat;
+    const std::uint8_t* ok_after = blk_ok_.data();
+    std::size_t na = n;
+    if (before_settle) {
+        sel_e_.clear(); sel_th_.clear(); sel_omt_.clear(); sel_omh_.clear(); sel_ok_.clear();
+        for (std::size_t i = 0; i < n; ++i) {
+            if (t[i] - t0_ < o_.settle_s) continue;
+            sel_e_.push_back(blk_e_[i]);
+            sel_th_.push_back(th_true[i]);
+            sel_ok_.push_back(blk_ok_[i]);
+            if (om_true) sel_omt_.push_back(om_true[i]);
+            if (om_hat) sel_omh_.push_back(om_hat[i]);
+        }
+        na = sel_e_.size();
+        e_after = sel_e_.data();
+        th_after = sel_th_.data();
+        ok_after = sel_ok_.data();
+        omt_after = om_true ? sel_omt_.data() : nullptr;
+        omh_after = om_hat ? sel_omh_.data() : nullptr;
+    }
+    if (!na) return;
+    m_.after_settle += na;
+    std::size_t good = 0;
+    for (std::size_t i = 0; i < na; ++i) good += ok_after[i];
+    m_.invalid_after_settle += na - good;
+    // The rate: its truth over the usable samples where it is known, and the estimate's error.
+    if (omt_after) {
+        rate_d_.clear();
+        for (std::size_t i = 0; i < na; ++i) {
+            if (!ok_after[i] || !std::isfinite(omt_after[i])) continue;
+            sum_omega_true_ += omt_after[i];
+            sum_abs_omega_true_ += std::fabs(omt_after[i]);
             ++n_omega_true_;
-            if (om_hat) {
-                const double d = om_hat[i] - om_true[i];
+            if (omh_after) {
+                const double d = omh_after[i] - omt_after[i];
                 if (!std::isfinite(d)) { ++m_.omega_nonfinite; continue; }
-                ++om_n_;
-                const double delta = d - om_mean_;
-                om_mean_ += delta / static_cast<double>(om_n_);
-                om_m2_ += delta * (d - om_mean_);
+                rate_d_.push_back(d);
             }
         }
+        double mb = 0, qb = 0;
+        block_moments(rate_d_.data(), rate_d_.size(), mb, qb);
+        merge_moments(om_n_, om_mean_, om_m2_, rate_d_.size(), mb, qb);
     }
-    if (e_raw.empty()) return;
-    if (decided_) return process(e_raw.size(), e_raw.data(), th.data(), ok.data());
-    pending_e_.insert(pending_e_.end(), e_raw.begin(), e_raw.end());
-    pending_th_.insert(pending_th_.end(), th.begin(), th.end());
-    pending_ok_.insert(pending_ok_.end(), ok.begin(), ok.end());
-    if (static_cast<std::size_t>(std::count(pending_ok_.begin(), pending_ok_.end(), 1)) >= kMedianWindow) decide();
+    // Unusable samples carry 0 (the error array is handed on as it stands).
+    if (good < na) {
+        double* e = e_after == blk_e_.data() ? blk_e_.data() : sel_e_.data();
+        for (std::size_t i = 0; i < na; ++i) if (!ok_after[i]) e[i] = 0.0;
+    }
+    if (decided_) return process(na, e_after, th_after, ok_after);
+    pending_e_.insert(pending_e_.end(), e_after, e_after + na);
+    pending_th_.insert(pending_th_.end(), th_after, th_after + na);
+    pending_ok_.insert(pending_ok_.end(), ok_after, ok_after + na);
+    pending_good_ += good;
+    if (pending_good_ >= kMedianWindow) decide();
 }
 
 void Scorer::decide() {
@@ -79,64 +171,126 @@ void Scorer::decide() {
     pending_ok_ = {};
 }
 
-void Scorer::process(std::size_t n, const double* e_raw, const double* th, const std::uint8_t* ok) {
+void Scorer::process(std::size_t n, const double* e_raw, const double* th_all, const std::uint8_t* ok) {
+    // The scored errors (the 2*pi multiple removed) and their angles, compacted; e_ keeps the
+    // full-length sequence for the sink, 0 where not scored.
     e_.assign(n, 0.0);
-    c1_.clear(); s1_.clear();
-    std::vector<double> es;  // the scored errors, compacted, for the harmonic sums
-    es.reserve(n);
+    es_.resize(n);
+    th_.resize(n);
+    std::size_t ns = 0;
     for (std::size_t i = 0; i < n; ++i) {
         if (!ok[i]) continue;
         const double e = e_raw[i] - offset_rad_;
         e_[i] = e;
-        ++m_.scored;
-        const double d = e - mean_;
-        mean_ += d / static_cast<double>(m_.scored);
-        m2_ += d * (e - mean_);
-        min_e_ = std::min(min_e_, e);
-        max_e_ = std::max(max_e_, e);
-        if (std::fabs(e) > kPi) ++m_.slipped_samples;
-        if (have_last_th_) m_.cycles_scored += std::fabs(th[i] - last_th_) / kTwoPi;
-        last_th_ = th[i];
-        have_last_th_ = true;
-        double s, c;
-        fast_sincos(th[i], s, c);
-        s1_.push_back(s);
-        c1_.push_back(c);
-        es.push_back(e);
-        batch0_sum_ += e;
-        if (++batch0_n_ == kBatch0) { batch_done(batch0_sum_); batch0_sum_ = 0; batch0_n_ = 0; }
-        const double w = th[i] - kTwoPi * std::floor(th[i] / kTwoPi);  // [0, 2*pi)
-        const auto b = std::min<long>(kAngleBins - 1, static_cast<long>(w / kTwoPi * kAngleBins));
-        ++bins_[static_cast<std::size_t>(b)];
+        es_[ns] = e;
+        th_[ns] = th_all[i];
+        ++ns;
     }
-    // Harmonic sums by the Chebyshev recurrence, one order at a time over the block (vectorises).
-    const std::size_t ns = es.size();
     if (ns) {
-        cm_.assign(c1_.begin(), c1_.end());
-        sm_.assign(s1_.begin(), s1_.end());
-        sum_cos_[0] += static_cast<double>(ns);
-        for (std::size_t i = 0; i < ns; ++i) { sum_e_ += es[i]; sum_e2_ += es[i] * es[i]; }
-        const int M = 2 * o_.max_harmonic;
-        for (int m = 1; m <= M; ++m) {
-            double sc = 0, ss = 0, sec = 0, ses = 0;
-            if (m <= o_.max_harmonic) {
-                for (std::size_t i = 0; i < ns; ++i) { sc += cm_[i]; ss += sm_[i]; sec += es[i] * cm_[i]; ses += es[i] * sm_[i]; }
-                sum_ecos_[static_cast<std::size_t>(m)] += sec;
-                sum_esin_[static_cast<std::size_t>(m)] += ses;
-            } else {
-                for (std::size_t i = 0; i < ns; ++i) { sc += cm_[i]; ss += sm_[i]; }
-            }
-            sum_cos_[static_cast<std::size_t>(m)] += sc;
-            sum_sin_[static_cast<std::size_t>(m)] += ss;
-            if (m == M) break;
-            for (std::size_t i = 0; i < ns; ++i) {
-                const double cn = cm_[i] * c1_[i] - sm_[i] * s1_[i];
-                sm_[i] = sm_[i] * c1_[i] + cm_[i] * s1_[i];
-                cm_[i] = cn;
-            }
+        const double* es = es_.data();
+        const double* th = th_.data();
+        double mb = 0, qb = 0;
+        block_moments(es, ns, mb, qb);
+        std::uint64_t scored = m_.scored;
+        merge_moments(scored, mean_, m2_, ns, mb, qb);
+        m_.scored = scored;
+        double lo = min_e_, hi = max_e_, se = 0, se2 = 0, travel = have_last_th_ ? std::fabs(th[0] - last_th_) : 0.0;
+        std::uint64_t slipped = 0;
+#pragma omp simd reduction(min : lo) reduction(max : hi) reduction(+ : slipped, se, se2)
+        for (std::size_t i = 0; i < ns; ++i) {
+            const double e = es[i];
+            lo = std::min(lo, e);
+            hi = std::max(hi, e);
+            slipped += std::fabs(e) > kPi;
+            se += e;
+            se2 += e * e;
         }
+#pragma omp simd reduction(+ : travel)
+        for (std::size_t i = 1; i < ns; ++i) travel += std::fabs(th[i] - th[i - 1]);
+        min_e_ = lo;
+        max_e_ = hi;
+        m_.slipped_samples += slipped;
+        m_.cycles_scored += travel / kTwoPi;
+        sum_e_ += se;
+        sum_e2_ += se2;
+        last_th_ = th[ns - 1];
+        have_last_th_ = true;
+        // Batch means of 64 scored samples, carried across blocks.
+        for (std::size_t i = 0; i < ns;) {
+            const std::size_t take = std::min<std::size_t>(static_cast<std::size_t>(kBatch0 - batch0_n_), ns - i);
+            double sb = 0;
+            for (std::size_t k = 0; k < take; ++k) sb += es[i + k];
+            batch0_sum_ += sb;
+            batch0_n_ += static_cast<int>(take);
+            i += take;
+            if (batch0_n_ == kBatch0) { batch_done(batch0_sum_); batch0_sum_ = 0; batch0_n_ = 0; }
+        }
+        c1_.resize(ns);
+        s1_.resize(ns);
+        double* c1 = c1_.data();
+        double* s1 = s1_.data();
+#pragma omp simd
+        for (std::size_t i = 0; i < ns; ++i) fast_sincos(th[i], s1[i], c1[i]);
+        constexpr double kBinsPerRad = kAngleBins / kTwoPi;
+        for (std::size_t i = 0; i < ns; ++i) {
+            const double w = th[i] - kTwoPi * std::floor(th[i] * (1 / kTwoPi));  // [0, 2*pi), up to rounding
+            const auto b = std::clamp<long>(static_cast<long>(w * kBinsPerRad), 0, kAngleBins - 1);
+            ++bins_[static_cast<std::size_t>(b)];
+        }
+        harmonic_sums(ns, es);
     }
     if (sink_) sink_(n, e_.data(), ok);
+}
+
+// Sums of cos(m th), sin(m th) (m = 1..2K) and of e*cos(k th), e*sin(k th) (k = 1..K) by the
+// Chebyshev recurrence, in chunks that stay in the L1 cache, every order per chunk, one fused
+// pass per order. `omp simd` (-fopenmp-simd: no OpenMP runtime) lets the compiler split the sums
+// into vector lanes; the split is fixed at compile time, so a build gives the same sums on
+// every run and thread count.
+void Scorer::harmonic_sums(std::size_t ns, const double* es) {
+    constexpr std::size_t kChunk = 1024;
+    alignas(64) double cm[kChunk];
+    alignas(64) double sm[kChunk];
+    const int K = o_.max_harmonic, M = 2 * K;
+    sum_cos_[0] += static_cast<double>(ns);
+    for (std::size_t c0 = 0; c0 < ns; c0 += kChunk) {
+        const std::size_t len = std::min(kChunk, ns - c0);
+        const double* c1 = c1_.data() + c0;
+        const double* s1 = s1_.data() + c0;
+        const double* e = es + c0;
+        std::copy(c1, c1 + len, cm);
+        std::copy(s1, s1 + len, sm);
+        for (int m = 1; m <= M; ++m) {
+            const auto mi = static_cast<std::size_t>(m);
+            double sc = 0, ss = 0;
+            if (m <= K) {
+                double sec = 0, ses = 0;
+#pragma omp simd reduction(+ : sc, ss, sec, ses)
+                for (std::size_t i = 0; i < len; ++i) {
+                    const double c = cm[i], sn = sm[i];
+                    sc += c;
+                    ss += sn;
+                    sec += e[i] * c;
+                    ses += e[i] * sn;
+                    cm[i] = c * c1[i] - sn * s1[i];
+                    sm[i] = sn * c1[i] + c * s1[i];
+                }
+                sum_ecos_[mi] += sec;
+                sum_esin_[mi] += ses;
+            } else {
+#pragma omp simd reduction(+ : sc, ss)
+                for (std::size_t i = 0; i < len; ++i) {
+                    const double c = cm[i], sn = sm[i];
+                    sc += c;
+                    ss += sn;
+                    cm[i] = c * c1[i] - sn * s1[i];
+                    sm[i] = sn * c1[i] + c * s1[i];
+                }
+            }
+            sum_cos_[mi] += sc;
+            sum_sin_[mi] += ss;
+        }
+    }
 }
 
 // A completed batch of 64 samples (sum of e, rad): record its mean at level 0 and carry the sum
@@ -275,28 +429,46 @@ ErrorMetrics Scorer::finish() {
 
 void ConventionCheck::add(std::size_t n, const double* th_true, const double* th_hat, const std::uint8_t* valid) {
     constexpr double kHalfTurnDeg = 180.0;
+    // Local accumulators: members written through `this` inside the loop could alias the
+    // input arrays, and the compiler would reload and store them every sample.
+    bool have = have_;
+    double last_true = last_true_, last_hat = last_hat_, lo = min_hat_, hi = max_hat_;
+    double sdt = sum_abs_dtrue_, sdh = sum_abs_dhat_, dsdt = deg_sum_abs_dtrue_, dsdh = deg_sum_abs_dhat_;
+    std::uint64_t pairs = 0, wraps = 0, djumps = 0;
     for (std::size_t i = 0; i < n; ++i) {
-        if (!valid[i] || !std::isfinite(th_hat[i]) || !std::isfinite(th_true[i])) { have_ = false; continue; }
-        min_hat_ = std::min(min_hat_, th_hat[i]);
-        max_hat_ = std::max(max_hat_, th_hat[i]);
-        if (have_) {
-            const double dt = th_true[i] - last_true_, dh = th_hat[i] - last_hat_;
-            ++pairs_;
-            sum_abs_dtrue_ += std::fabs(dt);
-            sum_abs_dhat_ += std::fabs(dh);
-            if (std::fabs(std::fabs(dh - dt) - kTwoPi) < 0.5) ++wrap_jumps_;
-            if (std::fabs(dh) > kHalfTurnDeg) {
-                ++deg_jumps_;
-            } else {
-                ++deg_pairs_;
-                deg_sum_abs_dtrue_ += std::fabs(dt);
-                deg_sum_abs_dhat_ += std::fabs(dh);
-            }
+        const double tt = th_true[i], hh = th_hat[i];
+        if (!valid[i] || !((tt - tt) == 0.0) || !((hh - hh) == 0.0)) { have = false; continue; }  // invalid or not finite
+        lo = std::min(lo, hh);
+        hi = std::max(hi, hh);
+        if (have) {
+            const double dt = tt - last_true, dh = hh - last_hat;
+            const double adt = std::fabs(dt), adh = std::fabs(dh);
+            ++pairs;
+            sdt += adt;
+            sdh += adh;
+            wraps += std::fabs(std::fabs(dh - dt) - kTwoPi) < 0.5;
+            const bool jump = adh > kHalfTurnDeg;
+            djumps += jump;
+            dsdt += jump ? 0.0 : adt;
+            dsdh += jump ? 0.0 : adh;
         }
-        have_ = true;
-        last_true_ = th_true[i];
-        last_hat_ = th_hat[i];
+        have = true;
+        last_true = tt;
+        last_hat = hh;
     }
+    have_ = have;
+    last_true_ = last_true;
+    last_hat_ = last_hat;
+    min_hat_ = lo;
+    max_hat_ = hi;
+    sum_abs_dtrue_ = sdt;
+    sum_abs_dhat_ = sdh;
+    deg_sum_abs_dtrue_ = dsdt;
+    deg_sum_abs_dhat_ = dsdh;
+    pairs_ += pairs;
+    wrap_jumps_ += wraps;
+    deg_jumps_ += djumps;
+    deg_pairs_ += pairs - djumps;
 }
 
 std::vector<ConventionCheck::Finding> ConventionCheck::findings() const {

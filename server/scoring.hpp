@@ -92,17 +92,19 @@ private:
     // Samples after the settle time in order: e_raw = theta_hat - theta_true, ok = valid.
     void process(std::size_t n, const double* e_raw, const double* th, const std::uint8_t* ok);
     void decide();
+    void harmonic_sums(std::size_t ns, const double* es);
     ScoringOptions o_;
     bool decided_ = false;
     double offset_rad_ = 0;
     std::vector<double> pending_e_, pending_th_;
     std::vector<std::uint8_t> pending_ok_;
+    std::size_t pending_good_ = 0;  // usable samples pending
     ErrorMetrics m_;
     double t0_ = 0;
     bool have_t0_ = false;
     double first_t_after_ = 0;
     bool locked_now_ = false;
-    // Welford
+    // Running moments (merged per block, Chan et al.)
     double mean_ = 0, m2_ = 0, min_e_ = 1e300, max_e_ = -1e300;
     double om_mean_ = 0, om_m2_ = 0;
     std::uint64_t om_n_ = 0;
@@ -124,8 +126,8 @@ private:
     double sum_e_ = 0, sum_e2_ = 0;
     std::vector<std::uint32_t> bins_;
     // block scratch
-    std::vector<double> cm_, sm_, c1_, s1_, e_;
-    std::vector<std::uint8_t> ok_;
+    std::vector<double> blk_e_, sel_e_, sel_th_, sel_omt_, sel_omh_, rate_d_, es_, th_, c1_, s1_, e_;
+    std::vector<std::uint8_t> blk_ok_, sel_ok_;
     Sink sink_;
 };
 

@@ -351,8 +351,8 @@ std::optional<HttpResponse> Service::run_scenario(const json& body, Scenario& sc
             throw e.prefixed("fixture");
         }
         for (const auto& e : sc.estimators)
-            if (e.name == "external" && !cfg_.allow_external)
-                throw ConfigError("fixture", "this fixture uses the external estimator; start the service with --allow-external");
+            if (est::traits_of(e.name).child_process && !cfg_.allow_external)
+                throw ConfigError("fixture", "this fixture uses the " + e.name + " estimator, which runs a command on this host; start the service with --allow-external");
     } else {
         // Counted before anything is built from them (each estimator is constructed to check it).
         const json& raw = body["scenario"];

@@ -6,6 +6,7 @@
 #include "drivers/device.hpp"
 #include "drivers/modbus_board.hpp"
 #include "drivers/usb_protocol.hpp"
+#include "estimator/estimator.hpp"
 #include "scenario.hpp"
 
 #include <spdlog/spdlog.h>
@@ -125,8 +126,9 @@ json Service::sandbox_scenario(json j) const {
             if (!e.is_object()) continue;
             const std::string f = "scenario.estimators[" + std::to_string(i) + "]";
             if (e.contains("encoder")) check_ref(e["encoder"], base, root, f + ".encoder");
-            if (e.value("name", "") == "external" && !cfg_.allow_external)
-                throw ConfigError(f + ".name", "the external estimator runs a command on this host; start the service with --allow-external to permit it");
+            const std::string name = e.contains("name") && e["name"].is_string() ? e["name"].get<std::string>() : "";
+            if (est::traits_of(name).child_process && !cfg_.allow_external)
+                throw ConfigError(f + ".name", "the " + name + " estimator runs a command on this host; start the service with --allow-external to permit it");
         }
     if (j.contains("device") && j["device"].is_string()) j["device"] = sandbox_device(j["device"].get<std::string>());
     // Output and input instruments: each on its own is held to the same policy.

@@ -57,16 +57,21 @@ std::size_t ErrorSpectrum::choose_segment(double sample_rate_hz, double electric
 }
 
 void ErrorSpectrum::add(std::size_t n, const double* e_rad, const std::uint8_t* ok) {
-    for (std::size_t i = 0; i < n; ++i) {
-        if ((ok && !ok[i]) || !std::isfinite(e_rad[i])) {
-            buf_.clear();  // a gap ends the segment: never bridged
-            continue;
+    for (std::size_t i = 0; i < n;) {
+        // The run of usable samples from i, appended in pieces that complete segments.
+        std::size_t j = i;
+        while (j < n && (!ok || ok[j]) && std::isfinite(e_rad[j])) ++j;
+        for (std::size_t k = i; k < j;) {
+            const std::size_t take = std::min(j - k, n_ - buf_.size());
+            buf_.insert(buf_.end(), e_rad + k, e_rad + k + take);
+            k += take;
+            if (buf_.size() == n_) {
+                segment();
+                buf_.erase(buf_.begin(), buf_.begin() + static_cast<std::ptrdiff_t>(n_ / 2));  // 50 % overlap
+            }
         }
-        buf_.push_back(e_rad[i]);
-        if (buf_.size() == n_) {
-            segment();
-            buf_.erase(buf_.begin(), buf_.begin() + static_cast<std::ptrdiff_t>(n_ / 2));  // 50 % overlap
-        }
+        if (j < n) buf_.clear();  // a gap ends the segment: never bridged
+        i = j + 1;
     }
 }
 

@@ -97,39 +97,59 @@ TraceRecorder::TraceRecorder(std::uint64_t total_samples, std::size_t points, st
 void TraceRecorder::add(std::size_t m, const double* t_s, const double* sin_v, const double* cos_v, const double* theta_true_rad,
                         const std::uint8_t* truth_known, const std::vector<const double*>& err_rad) {
     const std::size_t lanes = std::min(err_rad.size(), labels_.size());
+    // The true-angle bin of each sample that enters the folds (-1: not folded), once for all lanes.
+    abin_.resize(m);
     for (std::size_t i = 0; i < m; ++i) {
+        const bool known = (!truth_known || truth_known[i]) && std::isfinite(theta_true_rad[i]);
+        abin_[i] = known && t_s[i] >= fold_from_s_ ? static_cast<std::int32_t>(angle_bin(theta_true_rad[i], bins_)) : -1;
+        if (abin_[i] >= 0 && std::isfinite(sin_v[i]) && std::isfinite(cos_v[i])) {
+            const auto ab = static_cast<std::size_t>(abin_[i]);
+            cyc_sin_[ab] += sin_v[i];
+            cyc_cos_[ab] += cos_v[i];
+            ++cyc_n_[ab];
+        }
+    }
+    // Bucket by bucket: no division per sample.
+    for (std::size_t i = 0; i < m;) {
         const std::uint64_t idx = n_ + i;
         const auto b = static_cast<std::size_t>(std::min<std::uint64_t>(idx / bucket_samples_, buckets_ - 1));
         const std::uint64_t off = idx - static_cast<std::uint64_t>(b) * bucket_samples_;
-        if (off == 0 || b >= used_) {
-            if (b >= used_) used_ = b + 1;
-            if (std::isnan(t_start_[b])) t_start_[b] = t_s[i];
+        // the last bucket also takes the samples past the plan
+        const std::size_t len = b + 1 == buckets_ ? m - i : static_cast<std::size_t>(std::min<std::uint64_t>(m - i, bucket_samples_ - off));
+        if (b >= used_) used_ = b + 1;
+        if (std::isnan(t_start_[b])) t_start_[b] = t_s[i];
+        double slo = sin_.lo[b], shi = sin_.hi[b], clo = cos_.lo[b], chi = cos_.hi[b];
+        for (std::size_t k = i; k < i + len; ++k) {
+            const double sv = sin_v[k], cv = cos_v[k];
+            if (std::isfinite(sv)) { slo = std::min(slo, sv); shi = std::max(shi, sv); }
+            if (std::isfinite(cv)) { clo = std::min(clo, cv); chi = std::max(chi, cv); }
         }
-        const double s = sin_v[i], c = cos_v[i];
-        const bool sc_ok = std::isfinite(s) && std::isfinite(c);
-        if (std::isfinite(s)) sin_.put(b, s);
-        if (std::isfinite(c)) cos_.put(b, c);
-        if (off == pt_offset_[b] && sc_ok) { pt_sin_[b] = s; pt_cos_[b] = c; }
-        const bool known = (!truth_known || truth_known[i]) && std::isfinite(theta_true_rad[i]);
-        const bool fold = known && t_s[i] >= fold_from_s_;
-        std::size_t ab = 0;
-        if (fold) {
-            ab = angle_bin(theta_true_rad[i], bins_);
-            if (sc_ok) { cyc_sin_[ab] += s; cyc_cos_[ab] += c; ++cyc_n_[ab]; }
+        sin_.lo[b] = slo; sin_.hi[b] = shi; cos_.lo[b] = clo; cos_.hi[b] = chi;
+        if (pt_offset_[b] >= off && pt_offset_[b] < off + len) {
+            const std::size_t k = i + static_cast<std::size_t>(pt_offset_[b] - off);
+            if (std::isfinite(sin_v[k]) && std::isfinite(cos_v[k])) { pt_sin_[b] = sin_v[k]; pt_cos_[b] = cos_v[k]; }
         }
         for (std::size_t j = 0; j < lanes; ++j) {
-            const double e = err_rad[j][i];
-            if (!std::isfinite(e)) continue;  // invalid sample or unknown truth
-            const double w = wrap_pi(e);
-            err_[j].put(b, w);
-            if (fold) {
-                Fold& f = fold_[j];
-                f.sum[ab] += w;
-                ++f.count[ab];
-                if (w < f.lo[ab]) f.lo[ab] = w;
-                if (w > f.hi[ab]) f.hi[ab] = w;
+            const double* e = err_rad[j];
+            Fold& f = fold_[j];
+            double lo = err_[j].lo[b], hi = err_[j].hi[b];
+            for (std::size_t k = i; k < i + len; ++k) {
+                if (!std::isfinite(e[k])) continue;  // invalid sample or unknown truth
+                const double w = wrap_pi(e[k]);
+                lo = std::min(lo, w);
+                hi = std::max(hi, w);
+                if (abin_[k] >= 0) {
+                    const auto ab = static_cast<std::size_t>(abin_[k]);
+                    f.sum[ab] += w;
+                    ++f.count[ab];
+                    if (w < f.lo[ab]) f.lo[ab] = w;
+                    if (w > f.hi[ab]) f.hi[ab] = w;
+                }
             }
+            err_[j].lo[b] = lo;
+            err_[j].hi[b] = hi;
         }
+        i += len;
     }
     n_ += m;
 }

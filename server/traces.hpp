@@ -60,6 +60,7 @@ private:
     std::vector<double> cyc_sin_, cyc_cos_;      // sums per true-angle bin
     std::vector<std::uint64_t> cyc_n_;
     std::vector<Fold> fold_;
+    std::vector<std::int32_t> abin_;  // block scratch: each sample's true-angle bin, -1 when not folded
 };
 
 }  // namespace fringe
