@@ -1,6 +1,6 @@
 // The run engine: generate the encoder signals, play them through a device, capture, run the
 // estimators under test, score against truth, apply limits, and build the report
-// (schema "fringe.report", version 1). Streams in blocks: memory does not grow with the run
+// (schema "fringe.report", version 3). Streams in blocks: memory does not grow with the run
 // length (traces are decimated to a fixed number of points).
 #pragma once
 
@@ -28,6 +28,13 @@ struct RunOptions {
     // Where the run came from (provenance.hpp): copied into report["provenance"]; its DUT
     // serial is filled from the device's board id when neither scenario nor bench set one.
     nlohmann::json provenance;
+    // Each block's output of the first estimator under test as it left the estimator (before
+    // the samples without truth are dropped from scoring): `fringe estimate` writes its
+    // estimates CSV from it. A throw ends the run with status "error".
+    std::function<void(std::size_t n, const double* t_s, const double* theta_rad, const double* omega_rad_s, const std::uint8_t* valid)>
+        estimates;
+    // Filled when the run ends: seconds spent inside the first estimator (its throughput).
+    double* estimator_s = nullptr;
 };
 
 // Validates a scenario for running (estimators exist and accept their parameters, limits
