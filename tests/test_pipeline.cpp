@@ -1,11 +1,12 @@
 // One pipeline: the same capture through `fringe estimate` (the built executable), the HTTP
 // evaluation (Service::handle, after an upload) and a run of a scenario file whose device is
-// capture:PATH gives identical figures, in the same report schema.
+// capture:PATH gives identical figures, in the same report schema; so does a DUT's ABZ lane.
 #include "drivers/capture_file.hpp"
 #include "server/capture_run.hpp"
 #include "server/run.hpp"
 #include "server/scenario.hpp"
 #include "server/service.hpp"
+#include "signal_gen/fastmath.hpp"
 #include "signal_gen/generator.hpp"
 
 #include <catch2/catch.hpp>
@@ -13,6 +14,8 @@
 
 #include <unistd.h>
 
+#include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -177,4 +180,53 @@ TEST_CASE("one pipeline: a capture without truth gives estimates and no verdict"
     int rows = 0;
     while (std::getline(f, line)) ++rows;
     CHECK(rows == 5001);
+}
+
+TEST_CASE("one pipeline: a DUT's ABZ lines score the same through fringe estimate and a capture: run", "[pipeline][capture][run]") {
+    TempDir d;
+    const Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
+    const std::uint64_t n = 30000;
+    const int N = 16;  // an ideal interpolator: A/B Gray code of floor(theta / step), Z at count 0 mod 4N
+    const fs::path cap = d.path / "abz.csv";
+    {
+        Generator g(gen.encoder, gen.motion, gen.sample_rate_hz, gen.seed);
+        Block b;
+        b.resize(n, false);
+        g.generate(0, b);
+        std::ofstream f(cap);
+        f << "t,sin,cos,theta_true,a,b,z\n";
+        const double step = kTwoPi / (4 * N);
+        const int gray_a[4] = {0, 1, 1, 0}, gray_b[4] = {0, 0, 1, 1};
+        char line[256];
+        for (std::size_t i = 0; i < n; ++i) {
+            const long long k = static_cast<long long>(std::floor(b.theta_rad[i] / step));
+            const int q = static_cast<int>(((k % 4) + 4) % 4);
+            std::snprintf(line, sizeof line, "%.17g,%.17g,%.17g,%.17g,%d,%d,%d\n", b.t_s[i], b.sin_v[i], b.cos_v[i], b.theta_rad[i], gray_a[q], gray_b[q],
+                          ((k % (4 * N)) + 4 * N) % (4 * N) == 0 ? 1 : 0);
+            f << line;
+        }
+        write_all(d.path / "abz.json", json{{"sample_rate_hz", gen.sample_rate_hz}, {"t0_s", 0.0}, {"encoder", gen.encoder}}.dump());
+    }
+    const fs::path est_report = d.path / "estimate.json";
+    const std::string cmd = std::string(FRINGE_CLI) + " estimate " + cap.string() + " --estimator atan2 --dut-interpolation " + std::to_string(N) +
+                            " -q --report " + est_report.string();
+    REQUIRE(std::system(cmd.c_str()) == 0);
+    const json a = json::parse(read_all(est_report));
+    const json scj{{"name", "abz run"}, {"encoder", gen.encoder}, {"motion", {{"kind", "constant"}, {"velocity_rad_s", 0.6}}},
+                   {"sample_rate_hz", gen.sample_rate_hz}, {"duration_s", static_cast<double>(n) / gen.sample_rate_hz},
+                   {"device", "capture:" + cap.string() + "?interpolation=" + std::to_string(N)}, {"settle_s", 0.1},
+                   {"estimators", json::array({{{"name", "atan2"}}})}};
+    write_all(d.path / "run.json", scj.dump());
+    const json r = execute_run(load_scenario((d.path / "run.json").string()));
+    REQUIRE(a["estimators"].size() == 2);
+    REQUIRE(r["estimators"].size() == 2);
+    CHECK(a["estimators"][1]["label"] == "dut");
+    CHECK(r["estimators"][1]["label"] == "dut");
+    const json& da = a["estimators"][1]["metrics"];
+    CHECK(da["scored"] == 20000);
+    CHECK(da["abz"]["illegal_transitions"] == 0);
+    CHECK(da["max_abs"]["rad"].get<double>() <= kTwoPi / (4 * N) / 2 + 1e-9);  // an ideal DUT's quantisation
+    CHECK(da == r["estimators"][1]["metrics"]);
+    CHECK(a["estimators"][0]["metrics"] == r["estimators"][0]["metrics"]);
+    CHECK(a["measurements"] == r["measurements"]);
 }
