@@ -187,6 +187,9 @@ HttpResponse Service::evaluate(const HttpRequest& req, const std::string& id) {
     // with status "error", as for any run.
     json rep = run_capture(o);
     rep["capture"]["id"] = id;
+    // Without the plot data, as GET runs/{id}/report.json: the figures, not 0.5 MB of traces.
+    rep.erase("traces");
+    for (auto& e : rep["estimators"]) e.erase("spectrum");
     return json_ok(rep);
 }
 

@@ -120,6 +120,8 @@ TEST_CASE("one pipeline: fringe estimate, HTTP evaluate and a capture: run give 
         }
         CHECK(a["capture"]["encoder_source"] == "capture metadata");
         CHECK(b["capture"]["id"] == id);
+        CHECK_FALSE(b.contains("traces"));  // the HTTP answer leaves out the plot data
+        CHECK(a["traces"].is_object());
         const json& ma = a["estimators"][0]["metrics"];
         const json& mb = b["estimators"][0]["metrics"];
         const json& mr = r["estimators"][0]["metrics"];
