@@ -27,7 +27,7 @@ public:
             abz_cfg_.interpolation = s["interpolation"].get<int>();
             abz_cfg_.index_count = s.value("index_count", 0LL);
             abz_cfg_.offset_rad = s.value("offset_rad", 0.0);
-            abz_.emplace(abz_cfg_);
+            if (abz_cfg_.interpolation > 0) abz_.emplace(abz_cfg_);  // 0: the lines are left unread
         }
     }
     DeviceInfo info() const override {
@@ -117,8 +117,9 @@ void register_capture(std::vector<DriverInfo>& r) {
     for (const char* col : {"sin", "cos", "theta_true", "omega_true", "index", "a", "b", "z"})
         d.settings.push_back({col, "", ParamType::String, nullptr, -kInf, kInf, {},
                               std::string("sigrok session (.sr) channel read as column ") + col + " (default: the channel named " + col + ")"});
-    d.settings.push_back({"interpolation", "", ParamType::Integer, nullptr, 1, 1000000, {},
-                          "the DUT's interpolation factor N: A/B periods per electrical cycle (4N counts); required when the capture has a/b lines"});
+    d.settings.push_back({"interpolation", "", ParamType::Integer, nullptr, 0, 1000000, {},
+                          "the DUT's interpolation factor N: A/B periods per electrical cycle (4N counts); required when the capture has a/b lines "
+                          "(0: leave them unread, no DUT lane)"});
     d.settings.push_back({"max_expanded_mb", "MiB", ParamType::Number, 4096.0, 1, 1.6e7, {},
                           "most sample data a sigrok session (.sr) may expand to (its members as declared; a limit against ZIP bombs)"});
     d.settings.push_back({"index_count", "", ParamType::Integer, 0, -1e9, 1e9, {}, "the DUT's count at its Z index, mod 4N (docs/abz.md)"});

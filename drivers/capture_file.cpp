@@ -295,6 +295,9 @@ MetaFields check_meta(const json& m, const std::string& where, bool rate_require
         }
         return x;
     };
+    // a report written where the sidecar goes (fringe refuses that now; older files may exist)
+    if (m.contains("schema") && m["schema"].is_string() && m["schema"].get<std::string>().rfind("fringe.", 0) == 0)
+        throw CaptureError(where + " is a " + m["schema"].get<std::string>() + " report, not a capture's metadata (a report written over the sidecar?)");
     if (m.contains("sample_rate_hz")) f.fs_hz = number("sample_rate_hz", kCaptureMinRateHz, kCaptureMaxRateHz, "Hz");
     else if (rate_required) throw CaptureError(where + ".sample_rate_hz is required (a positive number)");
     if (m.contains("t0_s")) f.t0_s = number("t0_s", -kCaptureMaxAbsT0_s, kCaptureMaxAbsT0_s, "s");
@@ -304,9 +307,6 @@ MetaFields check_meta(const json& m, const std::string& where, bool rate_require
             throw CaptureError(where + ".samples must be a non-negative integer, got " + v.dump(-1, ' ', false, json::error_handler_t::replace));
         f.samples = v.get<std::uint64_t>();
     }
-    // a report written where the sidecar goes (fringe refuses that now; older files may exist)
-    if (m.contains("schema") && m["schema"].is_string() && m["schema"].get<std::string>().rfind("fringe.", 0) == 0)
-        throw CaptureError(where + " is a " + m["schema"].get<std::string>() + " report, not a capture's metadata (a report written over the sidecar?)");
     if (m.contains("format") && m["format"] != "fringe-capture")
         throw CaptureError(where + ".format must be \"fringe-capture\"");
     if (m.contains("version") && m["version"] != 1)

@@ -69,9 +69,15 @@ double min_samples_per_cycle(const Scenario& sc) {
 
 std::vector<Finding> preflight(const Scenario& sc) {
     std::vector<Finding> w;
-    if (sc.settle_s >= sc.duration_s)
-        throw ConfigError("settle_s", "the settle time (" + fmt(sc.settle_s) + " s) is not shorter than the run (duration_s " +
-                                          fmt(sc.duration_s) + " s): nothing would be scored");
+    if (sc.settle_s >= sc.duration_s) {
+        // A capture holds what it holds: its run says that nothing was scored (the evidence
+        // checks FAIL it) instead of refusing it.
+        if (sc.instruments || sc.device.rfind("capture:", 0) != 0)
+            throw ConfigError("settle_s", "the settle time (" + fmt(sc.settle_s) + " s) is not shorter than the run (duration_s " +
+                                              fmt(sc.duration_s) + " s): nothing would be scored");
+        w.push_back({false, "settle_covers_capture", "settle_s",
+                     "the settle time (" + fmt(sc.settle_s) + " s) is not shorter than the capture (" + fmt(sc.duration_s) + " s): nothing will be scored"});
+    }
     const double spc = min_samples_per_cycle(sc);
     if (spc < 2.0) {
         // Enough digits that a rate just below the limit does not print as the limit itself.
@@ -122,8 +128,8 @@ std::vector<Finding> preflight(const Scenario& sc) {
             const double cycles = travelled_rad * static_cast<double>(sc.encoder.lines_per_rev) / kTwoPi;
             if (!told && cycles < traits.learns_over_cycles)
                 w.push_back({false, "scores_learning", "settle_s",
-                             e.label + " (" + e.name + ") learns the waveform shape over about " + fmt(traits.learns_over_cycles) +
-                                 " electrical cycles of motion; the settle time of " +
+                             e.label + (e.label == e.name ? "" : " (" + e.name + ")") + " learns the waveform shape over about " +
+                                 fmt(traits.learns_over_cycles) + " electrical cycles of motion; the settle time of " +
                                  fmt(sc.settle_s) + " s covers " + fmt(cycles) +
                                  " electrical cycles of travel, so its score includes its learning (raise settle_s)"});
         }

@@ -1,6 +1,6 @@
 // The run engine: generate the encoder signals, play them through a device, capture, run the
 // estimators under test, score against truth, apply limits, and build the report
-// (schema "fringe.report", version 1). Streams in blocks: memory does not grow with the run
+// (schema "fringe.report", version 3). Streams in blocks: memory does not grow with the run
 // length (traces are decimated to a fixed number of points).
 #pragma once
 
@@ -31,6 +31,13 @@ struct RunOptions {
     // Threads for the pipeline (the source, the lanes and the traces side by side); 0: one per
     // hardware thread. The report does not depend on it.
     unsigned threads = 0;
+    // Each block's output of the first estimator under test as it left the estimator (before
+    // the samples without truth are dropped from scoring): `fringe estimate` writes its
+    // estimates CSV from it. A throw ends the run with status "error".
+    std::function<void(std::size_t n, const double* t_s, const double* theta_rad, const double* omega_rad_s, const std::uint8_t* valid)>
+        estimates;
+    // Filled when the run ends: seconds spent inside the first estimator (its throughput).
+    double* estimator_s = nullptr;
 };
 
 // Validates a scenario for running (estimators exist and accept their parameters, limits

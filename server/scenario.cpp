@@ -179,7 +179,7 @@ Scenario load_scenario(const std::string& path) {
 }
 
 void to_json(json& j, const Scenario& s) {
-    j = json{{"name", s.name}, {"encoder", s.encoder}, {"motion", s.motion},
+    j = json{{"name", s.name}, {"encoder", s.encoder_known ? json(s.encoder) : json()}, {"motion", s.motion},
              {"sample_rate_hz", s.sample_rate_hz}, {"duration_s", s.duration_s},
              {"t0_s", s.t0_s}, {"seed", s.seed}};
     if (!s.description.empty()) j["description"] = s.description;

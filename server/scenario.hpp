@@ -45,6 +45,9 @@ struct Scenario {
     std::string name = "unnamed";
     std::string description;
     EncoderProfile encoder;
+    // false: the run has no encoder profile (a capture without one, `fringe estimate` without
+    // --encoder); encoder is a stand-in: estimators are told none, errors have no arcsec, no bounds.
+    bool encoder_known = true;
     MotionProfile motion;
     double sample_rate_hz = 100000.0;
     double duration_s = 1.0;

@@ -9,7 +9,6 @@
 #include "drivers/modbus_board.hpp"
 #include "drivers/usb_protocol.hpp"
 #include "estimator/estimator.hpp"
-#include "evaluate.hpp"
 #include "report_formats.hpp"
 #include "preflight.hpp"
 #include "run.hpp"

@@ -4,7 +4,7 @@
 
 #include "drivers/capture_file.hpp"
 #include "estimator/estimator.hpp"
-#include "evaluate.hpp"
+#include "capture_run.hpp"
 #include "report_formats.hpp"
 #include "run.hpp"
 
@@ -156,14 +156,13 @@ HttpResponse Service::evaluate(const HttpRequest& req, const std::string& id) {
     if (cap.empty()) return json_error(404, "not_found", "no uploaded capture " + id, "id");
     const json body = parse_body(req.body);
     only_keys(body, {"estimator", "params", "encoder", "settle_s"}, "");
-    EvaluateOptions o;
+    CaptureRunOptions o;
     o.capture_path = cap;
     o.capture.max_expanded_bytes = cfg_.max_upload_expanded_bytes;  // it was checked against this at upload
     if (!body.contains("estimator") || !body["estimator"].is_string()) throw ConfigError("estimator", "expected an estimator name (GET /api/v1/estimators)");
     o.estimator = body["estimator"].get<std::string>();
-    est::find(o.estimator);  // throws ConfigError naming the known ones
-    if (o.estimator == "external" && !cfg_.allow_external)
-        throw ConfigError("estimator", "the external estimator runs a command on this host; start the service with --allow-external");
+    if (est::find(o.estimator).traits.child_process && !cfg_.allow_external)  // find throws ConfigError naming the known ones
+        throw ConfigError("estimator", "the " + o.estimator + " estimator runs a command on this host; start the service with --allow-external");
     if (body.contains("params")) {
         if (!body["params"].is_object()) throw ConfigError("params", "expected an object");
         o.params = body["params"];
@@ -183,8 +182,13 @@ HttpResponse Service::evaluate(const HttpRequest& req, const std::string& id) {
             o.encoder = encoder_from_json(enc, "encoder");
         }
     }
-    json rep = evaluate_capture(o);
-    rep["capture"] = id;
+    // The run's report; a run that failed part way (the estimator's process died) is a report
+    // with status "error", as for any run.
+    json rep = run_capture(o);
+    rep["capture"]["id"] = id;
+    // Without the plot data, as GET runs/{id}/report.json: the figures, not 0.5 MB of traces.
+    rep.erase("traces");
+    for (auto& e : rep["estimators"]) e.erase("spectrum");
     return json_ok(rep);
 }
 

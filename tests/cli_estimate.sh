@@ -26,8 +26,8 @@ expect_error() {  # expect_error PATTERN cmd...: exit 2 and stderr contains PATT
 $PY - "$dir/r.json" <<'PY'
 import json, sys
 r = json.load(open(sys.argv[1]))
-assert r["schema"] == "fringe.estimate" and r["schema_version"] == 1
-m, b = r["metrics"], r["bounds"]
+assert r["schema"] == "fringe.report" and r["schema_version"] == 3 and r["status"] == "done"
+m, b = r["estimators"][0]["metrics"], r["estimators"][0]["bounds"]
 assert m["scored"] == 20000, m["scored"]
 assert 5e-6 < m["rms"]["rad"] < 4e-5, m["rms"]
 assert abs(m["rms"]["percent_period"] - m["rms"]["rad"] / 6.283185307179586 * 100) < 1e-12
@@ -35,19 +35,21 @@ assert abs(m["rms"]["arcsec_mech"] - m["rms"]["rad"] / 1024 * 206264.80624709636
 assert len(m["harmonics"]) == 16 and m["slipped_samples"] == 0
 assert m["evidence"]["scored_samples"] == 20000 and m["evidence"]["valid_fraction"] == 1.0
 assert b["efficiency_against"] == "pcrb_noise_only" and 0.3 < b["efficiency"] < 1.5, b
-assert r["encoder_source"] == "capture metadata"
+assert r["capture"]["encoder_source"] == "capture metadata" and r["capture"]["samples"] == 30000 and r["capture"]["has_truth"] is True
+assert r["device"]["driver"] == "capture" and r["scenario"]["device"].startswith("capture:")
+assert r["verdict"] == "PASS" and r["capture"]["not_scored"] is None
 PY
 
 # parameters through --param, an explicit profile through --encoder
 "$FRINGE" estimate "$dir/cap.csv" --estimator pll2 --param natural_freq_hz=50 --param damping=1 \
   --encoder "$SRC/fixtures/encoders/paper-d2-duty1p6.json" --report "$dir/p.json" -q
-$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["estimator"]["params"]["natural_freq_hz"]==50 and r["encoder_source"]=="profile file"' "$dir/p.json"
+$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["estimators"][0]["params"]["natural_freq_hz"]==50 and r["capture"]["encoder_source"]=="profile file"' "$dir/p.json"
 
 # without truth: estimates only
 cut -d, -f1-3 "$dir/cap.csv" > "$dir/notruth.csv"
 "$FRINGE" estimate "$dir/notruth.csv" --estimator atan2 -o "$dir/e2.csv" --report "$dir/n.json" > "$dir/n.txt"; grep -q "estimates only" "$dir/n.txt" || fail "no-truth summary"
 [ "$(wc -l < "$dir/e2.csv")" -eq 30001 ] || fail "no-truth rows"
-$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["metrics"] is None and r["capture"]["has_truth"] is False' "$dir/n.json"
+$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["capture"]["has_truth"] is False and r["verdict"] is None and r["measurements"] == [] and "no theta_true" in r["capture"]["not_scored"] and r["estimators"][0]["metrics"]["scored"] == 0' "$dir/n.json"
 
 # bad input: exit 2, the problem named
 expect_error "unknown estimator 'ekf-magic'" "$FRINGE" estimate "$dir/cap.csv" --estimator ekf-magic -o "$dir/x.csv"
@@ -77,7 +79,7 @@ expect_error "no output for" "$FRINGE" estimate "$dir/cap.csv" --estimator exter
 awk -F, 'BEGIN{OFS=","} NR>15001{$2*=10;$3*=10} {print}' "$dir/cap.csv" > "$dir/jump.csv"; cp "$dir/cap.json" "$dir/jump.json"
 "$FRINGE" estimate "$dir/jump.csv" --estimator ekf-diffraction --report "$dir/j.json" > "$dir/j.txt"
 grep -Eq "^ekf-diffraction: loss of lock [1-9][0-9]* times \([1-9][0-9]* samples invalid" "$dir/j.txt" || fail "no loss-of-lock line: $(cat "$dir/j.txt")"
-$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); l=r["estimator"]["state"]["loss_of_lock"]; assert l["events"]>0 and r["metrics"]["evidence"]["valid_fraction"]<0.5, l' "$dir/j.json"
+$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); l=r["estimators"][0]["state"]["loss_of_lock"]; assert l["events"]>0 and r["estimators"][0]["metrics"]["evidence"]["valid_fraction"]<0.5, l' "$dir/j.json"
 "$FRINGE" estimate "$dir/jump.csv" --estimator ekf-auto --report "$dir/ja.json" > "$dir/ja.txt"
 grep -q "^ekf-auto: the signal changed 1 time" "$dir/ja.txt" || fail "no signal-change line: $(cat "$dir/ja.txt")"
 # and says nothing of the kind on the clean capture; without -o or --report the summary is the output
@@ -86,7 +88,7 @@ grep -q "^error after 0.1 s settle" "$dir/c.txt" || fail "summary-only: $(cat "$
 ! grep -q "loss of lock\|not taken in" "$dir/c.txt" || fail "clean capture: $(cat "$dir/c.txt")"
 grep -q "^warning: only 25 % of the 20000 samples after the settle time are valid" "$dir/j.txt" || fail "no low-valid warning: $(cat "$dir/j.txt")"
 grep -q "^warning: ekf-auto learns the waveform shape .* covers 10.7 electrical cycles" "$dir/ja.txt" || fail "no scores_learning warning: $(cat "$dir/ja.txt")"
-$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); c=[d["code"] for d in r["diagnosis"]]; assert "scores_learning" in c and "low_valid_fraction" in c, c; e=r["estimates"]; assert e["samples"]==30000 and 0<e["valid_fraction"]<1, e' "$dir/ja.json"
+$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); c=[w["code"] for w in r["warnings"]]; assert "scores_learning" in c, c; f=[(x["metric"],x["outcome"]) for x in r["measurements"]]; assert ("valid_fraction","FAIL") in f, f; e=r["capture"]["estimates"]; assert e["samples"]==30000 and 0<e["valid_fraction"]<1, e' "$dir/ja.json"
 ! grep -q "^warning" "$dir/c.txt" || fail "clean capture warned: $(cat "$dir/c.txt")"
 
 # truth, but nothing scored: exit 1, not success
@@ -107,7 +109,7 @@ cmp -s "$dir/cap.csv" "$dir/keep.csv" && cmp -s "$dir/cap.json" "$dir/keep.json"
 expect_error "notruth.json is the capture's sidecar" "$FRINGE" estimate "$dir/notruth.csv" --estimator atan2 --report "$dir/notruth.json"
 [ ! -e "$dir/notruth.json" ] || fail "the report was written where the sidecar goes"
 cp "$dir/r.json" "$dir/keep.json"
-expect_error "keep.json: sidecar is a fringe.estimate report, not a capture's metadata" "$FRINGE" estimate "$dir/keep.csv" --estimator atan2
+expect_error "keep.json: sidecar is a fringe.report report, not a capture's metadata" "$FRINGE" estimate "$dir/keep.csv" --estimator atan2
 cp "$SRC/fixtures/scenarios/paper-duty1p6.json" "$dir/scen.json"
 expect_error "output's sidecar: .*scen.json is the scenario" "$FRINGE" gen "$dir/scen.json" -o "$dir/scen.csv" -q --samples 100
 expect_error "report: .*scen.json is the scenario" "$FRINGE" run "$dir/scen.json" --report "$dir/scen.json" --data "$dir/data"

@@ -85,7 +85,7 @@ set +e; "$FRINGE" estimate "$dir/short.csv" --estimator atan2 --report "$dir/e.j
 [ $rc -eq 1 ] || fail "estimate with nothing scored exited $rc, not 1"
 grep -q "no scored samples: 99 samples" "$dir/out.txt" || fail "estimate: $(cat "$dir/out.txt")"
 if grep -q "rms 0.000e+00" "$dir/out.txt"; then fail "estimate printed a zero rms"; fi
-$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["metrics"]["rms"] is None and r["metrics"]["scored"] == 0' "$dir/e.json"
+$PY -c 'import json,sys; r=json.load(open(sys.argv[1])); m=r["estimators"][0]["metrics"]; assert m["rms"] is None and m["scored"] == 0 and r["verdict"] == "FAIL"' "$dir/e.json"
 
 # 8. over HTTP: the undersampled scenario is a 400 naming the field; the evidence FAIL is a FAIL
 "$FRINGE" serve --bind 127.0.0.1:0 --data "$dir/data" > "$dir/serve.out" 2> "$dir/serve.log" &

@@ -43,11 +43,14 @@ for est in ekf-diffraction pll2; do
   $PY - "$dir/csv-$est.json" "$dir/sr-$est.json" <<'PY'
 import json, sys
 a, b = (json.load(open(p)) for p in sys.argv[1:3])
-for k in ("metrics", "bounds", "diagnosis", "encoder_source", "settle_s"):
-    assert a[k] == b[k], (k, a[k], b[k])
+ea, eb = a["estimators"][0], b["estimators"][0]
+for k in ("metrics", "bounds", "diagnosis"):
+    assert ea[k] == eb[k], (k, ea[k], eb[k])
+assert a["warnings"] == b["warnings"] and a["measurements"] == b["measurements"]
+assert a["capture"]["encoder_source"] == b["capture"]["encoder_source"] and a["scenario"]["settle_s"] == b["scenario"]["settle_s"]
 assert a["capture"]["samples"] == b["capture"]["samples"] == 30000
 assert a["capture"]["sample_rate_hz"] == b["capture"]["sample_rate_hz"]
-assert a["metrics"]["scored"] == 20000 and a["metrics"]["rms"]["rad"] > 0
+assert ea["metrics"]["scored"] == 20000 and ea["metrics"]["rms"]["rad"] > 0
 PY
   cmp -s "$dir/csv-$est.est" "$dir/sr-$est.est" || fail "$est: estimates differ between the CSV and the .sr"
 done
@@ -57,7 +60,7 @@ cp "$dir/cap-sr.sr" "$dir/bare.sr"
 enc="$SRC/fixtures/encoders/paper-d2-duty1p6.json"
 "$FRINGE" estimate "$dir/bare.sr" --estimator ekf-diffraction --encoder "$enc" --report "$dir/bare.report.json" -q
 "$FRINGE" estimate "$dir/cap.csv" --estimator ekf-diffraction --encoder "$enc" --report "$dir/csvp.json" -q
-$PY -c 'import json,sys; a,b=(json.load(open(p)) for p in sys.argv[1:3]); assert a["metrics"]==b["metrics"] and a["bounds"]==b["bounds"]' "$dir/bare.report.json" "$dir/csvp.json"
+$PY -c 'import json,sys; a,b=(json.load(open(p))["estimators"][0] for p in sys.argv[1:3]); assert a["metrics"]==b["metrics"] and a["bounds"]==b["bounds"]' "$dir/bare.report.json" "$dir/csvp.json"
 
 # the channel map: a scope's channel names
 sed '1s/.*/t,CH1,CH2,theta_true,omega_true/' "$dir/cap.csv" > "$dir/scope.csv"
@@ -65,7 +68,7 @@ sigrok-cli -I "csv:column_formats=-,a,a,a,a:header=yes:samplerate=$rate" -i "$di
 expect_error "no channel for column 'sin'" "$FRINGE" estimate "$dir/scope.sr" --estimator atan2 --report "$dir/x.json"
 "$FRINGE" estimate "$dir/scope.sr" --channels sin=CH1,cos=CH2 --estimator atan2 --report "$dir/scope.report.json" -q
 "$FRINGE" estimate "$dir/bare.sr" --estimator atan2 --report "$dir/bare-atan2.json" -q
-$PY -c 'import json,sys; a,b=(json.load(open(p)) for p in sys.argv[1:3]); assert a["metrics"]==b["metrics"]' "$dir/scope.report.json" "$dir/bare-atan2.json"
+$PY -c 'import json,sys; a,b=(json.load(open(p))["estimators"][0] for p in sys.argv[1:3]); assert a["metrics"]==b["metrics"]' "$dir/scope.report.json" "$dir/bare-atan2.json"
 
 # hostile: a cut-off session, and a file that is not a ZIP: exit 2 naming the problem
 head -c 20000 "$dir/bare.sr" > "$dir/cut.sr"
@@ -98,10 +101,10 @@ unzip -p "$dir/abz-sr.sr" metadata | grep -q '^probe1=a$' || fail "logic channel
 grep -q "dut (ABZ, 64 counts per cycle, reference index)" "$dir/abz.txt" || fail "dut summary: $(cat "$dir/abz.txt")"
 $PY - "$dir/abz-csv.json" "$dir/abz-sr.report.json" $N <<'PY'
 import json, math, sys
-a, b = (json.load(open(p)) for p in sys.argv[1:3])
+a, b = ([e for e in json.load(open(p))["estimators"] if e["label"] == "dut"][0] for p in sys.argv[1:3])
 N = int(sys.argv[3]); step = 2 * math.pi / (4 * N)
-assert a["dut"] == b["dut"], "the DUT scores differ between the CSV and the .sr"
-ro, m = b["dut"]["readout"], b["dut"]["metrics"]
+assert a["metrics"] == b["metrics"], "the DUT scores differ between the CSV and the .sr"
+ro, m = b["metrics"]["abz"], b["metrics"]
 assert ro["illegal_transitions"] == 0 and ro["index_errors"] == 0 and ro["index_pulses"] >= 10, ro
 # the quantisation of an ideal DUT: |e| <= step/2 (float32 truth adds < 1e-5 rad), rms step/sqrt(12)
 assert m["max_abs"]["rad"] <= step / 2 + 1e-5, (m["max_abs"], step / 2)

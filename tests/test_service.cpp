@@ -483,7 +483,9 @@ TEST_CASE("service: capture upload and evaluation", "[service]") {
         REQUIRE(ev.status == 200);
         auto rep = body_of(ev);
         // Noise-free ideal quadrature: atan2 is exact to rounding.
-        CHECK(rep["metrics"]["rms"]["rad"].get<double>() < 1e-9);
+        CHECK(rep["schema"] == "fringe.report");
+        CHECK(rep["capture"]["id"] == id);
+        CHECK(rep["estimators"][0]["metrics"]["rms"]["rad"].get<double>() < 1e-9);
         CHECK(s.handle(req("POST", "/api/v1/captures/" + id + "/evaluate", R"({"estimator":"nope"})")).status == 400);
         CHECK(s.handle(req("POST", "/api/v1/captures/" + id + "/evaluate", R"({"estimator":"atan2","x":1})")).status == 400);
     }

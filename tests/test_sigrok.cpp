@@ -561,8 +561,9 @@ TEST_CASE("service: a .sr upload is sniffed, stored and evaluated", "[service][s
     CHECK(info["sample_rate_hz"] == 1.5e6);
     const auto ev = req("POST", "/api/v1/captures/" + info["id"].get<std::string>() + "/evaluate", R"({"estimator":"atan2","settle_s":0})");
     CHECK(ev.status == 200);
-    CHECK(json::parse(ev.body)["estimator"]["name"] == "atan2");
-    CHECK(json::parse(ev.body)["metrics"].is_null());  // no theta_true channel: estimates only
+    CHECK(json::parse(ev.body)["estimators"][0]["name"] == "atan2");
+    CHECK(json::parse(ev.body)["capture"]["has_truth"] == false);  // no theta_true channel: estimates only, no verdict
+    CHECK(json::parse(ev.body)["verdict"].is_null());
     // a damaged one: 400 bad_capture naming the problem, and nothing kept
     std::string broken = read_file(d / "up.sr");
     broken.resize(broken.size() / 2);

@@ -2,7 +2,7 @@
 #include "server/cli/commands.hpp"
 #include "estimator/estimator.hpp"
 #include "drivers/capture_file.hpp"
-#include "server/evaluate.hpp"
+#include "server/capture_run.hpp"
 #include "server/scenario.hpp"
 #include "server/text.hpp"
 
@@ -91,7 +91,7 @@ int run_estimate(const EstimateOptions& o) {
     const bool has_sidecar = capture_format_for(o.capture) != CaptureFormat::Binary;
     refuse_overwrite({{"output", o.output}, {"report", o.report}},
                      {{"capture", o.capture}, {"capture's sidecar", has_sidecar ? sidecar_path(o.capture) : ""}, {"encoder profile", o.encoder}});
-    EvaluateOptions e;
+    CaptureRunOptions e;
     e.capture_path = o.capture;
     e.estimator = o.estimator;
     e.params = est::parse_param_assignments(est::find(o.estimator).params, o.params);
@@ -105,7 +105,7 @@ int run_estimate(const EstimateOptions& o) {
     if (progress.active()) e.progress = [&](std::uint64_t done) { progress.update(done); };
     json r;
     try {
-        r = evaluate_capture(e);
+        r = run_capture(e);
     } catch (const CaptureTooLarge& t) {
         throw CaptureError(std::string(t.what()) + " (--max-expanded-mb)");
     }
@@ -117,29 +117,38 @@ int run_estimate(const EstimateOptions& o) {
         const bool ok = std::fwrite(text.data(), 1, text.size(), f) == text.size();
         if (std::fclose(f) != 0 || !ok) throw std::runtime_error(o.report + ": write failed");
     }
+    // The run failed part way (the estimator's process died, the capture changed under it):
+    // the report says so, the estimates stop there, and the exit code is 2.
+    if (r["status"] != "done") throw std::runtime_error(r["error"].is_string() ? r["error"].get<std::string>() : "the run ended " + r["status"].dump());
+    const json& cap = r["capture"];
+    const json& lane = r["estimators"][0];  // the estimator; the DUT's readout, when asked for, is labelled "dut"
+    const json& m = lane["metrics"];
+    const double min_valid = r["scenario"]["scoring"]["min_valid_fraction"].get<double>();
     if (!o.quiet) {
         std::printf("%s on %s: %llu samples, %.3g M samples/s\n", o.estimator.c_str(), o.capture.c_str(),
-                    static_cast<unsigned long long>(r["capture"]["samples"].get<std::uint64_t>()),
-                    r["timing"]["estimator_samples_per_s"].get<double>() / 1e6);
+                    static_cast<unsigned long long>(cap["samples"].get<std::uint64_t>()),
+                    cap["timing"]["estimator_samples_per_s"].get<double>() / 1e6);
         bool notes_shown = false;
-        if (r["metrics"].is_null()) {
-            const auto& es = r["estimates"];
+        if (!cap["has_truth"].get<bool>()) {
+            const auto& es = cap["estimates"];
             const double vf = es["valid_fraction"].is_number() ? es["valid_fraction"].get<double>() : 0.0;
             std::printf("no theta_true in the capture: estimates only; valid %.1f %% of %llu samples\n",
                         100.0 * vf, static_cast<unsigned long long>(es["samples"].get<std::uint64_t>()));
             // The estimator's own account of why, on the same line (a pointer to notes that an
             // estimator without any left the reader looking at nothing).
-            if (vf < 0.95) {
-                const std::string why = state_notes(r["estimator"].value("state", json()));
+            if (vf < min_valid) {
+                const std::string why = state_notes(lane.value("state", json()));
                 notes_shown = true;
                 std::printf("warning: %s marked %.1f %% of the samples invalid: %s\n", o.estimator.c_str(), 100.0 * (1.0 - vf),
                             why.empty() ? "it gives no reason (its state says nothing); check its parameters (fringe estimate --list) before using the estimates"
                                         : (term_escape(why) + "; check this before using the estimates").c_str());
             }
-        } else if (r["metrics"]["scored"].get<std::uint64_t>() == 0) {
-            std::printf("%s\n", term_escape(r["note"].get<std::string>()).c_str());
+        } else if (m["scored"].get<std::uint64_t>() == 0) {
+            const double n = static_cast<double>(cap["samples"].get<std::uint64_t>());
+            std::printf("no scored samples: %.0f samples (%.6g s), %llu after the %.6g s settle time, %llu of them marked invalid by the estimator\n", n,
+                        n / cap["sample_rate_hz"].get<double>(), static_cast<unsigned long long>(m["evidence"]["samples_after_settle"].get<std::uint64_t>()),
+                        o.settle_s, static_cast<unsigned long long>(m["invalid_after_settle"].get<std::uint64_t>()));
         } else {
-            const auto& m = r["metrics"];
             const auto& ev = m["evidence"];
             const json unc = m.value("uncertainty", json::object());
             std::printf("error after %.3g s settle (%llu samples, %.1f electrical cycles, valid %.1f %%): rms %.3e rad%s (%.4f %% of a period), std %.3e, mean %.3e, max|e| %.3e rad, slipped %llu\n",
@@ -149,37 +158,49 @@ int run_estimate(const EstimateOptions& o) {
                         m["max_abs"]["rad"].get<double>(), static_cast<unsigned long long>(m["slipped_samples"].get<std::uint64_t>()));
             print_harmonics(m);
             // fringe estimate has no limits; say when a run would not have had enough evidence.
-            if (m["scored"].get<std::uint64_t>() < 1000 || ev["scored_cycles"].get<double>() < 3)
-                std::printf("warning: only %llu scored samples over %.2f electrical cycles: below a run's evidence minimum (1000 samples, 3 cycles); "
+            const auto& rules = r["scenario"]["scoring"];
+            if (m["scored"].get<std::uint64_t>() < rules["min_scored_samples"].get<std::uint64_t>() ||
+                ev["scored_cycles"].get<double>() < rules["min_scored_cycles"].get<double>())
+                std::printf("warning: only %llu scored samples over %.2f electrical cycles: below a run's evidence minimum (%llu samples, %.3g cycles); "
                             "treat these figures as indicative\n",
-                            static_cast<unsigned long long>(m["scored"].get<std::uint64_t>()), ev["scored_cycles"].get<double>());
-            const auto& b = r["bounds"];
+                            static_cast<unsigned long long>(m["scored"].get<std::uint64_t>()), ev["scored_cycles"].get<double>(),
+                            static_cast<unsigned long long>(rules["min_scored_samples"].get<std::uint64_t>()), rules["min_scored_cycles"].get<double>());
+            const auto& b = lane["bounds"];
             if (b.is_object() && b.contains("per_sample_crb_rad")) {
                 std::printf("bounds: per-sample CRB %.3e rad", b["per_sample_crb_rad"].get<double>());
                 if (b.contains("pcrb_rad")) std::printf(", PCRB %.3e rad (noise-only %.3e)", b["pcrb_rad"].get<double>(), b["pcrb_noise_only_rad"].get<double>());
                 if (!b["efficiency"].is_null()) std::printf(", efficiency %.3g vs %s", b["efficiency"].get<double>(), b["efficiency_against"].get<std::string>().c_str());
                 std::printf("\n");
             }
-            for (const auto& d : r["diagnosis"]) std::printf("warning: %s\n", term_escape(d["message"].get<std::string>()).c_str());
+            // The run's warnings (the preflight's, convention findings, efficiency), and the
+            // evidence check on the valid share the figures rest on.
+            for (const auto& w : r["warnings"]) std::printf("warning: %s\n", term_escape(w.value("message", std::string())).c_str());
+            const double vf = ev["valid_fraction"].get<double>();
+            if (vf < min_valid)
+                std::printf("warning: only %.3g %% of the %llu samples after the settle time are valid (a run needs %.3g %%): the figures describe those %llu "
+                            "samples only, not the capture\n",
+                            100.0 * vf, static_cast<unsigned long long>(ev["samples_after_settle"].get<std::uint64_t>()), 100.0 * min_valid,
+                            static_cast<unsigned long long>(m["scored"].get<std::uint64_t>()));
         }
-        if (const std::string n = state_notes(r["estimator"].value("state", json())); !n.empty() && !notes_shown) std::printf("%s: %s\n", o.estimator.c_str(), term_escape(n).c_str());
-        if (r.contains("dut")) {
-            const auto& ro = r["dut"]["readout"];
-            const auto& m = r["dut"]["metrics"];
+        if (const std::string n = state_notes(lane.value("state", json())); !n.empty() && !notes_shown) std::printf("%s: %s\n", o.estimator.c_str(), term_escape(n).c_str());
+        for (const auto& d : r["estimators"]) {
+            if (d.value("label", "") != "dut" || d.value("name", "") != "dut") continue;
+            const auto& ro = d["metrics"]["abz"];
+            const auto& dm = d["metrics"];
             std::printf("dut (ABZ, %d counts per cycle, reference %s): %llu edges, %llu illegal transitions, %llu index pulses (%llu off)",
                         ro["counts_per_cycle"].get<int>(), ro["reference"].get<std::string>().c_str(),
                         static_cast<unsigned long long>(ro["edges"].get<std::uint64_t>()),
                         static_cast<unsigned long long>(ro["illegal_transitions"].get<std::uint64_t>()),
                         static_cast<unsigned long long>(ro["index_pulses"].get<std::uint64_t>()),
                         static_cast<unsigned long long>(ro["index_errors"].get<std::uint64_t>()));
-            if (m.is_object() && m["rms"].is_object())
-                std::printf(", error rms %.3e rad, max|e| %.3e rad", m["rms"]["rad"].get<double>(), m["max_abs"]["rad"].get<double>());
+            if (dm["rms"].is_object())
+                std::printf(", error rms %.3e rad, max|e| %.3e rad", dm["rms"]["rad"].get<double>(), dm["max_abs"]["rad"].get<double>());
             std::printf("\n");
         }
     }
     // Truth but nothing scored: no figures, and a script gating on the exit code must not read
     // that as success (a run's evidence measurements FAIL the same way).
-    if (r["capture"]["has_truth"].get<bool>() && r["metrics"]["scored"].get<std::uint64_t>() == 0) return kExitFail;
+    if (cap["has_truth"].get<bool>() && m["scored"].get<std::uint64_t>() == 0) return kExitFail;
     return kExitOk;
 }
 

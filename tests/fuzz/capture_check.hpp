@@ -8,7 +8,7 @@
 
 #include "drivers/capture_file.hpp"
 #include "estimator/estimator.hpp"
-#include "server/evaluate.hpp"
+#include "server/capture_run.hpp"
 #include "signal_gen/config.hpp"
 
 #include <nlohmann/json.hpp>
@@ -34,12 +34,13 @@ inline void check_capture(const std::string& path) {
                 if (!v->empty() && v->size() != n) fail("an optional column not one value per frame");
             if (r.columns().theta_true != !d.theta_true_rad.empty()) fail("columns().theta_true disagrees with the data");
         }
-        EvaluateOptions o;
+        CaptureRunOptions o;
         o.capture_path = path;
         o.estimator = "atan2";
         o.block = 53;
         if (CaptureReader(path).columns().abz()) o.abz = AbzConfig{4, 0, 0.0};  // the DUT's ABZ readout too
-        (void)evaluate_capture(o);
+        const nlohmann::json rep = run_capture(o);  // a fault part way is a report with status "error"
+        if (rep["status"] == "error") check_message("a run's error", rep["error"].get<std::string>().c_str());
     } catch (const CaptureError& e) {
         check_message("CaptureError", e.what());
     } catch (const ConfigError& e) {
