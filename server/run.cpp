@@ -15,6 +15,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <ctime>
 #include <limits>
 #include <random>
@@ -191,6 +192,16 @@ struct Lane {
         for (std::size_t i = 0; i < m; ++i) out[i] = valid[i] ? th[i] - f.theta_true_rad[i] : std::numeric_limits<double>::quiet_NaN();
     }
 };
+
+// The pipeline's threads: asked for, else FRINGE_THREADS, else one per hardware thread.
+unsigned pipeline_threads(unsigned asked) {
+    if (asked) return asked;
+    if (const char* env = std::getenv("FRINGE_THREADS")) {
+        const long v = std::strtol(env, nullptr, 10);
+        if (v >= 1 && v <= 64) return static_cast<unsigned>(v);
+    }
+    return std::max(1u, std::thread::hardware_concurrency());
+}
 
 // The spectrum's segment length wants the electrical frequency: the mean planned rate.
 double planned_electrical_hz(const Scenario& sc) {
@@ -393,7 +404,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
         // k (each lane a task of its own), and block k-1 goes to the recorder and the traces,
         // all side by side; each task touches only its own slot, so the report is the same for
         // any thread count. Frames delivered before a fault or a cancel are processed.
-        TaskPool pool(o.threads ? o.threads : std::max(1u, std::thread::hardware_concurrency()));
+        TaskPool pool(pipeline_threads(o.threads));
         Frames slot[3];
         SourceStatus st;
         bool source_done = false;

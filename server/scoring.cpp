@@ -19,7 +19,7 @@ Scorer::Scorer(ScoringOptions o) : o_(o) {
     sum_sin_.assign(m, 0.0);
     sum_ecos_.assign(static_cast<std::size_t>(o_.max_harmonic) + 1, 0.0);
     sum_esin_.assign(static_cast<std::size_t>(o_.max_harmonic) + 1, 0.0);
-    bins_.assign(kAngleBins, 0);
+    fine_.assign(kFineBins, FineBin{});
     m_.harmonics_requested = o_.max_harmonic;
 }
 
@@ -225,70 +225,66 @@ void Scorer::process(std::size_t n, const double* e_raw, const double* th_all, c
             i += take;
             if (batch0_n_ == kBatch0) { batch_done(batch0_sum_); batch0_sum_ = 0; batch0_n_ = 0; }
         }
-        c1_.resize(ns);
-        s1_.resize(ns);
-        double* c1 = c1_.data();
-        double* s1 = s1_.data();
-#pragma omp simd
-        for (std::size_t i = 0; i < ns; ++i) fast_sincos(th[i], s1[i], c1[i]);
-        constexpr double kBinsPerRad = kAngleBins / kTwoPi;
+        // Into the fine angle bins: per bin the count and the power sums of the offset u from
+        // the bin centre, plain and weighted by e (harmonic_sums() expands from them).
+        constexpr double kBinWidthRad = kTwoPi / kFineBins;
+        FineBin* fine = fine_.data();
         for (std::size_t i = 0; i < ns; ++i) {
-            const double w = th[i] - kTwoPi * std::floor(th[i] * (1 / kTwoPi));  // [0, 2*pi), up to rounding
-            const auto b = std::clamp<long>(static_cast<long>(w * kBinsPerRad), 0, kAngleBins - 1);
-            ++bins_[static_cast<std::size_t>(b)];
+            const double turns = th[i] * (1 / kTwoPi);
+            const double pos = (turns - std::floor(turns)) * kFineBins;  // [0, kFineBins], up to rounding
+            const long b = std::clamp<long>(static_cast<long>(pos), 0, kFineBins - 1);
+            const double u = (pos - (static_cast<double>(b) + 0.5)) * kBinWidthRad;
+            const double u2 = u * u, u3 = u2 * u, u4 = u2 * u2, ee = es[i];
+            FineBin& f = fine[b];
+            f.p[0] += 1;
+            f.p[1] += u;
+            f.p[2] += u2;
+            f.p[3] += u3;
+            f.p[4] += u4;
+            f.q[0] += ee;
+            f.q[1] += ee * u;
+            f.q[2] += ee * u2;
+            f.q[3] += ee * u3;
+            f.q[4] += ee * u4;
         }
-        harmonic_sums(ns, es);
     }
     if (sink_) sink_(n, e_.data(), ok);
 }
 
-// Sums of cos(m th), sin(m th) (m = 1..2K) and of e*cos(k th), e*sin(k th) (k = 1..K) by the
-// Chebyshev recurrence, in chunks that stay in the L1 cache, every order per chunk, one fused
-// pass per order. `omp simd` (-fopenmp-simd: no OpenMP runtime) lets the compiler split the sums
-// into vector lanes; the split is fixed at compile time, so a build gives the same sums on
-// every run and thread count.
-void Scorer::harmonic_sums(std::size_t ns, const double* es) {
-    constexpr std::size_t kChunk = 1024;
-    alignas(64) double cm[kChunk];
-    alignas(64) double sm[kChunk];
+// Sums of cos(m th), sin(m th) (m = 0..2K) and of e*cos(k th), e*sin(k th) (k = 1..K) from the
+// fine angle bins: with th = c + u (c the bin centre), exp(j m th) = exp(j m c) exp(j m u) and
+// exp(j m u) = sum_p (j m u)^p / p! to p = 4, so each bin's power sums of u give its share. The
+// truncation is below |m u|^5 / 120 <= (2K pi / kFineBins)^5 / 120, 2e-12 relative at K = 16
+// (the sums are exact to that, where summing cos(m th) sample by sample cost 32 passes a sample).
+void Scorer::harmonic_sums() {
     const int K = o_.max_harmonic, M = 2 * K;
-    sum_cos_[0] += static_cast<double>(ns);
-    for (std::size_t c0 = 0; c0 < ns; c0 += kChunk) {
-        const std::size_t len = std::min(kChunk, ns - c0);
-        const double* c1 = c1_.data() + c0;
-        const double* s1 = s1_.data() + c0;
-        const double* e = es + c0;
-        std::copy(c1, c1 + len, cm);
-        std::copy(s1, s1 + len, sm);
-        for (int m = 1; m <= M; ++m) {
+    std::fill(sum_cos_.begin(), sum_cos_.end(), 0.0);
+    std::fill(sum_sin_.begin(), sum_sin_.end(), 0.0);
+    std::fill(sum_ecos_.begin(), sum_ecos_.end(), 0.0);
+    std::fill(sum_esin_.begin(), sum_esin_.end(), 0.0);
+    for (int b = 0; b < kFineBins; ++b) {
+        const FineBin& f = fine_[static_cast<std::size_t>(b)];
+        if (f.p[0] == 0) continue;
+        const double centre = (static_cast<double>(b) + 0.5) * (kTwoPi / kFineBins);
+        const double zr = std::cos(centre), zi = std::sin(centre);
+        double pr = 1, pi = 0;  // exp(j m centre), by recurrence
+        for (int m = 0; m <= M; ++m) {
+            const double md = m, m2 = md * md, m3 = m2 * md, m4 = m2 * m2;
+            // sum over the bin of exp(j m u) = re + j im
+            const double re = f.p[0] - m2 / 2 * f.p[2] + m4 / 24 * f.p[4];
+            const double im = md * f.p[1] - m3 / 6 * f.p[3];
             const auto mi = static_cast<std::size_t>(m);
-            double sc = 0, ss = 0;
-            if (m <= K) {
-                double sec = 0, ses = 0;
-#pragma omp simd reduction(+ : sc, ss, sec, ses)
-                for (std::size_t i = 0; i < len; ++i) {
-                    const double c = cm[i], sn = sm[i];
-                    sc += c;
-                    ss += sn;
-                    sec += e[i] * c;
-                    ses += e[i] * sn;
-                    cm[i] = c * c1[i] - sn * s1[i];
-                    sm[i] = sn * c1[i] + c * s1[i];
-                }
-                sum_ecos_[mi] += sec;
-                sum_esin_[mi] += ses;
-            } else {
-#pragma omp simd reduction(+ : sc, ss)
-                for (std::size_t i = 0; i < len; ++i) {
-                    const double c = cm[i], sn = sm[i];
-                    sc += c;
-                    ss += sn;
-                    cm[i] = c * c1[i] - sn * s1[i];
-                    sm[i] = sn * c1[i] + c * s1[i];
-                }
+            sum_cos_[mi] += pr * re - pi * im;
+            sum_sin_[mi] += pr * im + pi * re;
+            if (m >= 1 && m <= K) {
+                const double qre = f.q[0] - m2 / 2 * f.q[2] + m4 / 24 * f.q[4];
+                const double qim = md * f.q[1] - m3 / 6 * f.q[3];
+                sum_ecos_[mi] += pr * qre - pi * qim;
+                sum_esin_[mi] += pr * qim + pi * qre;
             }
-            sum_cos_[mi] += sc;
-            sum_sin_[mi] += ss;
+            const double nr = pr * zr - pi * zi;
+            pi = pr * zi + pi * zr;
+            pr = nr;
         }
     }
 }
@@ -327,7 +323,14 @@ ErrorMetrics Scorer::finish() {
         // Harmonics. A function sampled at N distinct angles determines at most N/2 of them;
         // a quarter keeps the fit well conditioned. Fewer than one whole cycle leaves part of
         // the circle unseen, where no order can be told apart from the others.
-        const auto covered = static_cast<int>(std::count_if(bins_.begin(), bins_.end(), [](std::uint32_t c) { return c > 0; }));
+        harmonic_sums();
+        int covered = 0;  // angle bins of kAngleBins visited
+        constexpr int kFinePerBin = kFineBins / kAngleBins;
+        for (int c = 0; c < kAngleBins; ++c) {
+            bool any = false;
+            for (int k = 0; k < kFinePerBin; ++k) any |= fine_[static_cast<std::size_t>(c * kFinePerBin + k)].p[0] > 0;
+            covered += any;
+        }
         if (m.cycles_scored < 1.0) {
             m.harmonics_note = "the scored samples cover " + std::to_string(m.cycles_scored).substr(0, 5) +
                                " electrical cycles: harmonics need at least one whole cycle to be told apart";

@@ -92,7 +92,7 @@ private:
     // Samples after the settle time in order: e_raw = theta_hat - theta_true, ok = valid.
     void process(std::size_t n, const double* e_raw, const double* th, const std::uint8_t* ok);
     void decide();
-    void harmonic_sums(std::size_t ns, const double* es);
+    void harmonic_sums();
     ScoringOptions o_;
     bool decided_ = false;
     double offset_rad_ = 0;
@@ -124,9 +124,13 @@ private:
     // need only sums of cos(m th), sin(m th) for m = 0..2K and of e*cos(k th), e*sin(k th).
     std::vector<double> sum_cos_, sum_sin_, sum_ecos_, sum_esin_;
     double sum_e_ = 0, sum_e2_ = 0;
-    std::vector<std::uint32_t> bins_;
+    // Fine angle bins over the electrical cycle: count and sums of u^p, e*u^p (p = 0..4) with u
+    // the offset from the bin centre (rad); the harmonic sums and the angle coverage come from them.
+    static constexpr int kFineBins = 8192;
+    struct FineBin { double p[5] = {}, q[5] = {}; };
+    std::vector<FineBin> fine_;
     // block scratch
-    std::vector<double> blk_e_, sel_e_, sel_th_, sel_omt_, sel_omh_, rate_d_, es_, th_, c1_, s1_, e_;
+    std::vector<double> blk_e_, sel_e_, sel_th_, sel_omt_, sel_omh_, rate_d_, es_, th_, e_;
     std::vector<std::uint8_t> blk_ok_, sel_ok_;
     Sink sink_;
 };
