@@ -50,6 +50,19 @@ std::string xml_escape(const std::string& s) {
 }
 
 void write_file_atomic(const std::string& path, const std::string& text) {
+    // A device, FIFO or terminal (/dev/null, /dev/stdout, a pipe to another program) is written
+    // in place: a file renamed over it would replace it (as root, /dev/null itself).
+    std::error_code ec;
+    const auto st = std::filesystem::status(path, ec);
+    if (!ec && std::filesystem::exists(st) && !std::filesystem::is_regular_file(st)) {
+        if (std::filesystem::is_directory(st)) throw std::runtime_error(path + ": is a directory");
+        std::ofstream f(path, std::ios::binary);
+        if (!f) throw std::runtime_error(path + ": cannot write");
+        f << text;
+        f.flush();
+        if (!f) throw std::runtime_error(path + ": write failed");
+        return;
+    }
     const std::string tmp = path + ".tmp";
     {
         std::ofstream f(tmp, std::ios::binary);

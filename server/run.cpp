@@ -53,28 +53,30 @@ est::EstimatorConfig estimator_config(const Scenario& sc, const EstimatorSpec& s
 }
 
 // Can this estimator be given an efficiency? (A tracker must declare its prior.)
-std::string why_no_efficiency(const EstimatorSpec& spec, const Scenario& sc) {
-    if (est::traits_of(spec.name).child_process) {
+std::string why_no_efficiency(const EstimatorSpec& spec, const est::Estimator* built) {
+    if (est::traits_of(spec.name).child_process || !built) {
         const std::string model = spec.params.is_object() ? spec.params.value("model", std::string("unknown")) : "unknown";
         return model == "unknown" ? "the " + spec.name + " estimator declares no model: set params.model (memoryless, tracker-cv or tracker-ca) "
                                     "and, for a tracker, params.natural_freq_hz (docs/external-estimator.md)"
                                   : "";
     }
-    const auto e = est::make(spec.name, estimator_config(sc, spec));
-    if (e->bound_class() == est::BoundClass::Tracker && !e->prior()) return spec.label + " (" + spec.name + ") declares no tracking prior";
+    if (built->bound_class() == est::BoundClass::Tracker && !built->prior()) return spec.label + " (" + spec.name + ") declares no tracking prior";
     return "";
 }
 
 }  // namespace
 
-std::vector<Finding> validate_run(const Scenario& sc) {
+std::vector<Finding> validate_run(const Scenario& sc, std::vector<std::unique_ptr<est::Estimator>>* built_out) {
     if (sc.estimators.empty()) throw ConfigError("estimators", "a run needs at least one estimator under test");
+    // Each estimator is built once here (its parameters checked by its reset) and kept for the
+    // run; a child process is not started before the run.
+    std::vector<std::unique_ptr<est::Estimator>> built(sc.estimators.size());
     for (std::size_t i = 0; i < sc.estimators.size(); ++i) {
         const auto& spec = sc.estimators[i];
         try {
             const auto& info = est::find(spec.name);
             const Params p = resolve_params(info.params, spec.params);  // cheap checks first; external is not started here
-            if (!info.traits.child_process) est::make(spec.name, estimator_config(sc, spec));
+            if (!info.traits.child_process) built[i] = est::make(spec.name, estimator_config(sc, spec));
             else if (p.string("model").rfind("tracker", 0) == 0 && !(p.number("natural_freq_hz") > 0))
                 throw ConfigError("params.natural_freq_hz", "a tracker's declared prior needs its natural frequency (> 0 Hz)");
         } catch (const ConfigError& e) {
@@ -103,16 +105,19 @@ std::vector<Finding> validate_run(const Scenario& sc) {
         // A limit that can never be measured is refused now, not failed later.
         if (l.metric == "efficiency") {
             if (l.estimator == "dut") throw ConfigError(path + ".estimator", "a DUT's own position has no efficiency (it declares no model)");
-            for (const auto& e : sc.estimators) {
+            for (std::size_t k = 0; k < sc.estimators.size(); ++k) {
+                const auto& e = sc.estimators[k];
                 if (l.estimator != "*" && l.estimator != e.label) continue;
-                if (const std::string why = why_no_efficiency(e, sc); !why.empty())
+                if (const std::string why = why_no_efficiency(e, built[k].get()); !why.empty())
                     throw ConfigError(path + ".metric", "efficiency cannot be computed for '" + e.label + "': " + why);
             }
         }
     }
     // The device URIs' form and settings (the devices themselves are opened when the run starts).
     check_device_uris(sc);
-    return preflight(sc);
+    auto findings = preflight(sc);
+    if (built_out) *built_out = std::move(built);
+    return findings;
 }
 
 void check_device_uris(const Scenario& sc) {
@@ -320,7 +325,8 @@ dev::DeviceInfo combined_info(const Scenario& sc, const dev::DeviceInfo& out, co
 }  // namespace
 
 json execute_run(const Scenario& sc, const RunOptions& o) {
-    json warnings = validate_run(sc);
+    std::vector<std::unique_ptr<est::Estimator>> built;
+    json warnings = validate_run(sc, &built);
     json report;
     report["schema"] = "fringe.report";
     report["schema_version"] = 3;
@@ -375,9 +381,10 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             if (d) d->set_cancel(o.cancel);  // a device waiting on a failing board sees a cancel
         for (const auto& f : preflight_device(sc, dinfo)) warnings.push_back(f);
         const LaneContext lane_ctx{sc.sample_rate_hz, sc.settle_s, sc.scoring.max_harmonic, segment};
-        for (const auto& spec : sc.estimators) {
+        for (std::size_t i = 0; i < sc.estimators.size(); ++i) {
+            const auto& spec = sc.estimators[i];
             auto lane = std::make_unique<Lane>(&spec, lane_ctx);
-            lane->e = est::make(spec.name, estimator_config(sc, spec));
+            lane->e = built[i] ? std::move(built[i]) : est::make(spec.name, estimator_config(sc, spec));
             if (lanes.empty()) lane->tap = o.estimates;
             lanes.push_back(std::move(lane));
         }

@@ -12,10 +12,15 @@
 
 #include <atomic>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 
 namespace fringe {
+
+namespace est {
+class Estimator;
+}
 
 struct RunOptions {
     std::size_t block = 65536;
@@ -43,7 +48,9 @@ struct RunOptions {
 // Validates a scenario for running (estimators exist and accept their parameters, limits
 // name known metrics and estimators, preflight finds no error). Throws ConfigError naming the
 // key; returns the preflight warnings.
-std::vector<Finding> validate_run(const Scenario& sc);
+// With built_out, the estimators it built (one per scenario estimator, null for a child
+// process, which starts with the run) are handed back for the run to use.
+std::vector<Finding> validate_run(const Scenario& sc, std::vector<std::unique_ptr<est::Estimator>>* built_out = nullptr);
 // The form and settings of every device URI the scenario names (without opening anything);
 // errors name "device", "device.output", "device.input" or "device.dut".
 void check_device_uris(const Scenario& sc);

@@ -43,6 +43,15 @@ assert all(e["spectrum"]["segments"] > 0 for e in r["estimators"])
 PY
 
 set +e
+# A report to a FIFO (or /dev/null) is written into it, never replaced by a file renamed over
+# it: as root, `--report /dev/null` once turned /dev/null into a regular file.
+mkfifo "$dir/r.fifo"
+timeout 60 cat "$dir/r.fifo" > "$dir/from-fifo.json" & catpid=$!
+timeout 120 "$FRINGE" run "$S/fig10c-loopback.json" --no-db --report "$dir/r.fifo" -q || fail "a run reporting into a FIFO should pass"
+wait $catpid || fail "the FIFO's reader got no end of file (the report did not go into the FIFO)"
+[ -p "$dir/r.fifo" ] || fail "the FIFO was replaced by a file"
+$PY -c 'import json,sys; assert json.load(open(sys.argv[1]))["schema"] == "fringe.report"' "$dir/from-fifo.json" || fail "the FIFO's reader did not get the report"
+
 "$FRINGE" run "$S/ci-failing.json" --data "$dir/data" --junit "$dir/f.xml" -q; rc=$?
 set -e
 [ $rc -eq 1 ] || fail "ci-failing: exit $rc, want 1"
