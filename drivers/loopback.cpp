@@ -291,7 +291,7 @@ public:
 private:
     // Band-limited value of the played codes at generator sample position u (0 V before the
     // output starts, and after it ends unless cyclic): Blackman-Harris-windowed sinc, 32 taps a
-    // side, computed directly. Deliberately not the aligner's interpolator (server/align.cpp
+    // side, computed directly. Deliberately not the aligner's interpolator (server/analysis/align.cpp
     // uses a tabulated Kaiser-windowed sinc), so the tests do not grade it against itself.
     void resample(double u, double* v) const {
         constexpr int H = 32;

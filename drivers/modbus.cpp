@@ -47,7 +47,7 @@ bool connection_error(int e) {
 // not ours, a reply from another unit, too many data) are a garbled or stale reply: retried.
 bool exception_reply(int e) { return e >= EMBXILFUN && e <= EMBXGTAR; }
 
-// Steps the run engine reads per block (server/frame_source.cpp): the block deadline's unit.
+// Steps the run engine reads per block (server/engine/frame_source.cpp): the block deadline's unit.
 constexpr int kBlockSteps = 16;
 
 class ModbusDevice final : public Device {

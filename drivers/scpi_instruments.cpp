@@ -12,7 +12,7 @@
 // digitizer fringe does not drive.
 #include "device.hpp"
 #include "scpi.hpp"
-#include "server/text.hpp"
+#include "server/report/text.hpp"
 #include "signal_gen/config.hpp"
 
 #include <algorithm>

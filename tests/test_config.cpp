@@ -1,6 +1,6 @@
 // Strict configuration: unknown keys, wrong types and out-of-range values name the key;
 // the fixtures load; profiles survive a JSON round trip.
-#include "server/scenario.hpp"
+#include "server/engine/scenario.hpp"
 #include "signal_gen/config.hpp"
 #include "signal_gen/optics.hpp"
 

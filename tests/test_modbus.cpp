@@ -4,10 +4,10 @@
 #include "drivers/board_sim.hpp"
 #include "drivers/device.hpp"
 #include "drivers/modbus_board.hpp"
-#include "server/preflight.hpp"
-#include "server/run.hpp"
-#include "server/run_manager.hpp"
-#include "server/scenario.hpp"
+#include "server/engine/preflight.hpp"
+#include "server/engine/run.hpp"
+#include "server/http/run_manager.hpp"
+#include "server/engine/scenario.hpp"
 #include "signal_gen/config.hpp"
 
 #include <catch2/catch.hpp>

@@ -4,7 +4,7 @@
 // caps, escaped instrument text, truncated blocks).
 #include "drivers/instrument_sim.hpp"
 #include "drivers/scpi.hpp"
-#include "server/text.hpp"
+#include "server/report/text.hpp"
 
 #include <catch2/catch.hpp>
 

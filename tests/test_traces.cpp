@@ -1,6 +1,6 @@
 // Plot traces and the error spectrum against analytic truth (issue 11: plots that do not alias).
-#include "server/spectrum.hpp"
-#include "server/traces.hpp"
+#include "server/analysis/spectrum.hpp"
+#include "server/analysis/traces.hpp"
 
 #include <catch2/catch.hpp>
 

@@ -2,9 +2,9 @@
 #include "server/cli/commands.hpp"
 #include "estimator/estimator.hpp"
 #include "drivers/capture_file.hpp"
-#include "server/evaluate.hpp"
-#include "server/scenario.hpp"
-#include "server/text.hpp"
+#include "server/engine/evaluate.hpp"
+#include "server/engine/scenario.hpp"
+#include "server/report/text.hpp"
 
 #include <algorithm>
 #include <cmath>

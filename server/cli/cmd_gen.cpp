@@ -1,8 +1,8 @@
 // fringe gen: synthesise a scenario's encoder signals with exact truth into a capture file.
 #include "server/cli/commands.hpp"
 #include "drivers/capture_file.hpp"
-#include "server/scenario.hpp"
-#include "server/text.hpp"
+#include "server/engine/scenario.hpp"
+#include "server/report/text.hpp"
 #include "signal_gen/analysis.hpp"
 #include "signal_gen/config.hpp"
 #include "signal_gen/fastmath.hpp"

@@ -1,6 +1,6 @@
 // What the fringe commands share (common.hpp).
 #include "common.hpp"
-#include "server/text.hpp"
+#include "server/report/text.hpp"
 
 #include "signal_gen/config.hpp"
 

@@ -8,7 +8,7 @@
 
 #include "drivers/capture_file.hpp"
 #include "estimator/estimator.hpp"
-#include "server/evaluate.hpp"
+#include "server/engine/evaluate.hpp"
 #include "signal_gen/config.hpp"
 
 #include <nlohmann/json.hpp>

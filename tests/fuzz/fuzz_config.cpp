@@ -4,7 +4,7 @@
 // a crash or a non-finite value.
 #include "fuzz_common.hpp"
 
-#include "server/scenario.hpp"
+#include "server/engine/scenario.hpp"
 #include "signal_gen/config.hpp"
 #include "signal_gen/generator.hpp"
 #include "signal_gen/json_bounded.hpp"
