@@ -6,7 +6,7 @@
 // exact counts and never throws per block. Sample loss is never silent.
 #pragma once
 
-#include "signal_gen/params.hpp"
+#include "signal_gen/base/params.hpp"
 
 #include <nlohmann/json.hpp>
 

@@ -10,7 +10,7 @@
 // same URI as device.output and device.input (or the URI alone as device).
 #include "device.hpp"
 
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/fastmath.hpp"
 #include "signal_gen/noise.hpp"
 #include "signal_gen/quantizer.hpp"

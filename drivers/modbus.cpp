@@ -12,7 +12,8 @@
 // waits.
 #include "device.hpp"
 #include "modbus_board.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
+#include "signal_gen/base/constants.hpp"
 
 #include <modbus/modbus.h>
 
@@ -27,8 +28,6 @@
 namespace fringe::dev {
 
 namespace {
-
-constexpr double kTwoPi = 6.283185307179586476925286766559;
 
 std::string num(double v) {
     char b[32];

@@ -9,9 +9,9 @@
 // the one exception: its samples go through a pipe).
 #pragma once
 
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/encoder.hpp"
-#include "signal_gen/params.hpp"
+#include "signal_gen/base/params.hpp"
 
 #include <nlohmann/json.hpp>
 

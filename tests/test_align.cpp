@@ -8,7 +8,7 @@
 #include "server/engine/run.hpp"
 #include "server/engine/scenario.hpp"
 #include "server/http/service.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/fastmath.hpp"
 
 #include <catch2/catch.hpp>

@@ -5,7 +5,7 @@
 #include "server/http/http_server.hpp"
 #include "server/report/report_formats.hpp"
 #include "server/http/service.hpp"
-#include "server/report/text.hpp"
+#include "signal_gen/base/text.hpp"
 
 #include <catch2/catch.hpp>
 #include <nlohmann/json.hpp>

@@ -12,7 +12,7 @@
 #include "server/engine/scenario.hpp"
 #include "server/store/store.hpp"
 #include "server/engine/sweep.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/fastmath.hpp"
 
 #include <catch2/catch.hpp>

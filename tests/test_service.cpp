@@ -8,7 +8,7 @@
 #include "server/engine/scenario.hpp"
 #include "server/engine/schema_info.hpp"
 #include "server/http/service.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 
 #include <catch2/catch.hpp>
 #include <nlohmann/json.hpp>

@@ -13,6 +13,7 @@
 //      the next distinct one by min_ambiguity_z standard deviations, else the delay is ambiguous
 //      (a periodic signal whose onset is not in the record) and the alignment is refused.
 #include "server/analysis/align.hpp"
+#include "signal_gen/base/constants.hpp"
 
 #include <Eigen/Dense>
 #include <unsupported/Eigen/FFT>
@@ -28,7 +29,6 @@ namespace fringe {
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr int kH = 24;         // interpolator half-width, samples
 constexpr int kRes = 1024;     // kernel table rows per sample (384 KiB a table: stays in cache)
 constexpr double kBeta = 9.0;  // Kaiser window shape

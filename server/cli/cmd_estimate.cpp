@@ -4,7 +4,7 @@
 #include "drivers/capture_file.hpp"
 #include "server/engine/evaluate.hpp"
 #include "server/engine/scenario.hpp"
-#include "server/report/text.hpp"
+#include "signal_gen/base/text.hpp"
 
 #include <algorithm>
 #include <cmath>

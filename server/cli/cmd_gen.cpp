@@ -2,9 +2,9 @@
 #include "server/cli/commands.hpp"
 #include "drivers/capture_file.hpp"
 #include "server/engine/scenario.hpp"
-#include "server/report/text.hpp"
+#include "signal_gen/base/text.hpp"
 #include "signal_gen/analysis.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/fastmath.hpp"
 #include "signal_gen/generator.hpp"
 

@@ -1,7 +1,7 @@
 // fringe run: one scenario, here or on a fringe serve (--server); exit 0 PASS/MARGINAL, 1 FAIL, 2 ERROR.
 #include "server/cli/commands.hpp"
 #include "drivers/capture_file.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "server/store/forward.hpp"
 #include "server/store/instance_lock.hpp"
 #include "server/engine/provenance.hpp"
@@ -11,7 +11,7 @@
 #include "server/engine/scenario.hpp"
 #include "server/http/service.hpp"
 #include "server/store/store.hpp"
-#include "server/report/text.hpp"
+#include "signal_gen/base/text.hpp"
 #include "server/analysis/verdict.hpp"
 
 #include <cstdio>

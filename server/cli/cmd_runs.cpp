@@ -1,12 +1,12 @@
 // fringe runs: the run history, filtered, or one run's summary.
 #include "server/cli/commands.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "server/store/forward.hpp"
 #include "server/engine/run.hpp"
 #include "server/engine/scenario.hpp"
 #include "server/http/service.hpp"
 #include "server/store/store.hpp"
-#include "server/report/text.hpp"
+#include "signal_gen/base/text.hpp"
 #include "server/analysis/verdict.hpp"
 
 #include <array>

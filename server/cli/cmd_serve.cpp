@@ -3,7 +3,7 @@
 #include "drivers/device.hpp"
 #include "server/http/http_server.hpp"
 #include "server/http/service.hpp"
-#include "server/report/text.hpp"
+#include "signal_gen/base/text.hpp"
 
 #include <algorithm>
 #include <cstdio>

@@ -2,7 +2,7 @@
 // With a store (--store / --data) each row is a stored run with a deterministic id, so rows
 // can be sharded over a batch scheduler (--shard I/N) and merged from the store (--collect).
 #include "server/cli/commands.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "server/store/forward.hpp"
 #include "server/store/instance_lock.hpp"
 #include "server/engine/provenance.hpp"
@@ -11,7 +11,7 @@
 #include "server/engine/scenario.hpp"
 #include "server/store/store.hpp"
 #include "server/engine/sweep.hpp"
-#include "server/report/text.hpp"
+#include "signal_gen/base/text.hpp"
 
 #include <cstdio>
 #include <filesystem>

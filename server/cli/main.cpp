@@ -3,11 +3,11 @@
 #include "server/cli/commands.hpp"
 
 #ifdef FRINGE_WITH_USB_EMULATOR
-#include "drivers/usb_emulator.hpp"
+#include "drivers/sim/usb_emulator.hpp"
 #include <cstring>
 #endif
 
-#include "server/report/text.hpp"
+#include "signal_gen/base/text.hpp"
 
 #include <spdlog/pattern_formatter.h>
 #include <spdlog/sinks/stdout_color_sinks.h>

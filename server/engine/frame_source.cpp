@@ -1,7 +1,7 @@
 #include "server/engine/frame_source.hpp"
 
 #include "server/analysis/align.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/fastmath.hpp"
 #include "signal_gen/generator.hpp"
 

@@ -2,7 +2,7 @@
 
 #include "drivers/device.hpp"
 #include "estimator/estimator.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/fastmath.hpp"
 #include "signal_gen/generator.hpp"
 

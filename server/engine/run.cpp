@@ -8,7 +8,7 @@
 #include "server/analysis/scoring.hpp"
 #include "server/analysis/spectrum.hpp"
 #include "server/analysis/traces.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/fastmath.hpp"
 
 #include <chrono>

@@ -1,7 +1,7 @@
 #include "server/engine/schema_info.hpp"
 
 #include "server/engine/limits.hpp"
-#include "signal_gen/params.hpp"
+#include "signal_gen/base/params.hpp"
 
 namespace fringe {
 

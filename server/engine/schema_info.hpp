@@ -1,5 +1,5 @@
 // The scenario's editable keys described as data (GET /api/v1/schema): the same
-// self-description estimators and drivers give for their parameters (signal_gen/params.hpp),
+// self-description estimators and drivers give for their parameters (signal_gen/base/params.hpp),
 // so the browser's scenario editor is built from it. Ranges and defaults mirror the readers
 // (server/engine/scenario.cpp, signal_gen/encoder.cpp, signal_gen/motion.cpp); a test checks them
 // against those readers.

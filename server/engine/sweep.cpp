@@ -4,7 +4,7 @@
 #include "server/engine/provenance.hpp"
 #include "server/engine/run.hpp"
 #include "server/engine/scenario.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 
 #include <atomic>
 #include <cstdlib>

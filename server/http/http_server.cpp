@@ -1,6 +1,6 @@
 #include "server/http/http_server.hpp"
 
-#include "server/report/text.hpp"
+#include "signal_gen/base/text.hpp"
 
 #include <boost/asio/ip/tcp.hpp>
 #include <boost/asio/signal_set.hpp>

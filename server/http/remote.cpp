@@ -1,8 +1,8 @@
 #include "server/http/remote.hpp"
 
 #include "server/report/report_formats.hpp"
-#include "signal_gen/config.hpp"
-#include "signal_gen/json_bounded.hpp"
+#include "signal_gen/base/config.hpp"
+#include "signal_gen/base/json_bounded.hpp"
 
 #include <boost/asio/connect.hpp>
 #include <boost/asio/ip/tcp.hpp>

@@ -15,8 +15,8 @@
 #include "server/engine/run.hpp"
 #include "server/engine/scenario.hpp"
 #include "server/engine/schema_info.hpp"
-#include "signal_gen/config.hpp"
-#include "server/report/text.hpp"
+#include "signal_gen/base/config.hpp"
+#include "signal_gen/base/text.hpp"
 
 #include <spdlog/spdlog.h>
 

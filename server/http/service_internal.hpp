@@ -6,9 +6,9 @@
 
 #include "server/http/service.hpp"
 
-#include "signal_gen/config.hpp"
-#include "signal_gen/json_bounded.hpp"
-#include "server/report/text.hpp"
+#include "signal_gen/base/config.hpp"
+#include "signal_gen/base/json_bounded.hpp"
+#include "signal_gen/base/text.hpp"
 
 #include <nlohmann/json.hpp>
 

@@ -1,6 +1,7 @@
 #include "server/report/report_formats.hpp"
 
-#include "server/report/text.hpp"
+#include "signal_gen/base/text.hpp"
+#include "signal_gen/base/constants.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -157,7 +158,6 @@ std::string junit_xml(const json& r) {
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 const char* kColours[] = {"#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b"};
 
 // Inline SVG plot (issue 11): linear or log axes with tick values and units, and layers that

@@ -2,8 +2,8 @@
 
 #include "server/store/instance_lock.hpp"
 #include "server/engine/provenance.hpp"
-#include "signal_gen/config.hpp"
-#include "signal_gen/json_bounded.hpp"
+#include "signal_gen/base/config.hpp"
+#include "signal_gen/base/json_bounded.hpp"
 
 #include <sqlite3.h>
 #include <fcntl.h>

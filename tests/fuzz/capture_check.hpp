@@ -9,7 +9,7 @@
 #include "drivers/capture_file.hpp"
 #include "estimator/estimator.hpp"
 #include "server/engine/evaluate.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 
 #include <nlohmann/json.hpp>
 

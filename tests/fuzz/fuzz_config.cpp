@@ -5,9 +5,9 @@
 #include "fuzz_common.hpp"
 
 #include "server/engine/scenario.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/generator.hpp"
-#include "signal_gen/json_bounded.hpp"
+#include "signal_gen/base/json_bounded.hpp"
 
 #include <nlohmann/json.hpp>
 

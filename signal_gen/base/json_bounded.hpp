@@ -8,7 +8,7 @@
 // in the first copy. A value that never gets deeper than the bound can never do that.
 #pragma once
 
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 
 #include <nlohmann/json.hpp>
 

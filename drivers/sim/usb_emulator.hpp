@@ -9,7 +9,7 @@
 // Fault injection: IN stall, the board going silent (timeout), dropped frames, unplug.
 #pragma once
 
-#include "usb_protocol.hpp"
+#include "drivers/usb_protocol.hpp"
 
 #include <cstdint>
 #include <memory>

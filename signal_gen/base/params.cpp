@@ -1,4 +1,4 @@
-#include "params.hpp"
+#include "signal_gen/base/params.hpp"
 
 #include <cmath>
 #include <sstream>

@@ -1,7 +1,8 @@
-#include "board_sim.hpp"
+#include "drivers/sim/board_sim.hpp"
 
 #include "estimator/estimator.hpp"
-#include "modbus_board.hpp"
+#include "drivers/modbus_board.hpp"
+#include "signal_gen/base/constants.hpp"
 
 #include <modbus/modbus.h>
 
@@ -24,8 +25,6 @@
 namespace fringe::dev {
 
 namespace {
-
-constexpr double kTwoPi = 6.283185307179586476925286766559;
 
 struct Sim {
     const BoardSimOptions& o;

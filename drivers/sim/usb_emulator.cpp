@@ -1,4 +1,4 @@
-#include "usb_emulator.hpp"
+#include "drivers/sim/usb_emulator.hpp"
 
 #include <umockdev.h>
 

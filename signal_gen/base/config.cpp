@@ -1,4 +1,4 @@
-#include "config.hpp"
+#include "signal_gen/base/config.hpp"
 
 #include <nlohmann/json.hpp>
 

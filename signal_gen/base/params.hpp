@@ -3,7 +3,7 @@
 // built from that description, and resolve_params validates user input against it.
 #pragma once
 
-#include "config.hpp"
+#include "signal_gen/base/config.hpp"
 
 #include <nlohmann/json.hpp>
 

@@ -1,6 +1,7 @@
-#include "instrument_sim.hpp"
+#include "drivers/sim/instrument_sim.hpp"
 
-#include "scpi.hpp"
+#include "drivers/scpi.hpp"
+#include "signal_gen/base/constants.hpp"
 
 #include <arpa/inet.h>
 #include <netinet/in.h>
@@ -27,7 +28,6 @@ namespace fringe::dev {
 
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr std::size_t kMaxMessage = 600u << 20;  // a message (with its blocks) larger than this closes the connection
 
 // ---- interpolation: Kaiser-windowed sinc, 16 taps each side, tabulated ----
