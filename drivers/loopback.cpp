@@ -1,4 +1,4 @@
-// loopback: the fully simulated converter chain (DESIGN.md "Converter"):
+// loopback: the fully simulated converter chain (docs/schema.md "Devices"):
 //   DAC (bits, range; zero-order hold at the stream rate) -> reconstruction filter (1st order)
 //   -> analog noise -> anti-alias filter (1st or 2nd order Butterworth) -> ADC (bits, range,
 //   clipping) -> latency. Fault injection for tests: drop samples, stall, saturate.

@@ -1,4 +1,4 @@
-// The estimator interface (DESIGN.md "Estimator", STYLE.md 1, 5, 6): an interpolation
+// The estimator interface (docs/estimators.md): an interpolation
 // estimator under test turns sin/cos samples (V) into the unwrapped electrical phase
 // theta_rad, the electrical rate omega_rad_s and a valid flag. Estimators are registered by
 // name and describe their own parameters, so the CLI, HTTP API and web forms are built from

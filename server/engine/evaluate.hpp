@@ -38,7 +38,7 @@ struct EvaluateOptions {
 // est::EstimatorError on bad input; the estimates file is complete up to the failure.
 nlohmann::json evaluate_capture(const EvaluateOptions& o);
 
-// Estimates CSV writer (DESIGN.md "Estimates CSV"), shortest round-trip number formatting.
+// Estimates CSV writer (t,theta_rad,omega_rad_s,valid; README "The commands"), shortest round-trip number formatting.
 class EstimatesWriter {
 public:
     explicit EstimatesWriter(const std::string& path);

@@ -1,4 +1,4 @@
-// Where a run's input frames come from, each with its truth (DESIGN.md data flow): the seam
+// Where a run's input frames come from, each with its truth (docs/architecture.md): the seam
 // between the run engine and the kinds of device. A source writes what the device needs
 // (generated signals), reads what it returns, and pairs every input frame with the truth of
 // the sample it shows.

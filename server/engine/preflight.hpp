@@ -1,5 +1,5 @@
 // Preflight: a scenario checked against physics before a run or sweep row starts
-// (DESIGN.md "Trust"). Errors stop the run (exit 2, HTTP 400) naming the field and the cause;
+// (README "How a verdict is reached"). Errors stop the run (exit 2, HTTP 400) naming the field and the cause;
 // warnings travel in the report, the CLI output, JUnit properties and the HTML and web pages.
 #pragma once
 

@@ -31,7 +31,7 @@ struct Limit {
     double marginal_fraction = 0.0;
 };
 
-// What a verdict needs besides limits (DESIGN.md "Trust"): every estimator of a run is checked
+// What a verdict needs besides limits (README "How a verdict is reached"): every estimator of a run is checked
 // against these, and a run without this evidence FAILs instead of passing on nothing.
 struct ScoringRules {
     int max_harmonic = 16;                  // error harmonics fitted: 1x..max_harmonic x

@@ -1,4 +1,4 @@
-// The HTTP service's logic without a socket (STYLE.md, Beast's clean-shutdown example):
+// The HTTP service's logic without a socket (after Beast's clean-shutdown example):
 // handle(request) -> response. server/http/http_server.cpp carries requests here from Beast;
 // tests call handle() directly and also go through a real socket.
 //

@@ -1,4 +1,4 @@
-// Report renderings (DESIGN.md "Report"): JUnit XML (one testcase per measurement, with
+// Report renderings: JUnit XML (one testcase per measurement, with
 // value, unit and limits as properties) and a self-contained HTML page with inline SVG plots
 // (Lissajous, error vs electrical angle, error vs time, harmonic bars) that opens offline.
 #pragma once

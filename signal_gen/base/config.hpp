@@ -1,6 +1,6 @@
 // Strict JSON configuration reading: every key is consumed or rejected.
 //
-// STYLE.md 8: config structs serialize in one place; unknown keys, wrong types and
+// Config structs serialize in one place (docs/schema.md lists the keys); unknown keys, wrong types and
 // out-of-range values are errors that name the key (as a dotted path, e.g.
 // "encoder.noise.sigma_add_v").
 #pragma once

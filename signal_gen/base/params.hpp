@@ -1,4 +1,4 @@
-// Self-described parameters (STYLE.md 5): estimators and devices describe their settings
+// Self-described parameters: estimators and devices describe their settings
 // (name, unit, type, default, range) once; the CLI help, the HTTP API and the web forms are
 // built from that description, and resolve_params validates user input against it.
 #pragma once
