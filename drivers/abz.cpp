@@ -1,4 +1,5 @@
 #include "abz.hpp"
+#include "signal_gen/base/constants.hpp"
 
 #include <cmath>
 #include <limits>
@@ -7,8 +8,6 @@
 namespace fringe {
 
 namespace {
-constexpr double kTwoPi = 6.283185307179586;
-
 long long floor_mod(long long x, long long m) {
     const long long r = x % m;
     return r < 0 ? r + m : r;

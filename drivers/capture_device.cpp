@@ -5,7 +5,7 @@
 #include "capture_file.hpp"
 #include "device.hpp"
 
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 
 #include <algorithm>
 #include <limits>

@@ -1,6 +1,6 @@
 #include "capture_file.hpp"
 
-#include "signal_gen/json_bounded.hpp"
+#include "signal_gen/base/json_bounded.hpp"
 
 #include "sigrok_file.hpp"
 

@@ -1,4 +1,4 @@
-// Capture files (DESIGN.md "Capture CSV"; docs/capture-format.md):
+// Capture files (docs/capture-format.md):
 //  - CSV: header row, columns t (s), sin, cos (V), optional theta_true (rad, unwrapped
 //    electrical phase), omega_true (rad/s), index (V); a JSON sidecar <stem>.json beside it.
 //  - Binary .fcap: magic "FRNGCAP1", u32 LE header length, JSON header, then fixed-size

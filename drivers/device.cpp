@@ -1,6 +1,6 @@
 #include "device.hpp"
 
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 
 #include <arpa/inet.h>
 #include <fcntl.h>

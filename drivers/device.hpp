@@ -1,4 +1,4 @@
-// The Device interface (DESIGN.md "Device", STYLE.md 1-4, 11): one interface for the
+// The Device interface (README "Bench drivers"): one interface for the
 // simulated loopback, capture replay, Modbus boards and USB streaming boards, opened by URI
 // (`loopback:?adc_bits=12&noise_v=1e-4`, `capture:/path/x.fcap`, `modbus+tcp://...`,
 // `usb:1209:ec01`). Settings describe themselves. Configuration and control throw
@@ -6,7 +6,7 @@
 // exact counts and never throws per block. Sample loss is never silent.
 #pragma once
 
-#include "signal_gen/params.hpp"
+#include "signal_gen/base/params.hpp"
 
 #include <nlohmann/json.hpp>
 

@@ -1,4 +1,4 @@
-// loopback: the fully simulated converter chain (DESIGN.md "Converter"):
+// loopback: the fully simulated converter chain (docs/schema.md "Devices"):
 //   DAC (bits, range; zero-order hold at the stream rate) -> reconstruction filter (1st order)
 //   -> analog noise -> anti-alias filter (1st or 2nd order Butterworth) -> ADC (bits, range,
 //   clipping) -> latency. Fault injection for tests: drop samples, stall, saturate.
@@ -10,7 +10,7 @@
 // same URI as device.output and device.input (or the URI alone as device).
 #include "device.hpp"
 
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/fastmath.hpp"
 #include "signal_gen/noise.hpp"
 #include "signal_gen/quantizer.hpp"
@@ -291,7 +291,7 @@ public:
 private:
     // Band-limited value of the played codes at generator sample position u (0 V before the
     // output starts, and after it ends unless cyclic): Blackman-Harris-windowed sinc, 32 taps a
-    // side, computed directly. Deliberately not the aligner's interpolator (server/align.cpp
+    // side, computed directly. Deliberately not the aligner's interpolator (server/analysis/align.cpp
     // uses a tabulated Kaiser-windowed sinc), so the tests do not grade it against itself.
     void resample(double u, double* v) const {
         constexpr int H = 32;

@@ -12,7 +12,8 @@
 // waits.
 #include "device.hpp"
 #include "modbus_board.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
+#include "signal_gen/base/constants.hpp"
 
 #include <modbus/modbus.h>
 
@@ -27,8 +28,6 @@
 namespace fringe::dev {
 
 namespace {
-
-constexpr double kTwoPi = 6.283185307179586476925286766559;
 
 std::string num(double v) {
     char b[32];
@@ -47,7 +46,7 @@ bool connection_error(int e) {
 // not ours, a reply from another unit, too many data) are a garbled or stale reply: retried.
 bool exception_reply(int e) { return e >= EMBXILFUN && e <= EMBXGTAR; }
 
-// Steps the run engine reads per block (server/frame_source.cpp): the block deadline's unit.
+// Steps the run engine reads per block (server/engine/frame_source.cpp): the block deadline's unit.
 constexpr int kBlockSteps = 16;
 
 class ModbusDevice final : public Device {

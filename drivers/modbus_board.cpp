@@ -1,7 +1,7 @@
 #include "modbus_board.hpp"
 
-#include "signal_gen/config.hpp"
-#include "signal_gen/json_bounded.hpp"
+#include "signal_gen/base/config.hpp"
+#include "signal_gen/base/json_bounded.hpp"
 
 #include <algorithm>
 #include <cmath>

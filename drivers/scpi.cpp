@@ -1,7 +1,7 @@
 #include "scpi.hpp"
 
 #include "device.hpp"
-#include "server/text.hpp"
+#include "signal_gen/base/text.hpp"
 
 #include <libusb.h>
 

@@ -12,8 +12,8 @@
 // digitizer fringe does not drive.
 #include "device.hpp"
 #include "scpi.hpp"
-#include "server/text.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/text.hpp"
+#include "signal_gen/base/config.hpp"
 
 #include <algorithm>
 #include <chrono>

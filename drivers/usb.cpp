@@ -5,7 +5,7 @@
 // board's underflow flag, stalls, timeouts and unplugging become stream statuses, never
 // silence. Native errors keep libusb's names.
 #include "device.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "usb_protocol.hpp"
 
 #include <libusb.h>

@@ -1,4 +1,4 @@
-// The estimator interface (DESIGN.md "Estimator", STYLE.md 1, 5, 6): an interpolation
+// The estimator interface (docs/estimators.md): an interpolation
 // estimator under test turns sin/cos samples (V) into the unwrapped electrical phase
 // theta_rad, the electrical rate omega_rad_s and a valid flag. Estimators are registered by
 // name and describe their own parameters, so the CLI, HTTP API and web forms are built from
@@ -9,9 +9,9 @@
 // the one exception: its samples go through a pipe).
 #pragma once
 
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/encoder.hpp"
-#include "signal_gen/params.hpp"
+#include "signal_gen/base/params.hpp"
 
 #include <nlohmann/json.hpp>
 

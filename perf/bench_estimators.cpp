@@ -2,7 +2,7 @@
 // (16-bit ADC, noise) pre-generated outside the timed loop. Each iteration pushes one
 // 65536-sample block through an estimator that keeps running (no reset), as in a long run.
 #include "estimator/estimator.hpp"
-#include "server/scenario.hpp"
+#include "server/engine/scenario.hpp"
 #include "signal_gen/generator.hpp"
 
 #include <benchmark/benchmark.h>

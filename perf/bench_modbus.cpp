@@ -2,7 +2,7 @@
 // plain libmodbus loop doing the same requests (write 2 registers, read 2 input registers)
 // on the same link. Both talk to one board-sim thread on this machine.
 //   build/perf/bench_modbus [seconds per measurement]
-#include "drivers/board_sim.hpp"
+#include "drivers/sim/board_sim.hpp"
 #include "drivers/device.hpp"
 
 #include <modbus/modbus.h>

@@ -1,6 +1,6 @@
 // Signal generator throughput: sample pairs (sin, cos + truth) per second on one core,
 // with noise and ADC, without file I/O. Run: build/perf/bench_signal_gen
-#include "server/scenario.hpp"
+#include "server/engine/scenario.hpp"
 #include "signal_gen/generator.hpp"
 
 #include <benchmark/benchmark.h>

@@ -1,6 +1,6 @@
 #include "encoder.hpp"
 
-#include "config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "fastmath.hpp"
 #include "optics.hpp"
 

@@ -8,13 +8,12 @@
 // std::sin/std::cos beyond kFastSinCosMaxArg (checked per block, see generator.cpp).
 #pragma once
 
+#include "signal_gen/base/constants.hpp"
+
 #include <cmath>
 #include <cstdint>
 
 namespace fringe {
-
-constexpr double kPi = 3.14159265358979323846;
-constexpr double kTwoPi = 6.28318530717958647692;
 
 // |x| below this keeps |k| < 2^26, where the reduction below is exact. About 41 hours of
 // signal at 100 kHz and 937 samples per electrical period.

@@ -2,7 +2,7 @@
 // stops on destruction.
 #pragma once
 
-#include "drivers/board_sim.hpp"
+#include "drivers/sim/board_sim.hpp"
 
 #include <atomic>
 #include <chrono>

@@ -4,11 +4,12 @@
 // itself, reject unknown settings by name, refuse what it cannot do loudly (an error, not
 // silence), and carry a known signal through what it can do.
 #include "drivers/device.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
+#include "signal_gen/base/constants.hpp"
 
 #include <catch2/catch.hpp>
 
-#include "drivers/instrument_sim.hpp"
+#include "drivers/sim/instrument_sim.hpp"
 
 #include <chrono>
 #include <cmath>
@@ -24,11 +25,10 @@ using namespace fringe;
 using namespace fringe::dev;
 
 #ifdef FRINGE_WITH_USB_EMULATOR
-#include "drivers/usb_emulator.hpp"
+#include "drivers/sim/usb_emulator.hpp"
 #endif
 
 namespace {
-constexpr double kPi = 3.14159265358979323846;
 #ifdef FRINGE_WITH_USB_EMULATOR
 // The usb backend: the emulated board lives in this process (run under umockdev's preload).
 const std::unique_ptr<UsbEmulator> g_usb = std::getenv("FRINGE_TEST_USB_EMULATOR") ? std::make_unique<UsbEmulator>(UsbEmulatorOptions{}) : nullptr;

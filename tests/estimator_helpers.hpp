@@ -3,8 +3,8 @@
 #include "helpers.hpp"
 
 #include "estimator/estimator.hpp"
-#include "server/bounds.hpp"
-#include "server/scoring.hpp"
+#include "server/analysis/bounds.hpp"
+#include "server/analysis/scoring.hpp"
 
 #include <memory>
 #include <optional>

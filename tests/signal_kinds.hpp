@@ -5,7 +5,7 @@
 
 #include "helpers.hpp"
 
-#include "server/scenario.hpp"
+#include "server/engine/scenario.hpp"
 #include "signal_gen/fastmath.hpp"
 
 #include <string>

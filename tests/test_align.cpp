@@ -3,12 +3,12 @@
 #include "helpers.hpp"
 
 #include "drivers/device.hpp"
-#include "server/align.hpp"
-#include "server/limits.hpp"
-#include "server/run.hpp"
-#include "server/scenario.hpp"
-#include "server/service.hpp"
-#include "signal_gen/config.hpp"
+#include "server/analysis/align.hpp"
+#include "server/engine/limits.hpp"
+#include "server/engine/run.hpp"
+#include "server/engine/scenario.hpp"
+#include "server/http/service.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/fastmath.hpp"
 
 #include <catch2/catch.hpp>

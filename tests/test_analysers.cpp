@@ -6,8 +6,8 @@
 #include "estimator/estimator.hpp"
 #include "server/analysis/analyser.hpp"
 #include "server/analysis/task_pool.hpp"
-#include "server/run.hpp"
-#include "server/scenario.hpp"
+#include "server/engine/run.hpp"
+#include "server/engine/scenario.hpp"
 #include "signal_gen/fastmath.hpp"
 
 #include <catch2/catch.hpp>

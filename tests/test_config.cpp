@@ -1,7 +1,7 @@
 // Strict configuration: unknown keys, wrong types and out-of-range values name the key;
 // the fixtures load; profiles survive a JSON round trip.
-#include "server/scenario.hpp"
-#include "signal_gen/config.hpp"
+#include "server/engine/scenario.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/optics.hpp"
 
 #include <catch2/catch.hpp>

@@ -3,7 +3,7 @@
 #include "estimator_helpers.hpp"
 
 #include "estimator/ekf.hpp"
-#include "server/scenario.hpp"
+#include "server/engine/scenario.hpp"
 #include "signal_gen/fastmath.hpp"
 
 #include <catch2/catch.hpp>

@@ -4,11 +4,11 @@
 // an analytic expectation through the run engine (the CLI and HTTP paths: tests/cli_evidence.sh).
 #include "helpers.hpp"
 
-#include "server/bounds.hpp"
-#include "server/run.hpp"
-#include "server/scenario.hpp"
-#include "server/scoring.hpp"
-#include "signal_gen/config.hpp"
+#include "server/analysis/bounds.hpp"
+#include "server/engine/run.hpp"
+#include "server/engine/scenario.hpp"
+#include "server/analysis/scoring.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/fastmath.hpp"
 
 #include <catch2/catch.hpp>

@@ -2,10 +2,10 @@
 // 127.0.0.1: raw bytes on the wire (no client library to clean them up), then the status,
 // the JSON error code, a body that is valid JSON and UTF-8, and a service that still
 // answers /api/v1/health.
-#include "server/http_server.hpp"
-#include "server/report_formats.hpp"
-#include "server/service.hpp"
-#include "server/text.hpp"
+#include "server/http/http_server.hpp"
+#include "server/report/report_formats.hpp"
+#include "server/http/service.hpp"
+#include "signal_gen/base/text.hpp"
 
 #include <catch2/catch.hpp>
 #include <nlohmann/json.hpp>

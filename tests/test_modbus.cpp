@@ -1,14 +1,15 @@
 // Modbus: board profiles, register codec, read batching, and the driver against the emulated
 // board (libmodbus server in a thread) over real TCP on 127.0.0.1, with its faults.
 #include "board_sim_thread.hpp"
-#include "drivers/board_sim.hpp"
+#include "drivers/sim/board_sim.hpp"
 #include "drivers/device.hpp"
 #include "drivers/modbus_board.hpp"
-#include "server/preflight.hpp"
-#include "server/run.hpp"
-#include "server/run_manager.hpp"
-#include "server/scenario.hpp"
-#include "signal_gen/config.hpp"
+#include "server/engine/preflight.hpp"
+#include "server/engine/run.hpp"
+#include "server/http/run_manager.hpp"
+#include "server/engine/scenario.hpp"
+#include "signal_gen/base/config.hpp"
+#include "signal_gen/base/constants.hpp"
 
 #include <catch2/catch.hpp>
 
@@ -29,8 +30,6 @@ using nlohmann::json;
 using fringe::test::SimThread;
 
 namespace {
-
-constexpr double kPi = 3.14159265358979323846;
 
 }  // namespace
 

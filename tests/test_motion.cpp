@@ -1,5 +1,5 @@
 // Motion profiles: closed forms, continuity, rate = d(angle)/dt.
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/motion.hpp"
 
 #include <catch2/catch.hpp>

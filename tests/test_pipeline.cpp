@@ -2,10 +2,10 @@
 // evaluation (Service::handle, after an upload) and a run of a scenario file whose device is
 // capture:PATH gives identical figures, in the same report schema; so does a DUT's ABZ lane.
 #include "drivers/capture_file.hpp"
-#include "server/capture_run.hpp"
-#include "server/run.hpp"
-#include "server/scenario.hpp"
-#include "server/service.hpp"
+#include "server/engine/capture_run.hpp"
+#include "server/engine/run.hpp"
+#include "server/engine/scenario.hpp"
+#include "server/http/service.hpp"
 #include "signal_gen/fastmath.hpp"
 #include "signal_gen/generator.hpp"
 

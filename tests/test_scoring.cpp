@@ -1,9 +1,9 @@
 // Scoring conventions (MODEL.md 7) and bounds (MODEL.md 6) against closed forms.
 #include "helpers.hpp"
 
-#include "server/bounds.hpp"
-#include "server/scenario.hpp"
-#include "server/scoring.hpp"
+#include "server/analysis/bounds.hpp"
+#include "server/engine/scenario.hpp"
+#include "server/analysis/scoring.hpp"
 #include "signal_gen/fastmath.hpp"
 
 #include <catch2/catch.hpp>

@@ -2,9 +2,9 @@
 // queue's entries, USBTMC Bulk-OUT/IN framing against USBTMC 1.0 tables 1-3 and 8-9, the
 // emulator's interpolator against analytic truth, and a Session over a scripted link (reply
 // caps, escaped instrument text, truncated blocks).
-#include "drivers/instrument_sim.hpp"
+#include "drivers/sim/instrument_sim.hpp"
 #include "drivers/scpi.hpp"
-#include "server/text.hpp"
+#include "signal_gen/base/text.hpp"
 
 #include <catch2/catch.hpp>
 

@@ -3,12 +3,12 @@
 #include "board_sim_thread.hpp"
 #include "drivers/capture_file.hpp"
 #include "helpers.hpp"
-#include "server/http_server.hpp"
-#include "server/remote.hpp"
-#include "server/scenario.hpp"
-#include "server/schema_info.hpp"
-#include "server/service.hpp"
-#include "signal_gen/config.hpp"
+#include "server/http/http_server.hpp"
+#include "server/http/remote.hpp"
+#include "server/engine/scenario.hpp"
+#include "server/engine/schema_info.hpp"
+#include "server/http/service.hpp"
+#include "signal_gen/base/config.hpp"
 
 #include <catch2/catch.hpp>
 #include <nlohmann/json.hpp>

@@ -3,9 +3,9 @@
 #include "drivers/abz.hpp"
 #include "drivers/capture_file.hpp"
 #include "drivers/device.hpp"
-#include "server/run.hpp"
-#include "server/scenario.hpp"
-#include "server/service.hpp"
+#include "server/engine/run.hpp"
+#include "server/engine/scenario.hpp"
+#include "server/http/service.hpp"
 
 #include <catch2/catch.hpp>
 #include <nlohmann/json.hpp>

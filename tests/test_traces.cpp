@@ -1,6 +1,7 @@
 // Plot traces and the error spectrum against analytic truth (issue 11: plots that do not alias).
-#include "server/spectrum.hpp"
-#include "server/traces.hpp"
+#include "server/analysis/spectrum.hpp"
+#include "server/analysis/traces.hpp"
+#include "signal_gen/base/constants.hpp"
 
 #include <catch2/catch.hpp>
 
@@ -11,7 +12,6 @@ using namespace fringe;
 using nlohmann::json;
 
 namespace {
-constexpr double kPi = 3.14159265358979323846;
 
 // Feeds a recorder a constant-speed run: theta = 2 pi fe t, ideal quadrature of amplitude amp_v,
 // one lane whose error is err(theta, t) (unwrapped, any multiple of 2 pi).

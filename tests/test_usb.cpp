@@ -5,8 +5,9 @@
 // stalls cannot fail a test about something else. The tests about timing (a host that falls
 // behind, a board that runs dry) ask for the real-time clock themselves.
 #include "drivers/device.hpp"
-#include "drivers/usb_emulator.hpp"
-#include "signal_gen/config.hpp"
+#include "drivers/sim/usb_emulator.hpp"
+#include "signal_gen/base/config.hpp"
+#include "signal_gen/base/constants.hpp"
 
 #include <catch2/catch.hpp>
 
@@ -21,7 +22,6 @@ using namespace fringe::dev;
 using clk = std::chrono::steady_clock;
 
 namespace {
-constexpr double kPi = 3.14159265358979323846;
 
 struct Stream {
     std::vector<double> s, c;

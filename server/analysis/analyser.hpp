@@ -9,7 +9,7 @@
 // the results of those registered before it (the spectrum reads the truth scorer's rate).
 #pragma once
 
-#include "server/scoring.hpp"
+#include "server/analysis/scoring.hpp"
 
 #include <nlohmann/json.hpp>
 

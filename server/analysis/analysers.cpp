@@ -1,7 +1,7 @@
 // The built-in analysers (truth scorer, output conventions, error spectrum) and the registry.
 #include "server/analysis/analyser.hpp"
 
-#include "server/spectrum.hpp"
+#include "server/analysis/spectrum.hpp"
 #include "signal_gen/fastmath.hpp"
 
 #include <algorithm>

@@ -1,6 +1,6 @@
 // fringe board-sim: an emulated Modbus board (libmodbus server) for tests and demos.
 #include "server/cli/commands.hpp"
-#include "drivers/board_sim.hpp"
+#include "drivers/sim/board_sim.hpp"
 #include "estimator/estimator.hpp"
 
 #include <atomic>

@@ -2,7 +2,7 @@
 #include "server/cli/commands.hpp"
 #include "drivers/device.hpp"
 #include "drivers/modbus_board.hpp"
-#include "server/text.hpp"
+#include "signal_gen/base/text.hpp"
 
 #include <cstdio>
 

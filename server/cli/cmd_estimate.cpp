@@ -2,9 +2,9 @@
 #include "server/cli/commands.hpp"
 #include "estimator/estimator.hpp"
 #include "drivers/capture_file.hpp"
-#include "server/capture_run.hpp"
-#include "server/scenario.hpp"
-#include "server/text.hpp"
+#include "server/engine/capture_run.hpp"
+#include "server/engine/scenario.hpp"
+#include "signal_gen/base/text.hpp"
 
 #include <algorithm>
 #include <cmath>

@@ -1,10 +1,10 @@
 // fringe gen: synthesise a scenario's encoder signals with exact truth into a capture file.
 #include "server/cli/commands.hpp"
 #include "drivers/capture_file.hpp"
-#include "server/scenario.hpp"
-#include "server/text.hpp"
+#include "server/engine/scenario.hpp"
+#include "signal_gen/base/text.hpp"
 #include "signal_gen/analysis.hpp"
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/fastmath.hpp"
 #include "signal_gen/generator.hpp"
 

@@ -1,7 +1,7 @@
 // fringe instrument-sim: emulated SCPI instruments (a waveform generator and a digitizer
 // wired by a simulated analog link) on real TCP sockets, for tests, demos and pyvisa scripts.
 #include "server/cli/commands.hpp"
-#include "drivers/instrument_sim.hpp"
+#include "drivers/sim/instrument_sim.hpp"
 
 #include <atomic>
 #include <cctype>

@@ -1,13 +1,13 @@
 // fringe runs: the run history, filtered, or one run's summary.
 #include "server/cli/commands.hpp"
-#include "signal_gen/config.hpp"
-#include "server/forward.hpp"
-#include "server/run.hpp"
-#include "server/scenario.hpp"
-#include "server/service.hpp"
-#include "server/store.hpp"
-#include "server/text.hpp"
-#include "server/verdict.hpp"
+#include "signal_gen/base/config.hpp"
+#include "server/store/forward.hpp"
+#include "server/engine/run.hpp"
+#include "server/engine/scenario.hpp"
+#include "server/http/service.hpp"
+#include "server/store/store.hpp"
+#include "signal_gen/base/text.hpp"
+#include "server/analysis/verdict.hpp"
 
 #include <array>
 #include <cstdio>

@@ -1,9 +1,9 @@
 // fringe serve: the JSON/HTTP API and the browser UI, running scenarios from a queue.
 #include "server/cli/commands.hpp"
 #include "drivers/device.hpp"
-#include "server/http_server.hpp"
-#include "server/service.hpp"
-#include "server/text.hpp"
+#include "server/http/http_server.hpp"
+#include "server/http/service.hpp"
+#include "signal_gen/base/text.hpp"
 
 #include <algorithm>
 #include <cstdio>

@@ -2,16 +2,16 @@
 // With a store (--store / --data) each row is a stored run with a deterministic id, so rows
 // can be sharded over a batch scheduler (--shard I/N) and merged from the store (--collect).
 #include "server/cli/commands.hpp"
-#include "signal_gen/config.hpp"
-#include "server/forward.hpp"
-#include "server/instance_lock.hpp"
-#include "server/provenance.hpp"
-#include "server/report_formats.hpp"
-#include "server/run.hpp"
-#include "server/scenario.hpp"
-#include "server/store.hpp"
-#include "server/sweep.hpp"
-#include "server/text.hpp"
+#include "signal_gen/base/config.hpp"
+#include "server/store/forward.hpp"
+#include "server/store/instance_lock.hpp"
+#include "server/engine/provenance.hpp"
+#include "server/report/report_formats.hpp"
+#include "server/engine/run.hpp"
+#include "server/engine/scenario.hpp"
+#include "server/store/store.hpp"
+#include "server/engine/sweep.hpp"
+#include "signal_gen/base/text.hpp"
 
 #include <cstdio>
 #include <filesystem>

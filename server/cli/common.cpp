@@ -1,8 +1,8 @@
 // What the fringe commands share (common.hpp).
 #include "common.hpp"
-#include "server/text.hpp"
+#include "signal_gen/base/text.hpp"
 
-#include "signal_gen/config.hpp"
+#include "signal_gen/base/config.hpp"
 
 #include <cmath>
 #include <csignal>

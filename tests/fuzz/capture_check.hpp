@@ -8,8 +8,8 @@
 
 #include "drivers/capture_file.hpp"
 #include "estimator/estimator.hpp"
-#include "server/capture_run.hpp"
-#include "signal_gen/config.hpp"
+#include "server/engine/capture_run.hpp"
+#include "signal_gen/base/config.hpp"
 
 #include <nlohmann/json.hpp>
 

@@ -4,10 +4,10 @@
 // a crash or a non-finite value.
 #include "fuzz_common.hpp"
 
-#include "server/scenario.hpp"
-#include "signal_gen/config.hpp"
+#include "server/engine/scenario.hpp"
+#include "signal_gen/base/config.hpp"
 #include "signal_gen/generator.hpp"
-#include "signal_gen/json_bounded.hpp"
+#include "signal_gen/base/json_bounded.hpp"
 
 #include <nlohmann/json.hpp>
 

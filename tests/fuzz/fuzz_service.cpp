@@ -5,7 +5,7 @@
 // One Service for the whole run: a scratch data folder and the repository's fixtures/.
 #include "fuzz_common.hpp"
 
-#include "server/service.hpp"
+#include "server/http/service.hpp"
 
 #include <nlohmann/json.hpp>
 

@@ -1,0 +1,142 @@
+#include "server/analysis/spectrum.hpp"
+
+#include "signal_gen/base/constants.hpp"
+
+#include <unsupported/Eigen/FFT>
+
+#include <algorithm>
+#include <cmath>
+#include <complex>
+#include <cstdio>
+#include <cstdlib>
+
+namespace fringe {
+
+using nlohmann::json;
+
+namespace {
+
+// Plot values to `digits` significant digits: the JSON halves in size, far beyond what a plot resolves.
+double sig(double v, int digits = 6) {
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.*g", digits, v);
+    return std::strtod(buf, nullptr);
+}
+
+std::size_t pow2_floor(std::uint64_t x) {
+    std::size_t p = 1;
+    while (p * 2 <= x) p *= 2;
+    return p;
+}
+std::size_t pow2_ceil(double x) {
+    std::size_t p = 1;
+    while (static_cast<double>(p) < x && p < (std::size_t{1} << 40)) p *= 2;
+    return p;
+}
+}  // namespace
+
+ErrorSpectrum::ErrorSpectrum(double sample_rate_hz, std::size_t segment_samples)
+    : fs_(sample_rate_hz), n_(pow2_floor(std::max(segment_samples, kMinSegment))) {
+    window_.resize(n_);
+    for (std::size_t i = 0; i < n_; ++i) {
+        window_[i] = 0.5 - 0.5 * std::cos(2 * kPi * static_cast<double>(i) / static_cast<double>(n_));  // periodic Hann
+        s1_ += window_[i];
+        s2_ += window_[i] * window_[i];
+    }
+    buf_.reserve(n_);
+    power_.assign(n_ / 2 + 1, 0.0);
+}
+
+std::size_t ErrorSpectrum::choose_segment(double sample_rate_hz, double electrical_hz, std::uint64_t scored_samples) {
+    // At least 4096 samples either way: a fast encoder's harmonics are far apart, but a tracker's
+    // error lives below its loop bandwidth, which a short segment cannot resolve.
+    std::size_t want = 4096;
+    if (electrical_hz > 0 && sample_rate_hz > 0) want = std::max(want, pow2_ceil(8.0 * sample_rate_hz / electrical_hz));
+    want = std::clamp(want, kMinSegment, kMaxSegment);
+    const std::size_t fit = std::max(pow2_floor(scored_samples / 4), kMinSegment);
+    return std::min(want, fit);
+}
+
+void ErrorSpectrum::add(std::size_t n, const double* e_rad, const std::uint8_t* ok) {
+    for (std::size_t i = 0; i < n;) {
+        // The run of usable samples from i, appended in pieces that complete segments.
+        std::size_t j = i;
+        while (j < n && (!ok || ok[j]) && std::isfinite(e_rad[j])) ++j;
+        for (std::size_t k = i; k < j;) {
+            const std::size_t take = std::min(j - k, n_ - buf_.size());
+            buf_.insert(buf_.end(), e_rad + k, e_rad + k + take);
+            k += take;
+            if (buf_.size() == n_) {
+                segment();
+                buf_.erase(buf_.begin(), buf_.begin() + static_cast<std::ptrdiff_t>(n_ / 2));  // 50 % overlap
+            }
+        }
+        if (j < n) buf_.clear();  // a gap ends the segment: never bridged
+        i = j + 1;
+    }
+}
+
+void ErrorSpectrum::segment() {
+    double mean = 0;
+    for (double v : buf_) mean += v;
+    mean /= static_cast<double>(n_);
+    x_.resize(n_);
+    for (std::size_t i = 0; i < n_; ++i) x_[i] = (buf_[i] - mean) * window_[i];
+    static thread_local Eigen::FFT<double> fft;
+    fft.SetFlag(Eigen::FFT<double>::HalfSpectrum);  // bins 0..n/2 only: the input is real
+    fft.fwd(X_, x_);
+    // re^2 + im^2 (libstdc++'s std::norm goes through abs(), a hypot per bin)
+    for (std::size_t k = 0; k <= n_ / 2; ++k) power_[k] += X_[k].real() * X_[k].real() + X_[k].imag() * X_[k].imag();
+    ++segments_;
+}
+
+json ErrorSpectrum::to_json(double electrical_hz) const {
+    json out{{"segments", segments_}, {"segment_samples", n_}, {"sample_rate_hz", fs_}, {"resolution_hz", fs_ / static_cast<double>(n_)},
+             {"window", "hann"}, {"overlap", 0.5},
+             {"amplitude_method", "Hann, RMS-averaged; local maxima corrected for scalloping by the two-bin ratio (Grandke)"},
+             {"electrical_hz", electrical_hz > 0 ? json(electrical_hz) : json()}};
+    json f = json::array(), order = json::array(), asd = json::array(), amp = json::array();
+    if (segments_ == 0) {
+        out["f_hz"] = f; out["order"] = order; out["asd_rad_per_sqrt_hz"] = asd; out["amplitude_rad"] = amp; out["decimation"] = 1;
+        return out;
+    }
+    const std::size_t half = n_ / 2;
+    const double segs = static_cast<double>(segments_);
+    std::vector<double> mag(half + 1), a(half + 1), d(half + 1);
+    for (std::size_t k = 0; k <= half; ++k) {
+        mag[k] = std::sqrt(power_[k] / segs);  // RMS-averaged |X_k|
+        // one-sided PSD: 2|X|^2/(fs * sum w^2), DC and Nyquist not doubled
+        const double psd = (k == 0 || k == half ? 1.0 : 2.0) * power_[k] / segs / (fs_ * s2_);
+        d[k] = std::sqrt(psd);
+        a[k] = 2 * mag[k] / s1_;  // sinusoid of amplitude A centred in bin k: |X_k| = A*s1/2
+    }
+    // Scalloping: a tone delta bins off centre (0 <= delta < 1) gives |X_{k+1}|/|X_k| = (1+delta)/(2-delta)
+    // for Hann, so delta = (2r-1)/(r+1) and A = 2|X_k|/s1 * pi*delta*(1-delta^2)/sin(pi*delta).
+    for (std::size_t k = 2; k + 1 <= half; ++k) {
+        if (mag[k] < mag[k - 1] || mag[k] < mag[k + 1] || mag[k] <= 0) continue;
+        const double r = std::max(mag[k - 1], mag[k + 1]) / mag[k];
+        const double delta = std::clamp((2 * r - 1) / (r + 1), 0.0, 0.999);
+        const double corr = delta < 1e-9 ? 1.0 : kPi * delta * (1 - delta * delta) / std::sin(kPi * delta);
+        a[k] *= corr;
+    }
+    const std::size_t bins = half;  // k = 1..half
+    const std::size_t group = (bins + kMaxBins - 1) / kMaxBins;
+    for (std::size_t k0 = 1; k0 <= half; k0 += group) {
+        std::size_t best = k0;
+        double dmax = 0;
+        for (std::size_t k = k0; k < k0 + group && k <= half; ++k) {
+            if (a[k] > a[best]) best = k;
+            dmax = std::max(dmax, d[k]);
+        }
+        const double fk = static_cast<double>(best) * fs_ / static_cast<double>(n_);
+        f.push_back(sig(fk, 8));
+        order.push_back(electrical_hz > 0 ? json(sig(fk / electrical_hz)) : json());
+        asd.push_back(sig(dmax));
+        amp.push_back(sig(a[best]));
+    }
+    out["f_hz"] = std::move(f); out["order"] = std::move(order); out["asd_rad_per_sqrt_hz"] = std::move(asd);
+    out["amplitude_rad"] = std::move(amp); out["decimation"] = group;
+    return out;
+}
+
+}  // namespace fringe

@@ -1,0 +1,169 @@
+#include "server/engine/capture_run.hpp"
+
+#include "server/engine/evaluate.hpp"
+#include "server/engine/run.hpp"
+#include "signal_gen/base/config.hpp"
+#include "signal_gen/fastmath.hpp"
+
+#include <algorithm>
+#include <charconv>
+#include <cmath>
+#include <filesystem>
+#include <stdexcept>
+
+namespace fringe {
+
+using nlohmann::json;
+
+namespace {
+
+std::string number_text(double x) {
+    char b[32];
+    return std::string(b, std::to_chars(b, b + sizeof b, x).ptr);
+}
+
+// A value that goes into the device URI's query: nothing that would end it or start another key.
+void check_uri_text(const std::string& s, const std::string& field, const std::string& what) {
+    if (s.find_first_of("?&=#") != std::string::npos)
+        throw ConfigError(field, what + " '" + s + "' contains one of ? & = #, which a capture: device URI cannot carry; rename it");
+}
+
+}  // namespace
+
+CapturePlan plan_capture_run(const CaptureRunOptions& o) {
+    if (o.capture_path.find('?') != std::string::npos)
+        throw ConfigError("capture", "the path '" + o.capture_path + "' contains '?', which a capture: device URI cannot carry; rename the file");
+    // Read the capture once: its length (the run's planned samples), the first time stamp and
+    // the truth's travel. Every fault of the file is found here, before anything is written.
+    CaptureReader reader(o.capture_path, o.capture);
+    CaptureData d;
+    const bool truth = reader.columns().theta_true;
+    std::uint64_t n = 0;
+    double t_first = 0, th_prev = 0, settle_travel_rad = 0, travel_rad = 0;
+    while (reader.read(o.block, d)) {
+        const std::size_t m = d.size();
+        if (m == 0) continue;
+        if (n == 0) {
+            t_first = d.t_s[0];
+            if (truth) th_prev = d.theta_true_rad[0];
+        }
+        if (truth)
+            for (std::size_t i = 0; i < m; ++i) {
+                // electrical radians travelled (distance, not net: a swing teaches ekf-auto on every pass)
+                const double step = std::fabs(d.theta_true_rad[i] - th_prev);
+                travel_rad += step;
+                if (d.t_s[i] - t_first < o.settle_s) settle_travel_rad += step;
+                th_prev = d.theta_true_rad[i];
+            }
+        n += m;
+    }
+    const double fs = reader.sample_rate_hz();
+    if (!(fs > 0)) throw CaptureError(o.capture_path + ": sample rate unknown (no sidecar and fewer than two time stamps)");
+    std::optional<EncoderProfile> from_capture;
+    if (reader.meta().is_object() && reader.meta().contains("encoder"))
+        from_capture = encoder_from_json(reader.meta()["encoder"], "capture.encoder");
+    if (o.abz) {
+        if (!reader.columns().abz())
+            throw ConfigError("dut_interpolation", "the capture has no a/b lines to read a DUT's position from (docs/abz.md)");
+        try {
+            AbzDecoder check(*o.abz);
+        } catch (const std::invalid_argument& e) {
+            throw ConfigError("dut_interpolation", e.what());
+        }
+    }
+
+    CapturePlan p;
+    p.has_truth = truth;
+    Scenario& sc = p.scenario;
+    sc.name = "estimate " + std::filesystem::path(o.capture_path).filename().string();
+    sc.description = o.estimator + " on the capture " + o.capture_path;
+    // The truth's units and bounds: the capture's own encoder, else the profile given; the
+    // estimator is told the profile given, else the capture's.
+    const std::optional<EncoderProfile>& truth_enc = from_capture ? from_capture : o.encoder;
+    sc.encoder_known = truth_enc.has_value();
+    if (truth_enc) sc.encoder = *truth_enc;
+    sc.sample_rate_hz = fs;
+    sc.duration_s = static_cast<double>(n) / fs;
+    sc.t0_s = t_first;
+    // A stand-in motion for the preflight's checks and the spectrum's segment length: constant
+    // at the truth's mean speed over the settle time (so the travel the preflight finds there,
+    // ekf-auto's learning rule, is the capture's), or over the whole capture without a settle time.
+    const double window = std::min(o.settle_s, sc.duration_s);
+    const double electrical_rad_s = window > 0 ? settle_travel_rad / window : sc.duration_s > 0 ? travel_rad / sc.duration_s : 0.0;
+    sc.motion.kind = MotionKind::Constant;
+    sc.motion.velocity_rad_s = electrical_rad_s / sc.encoder.lines_per_rev;
+    sc.settle_s = o.settle_s;
+    EstimatorSpec spec{o.estimator, o.estimator, o.params.is_null() ? json::object() : o.params, std::nullopt};
+    if (o.encoder && from_capture) spec.encoder = o.encoder;  // told another profile than the truth's
+    sc.estimators = {spec};
+    // The device: the capture driver, with the channel map, the expanded-size cap and the DUT's readout.
+    std::string uri = "capture:" + o.capture_path;
+    std::vector<std::string> q;
+    // The reader above held the file to the exact cap; the driver takes whole MiB from 1.
+    const double mb = std::clamp(static_cast<double>(o.capture.max_expanded_bytes) / 1048576.0, 1.0, 1.6e7);
+    q.push_back("max_expanded_mb=" + number_text(std::ceil(mb)));
+    for (const auto& [col, ch] : o.capture.channels) {
+        check_uri_text(ch, "channels", "the channel name");
+        q.push_back(col + "=" + ch);
+    }
+    if (reader.columns().abz()) {
+        if (o.abz) {
+            q.push_back("interpolation=" + std::to_string(o.abz->interpolation));
+            q.push_back("index_count=" + std::to_string(o.abz->index_count));
+            q.push_back("offset_rad=" + number_text(o.abz->offset_rad));
+        } else {
+            q.push_back("interpolation=0");  // the a/b lines are not read
+        }
+    }
+    for (std::size_t i = 0; i < q.size(); ++i) uri += (i ? "&" : "?") + q[i];
+    sc.device = uri;
+
+    p.facts = {{"path", o.capture_path}, {"samples", n}, {"sample_rate_hz", fs}, {"has_truth", truth},
+               {"encoder_source", o.encoder ? "profile file" : (from_capture ? "capture metadata" : "none")}};
+    if (!truth_enc)
+        p.facts["no_encoder"] = "neither an encoder profile nor the capture's metadata gives one: the estimator is told none, the errors have "
+                                "no arcsec (they need lines_per_rev) and no bounds (they need the signal model)";
+    return p;
+}
+
+json run_capture(const CaptureRunOptions& o) {
+    CapturePlan p = plan_capture_run(o);
+    std::optional<EstimatesWriter> out;
+    if (!o.estimates_path.empty()) out.emplace(o.estimates_path);
+    std::uint64_t samples = 0, valid = 0;
+    RunOptions ro;
+    ro.block = o.block;
+    if (o.progress) ro.progress = [&](std::uint64_t done, std::uint64_t) { o.progress(done); };
+    // The estimator's output as it left it: the estimates file, and how much of it it vouched for.
+    ro.estimates = [&](std::size_t n, const double* t, const double* th, const double* om, const std::uint8_t* v) {
+        if (out) out->write(n, t, th, om, v);
+        samples += n;
+        valid += static_cast<std::uint64_t>(std::count(v, v + n, std::uint8_t{1}));
+    };
+    double estimator_s = 0;
+    ro.estimator_s = &estimator_s;
+    json r = execute_run(p.scenario, ro);
+    if (out) out->close();
+    json facts = p.facts;
+    facts["estimates"] = {{"samples", samples}, {"valid_samples", valid},
+                          {"valid_fraction", samples > 0 ? json(static_cast<double>(valid) / static_cast<double>(samples)) : json()}};
+    facts["timing"] = {{"estimator_s", estimator_s},
+                       {"estimator_samples_per_s", estimator_s > 0 ? static_cast<double>(samples) / estimator_s : 0.0}};
+    facts["not_scored"] = nullptr;
+    if (!p.has_truth && r["status"] == "done") {
+        // Nothing could be scored, by design: no verdict rather than the evidence checks' FAIL,
+        // and no warning about scores that do not exist (ekf-auto's learning, from a motion
+        // the capture does not state).
+        facts["not_scored"] = "the capture has no theta_true column: estimates only; nothing was scored, so the run has no verdict";
+        r["verdict"] = nullptr;
+        r["measurements"] = json::array();
+        json kept = json::array();
+        for (const auto& w : r["warnings"])
+            if (w.value("code", "") != "scores_learning") kept.push_back(w);
+        r["warnings"] = kept;
+    }
+    r["capture"] = facts;
+    return r;
+}
+
+}  // namespace fringe

@@ -1,0 +1,54 @@
+// One estimator on a capture, through the run engine (the engine behind `fringe estimate` and
+// POST /api/v1/captures/{id}/evaluate): the capture becomes a scenario whose device is
+// capture:PATH, execute_run runs it like any run, and the report is the run's (schema
+// "fringe.report") with the capture's own facts under "capture" (docs/schema.md).
+#pragma once
+
+#include "drivers/abz.hpp"
+#include "drivers/capture_file.hpp"
+#include "server/engine/scenario.hpp"
+#include "signal_gen/encoder.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <string>
+
+namespace fringe {
+
+struct CaptureRunOptions {
+    std::string capture_path;
+    std::string estimator;
+    nlohmann::json params = nlohmann::json::object();
+    // What the estimator is told about the encoder; default: the capture's sidecar/header.
+    std::optional<EncoderProfile> encoder;
+    double settle_s = 0.1;
+    std::string estimates_path;  // optional CSV t,theta_rad,omega_rad_s,valid
+    std::size_t block = 65536;
+    std::function<void(std::uint64_t done)> progress;
+    CaptureOptions capture;  // a sigrok session's channel map, the expanded-size cap
+    // The DUT's ABZ readout (docs/abz.md): the capture driver decodes the capture's a/b/z lines
+    // and the run scores them as the lane "dut" beside the estimator.
+    std::optional<AbzConfig> abz;
+};
+
+// The scenario a capture is run as, and what reading the capture once found (report "capture").
+struct CapturePlan {
+    Scenario scenario;
+    nlohmann::json facts;
+    bool has_truth = false;
+};
+
+// Reads the capture once (its length, rate, first time stamp, and the truth's travel) and
+// builds the scenario: device capture:PATH, the one estimator, settle_s, no user limits.
+// Throws ConfigError / CaptureError (CaptureTooLarge) on bad input, before anything is written.
+CapturePlan plan_capture_run(const CaptureRunOptions& o);
+
+// plan_capture_run, then execute_run. The report's status is "error" (with "error") when the
+// run failed part way (the estimates file is complete up to there); throws what
+// plan_capture_run and validate_run throw, and CaptureError when the estimates cannot be written.
+nlohmann::json run_capture(const CaptureRunOptions& o);
+
+}  // namespace fringe

@@ -1,0 +1,55 @@
+// Where a run's input frames come from, each with its truth (docs/architecture.md): the seam
+// between the run engine and the kinds of device. A source writes what the device needs
+// (generated signals), reads what it returns, and pairs every input frame with the truth of
+// the sample it shows.
+//   StepSource    step mode (Modbus boards): one static pair per frame, settle, read back
+//   StreamSource  output and input streams (loopback, USB): write ahead, read, align truth
+//                 for the device's declared latency
+//   ReplaySource  input-only (capture replay): frames and truth from the file
+//   InstrumentSource  a generator plays the whole signal from memory, a digitizer on its own
+//                 clock records it; truth is aligned from the signals (server/align.*)
+#pragma once
+
+#include "drivers/device.hpp"
+#include "server/engine/scenario.hpp"
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace fringe {
+
+struct Frames {
+    std::vector<double> t_s, sin_v, cos_v;
+    std::vector<double> theta_true_rad, omega_true_rad_s;  // omega NaN where the source has no rate truth
+    std::vector<std::uint8_t> truth_known;
+    std::vector<double> dut_theta_rad;  // the DUT's own position (NaN: none); empty without a DUT
+    std::size_t size() const { return t_s.size(); }
+    void resize(std::size_t n, bool dut);
+};
+
+struct SourceStatus {
+    bool ok = true;
+    bool end = false;     // the source has no more frames (a capture's end)
+    std::string error;    // when !ok: what failed, with the stream position
+};
+
+class FrameSource {
+public:
+    virtual ~FrameSource() = default;
+    // Up to max frames into out (resized to what was delivered). Device faults on the stream
+    // path come back as a status; configuration faults throw.
+    virtual SourceStatus next(std::size_t max, Frames& out) = 0;
+    virtual void stop() {}
+    // The truth alignment (report "alignment"; docs/alignment.md), null for sources without one.
+    virtual nlohmann::json alignment() const { return nullptr; }
+};
+
+std::unique_ptr<FrameSource> make_frame_source(const Scenario& sc, dev::Device& device, const dev::DeviceInfo& info,
+                                               std::size_t block);
+// A generator (output, can_play) and a digitizer (input, can_record); they may be one device.
+std::unique_ptr<FrameSource> make_instrument_source(const Scenario& sc, dev::Device& output, dev::Device& input,
+                                                    const dev::DeviceInfo& output_info);
+
+}  // namespace fringe

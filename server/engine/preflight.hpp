@@ -1,0 +1,35 @@
+// Preflight: a scenario checked against physics before a run or sweep row starts
+// (README "How a verdict is reached"). Errors stop the run (exit 2, HTTP 400) naming the field and the cause;
+// warnings travel in the report, the CLI output, JUnit properties and the HTML and web pages.
+#pragma once
+
+#include "server/engine/scenario.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <string>
+#include <vector>
+
+namespace fringe {
+
+namespace dev { struct DeviceInfo; }
+
+struct Finding {
+    bool error = false;
+    std::string code;     // "undersampled", "double_quantisation", ...
+    std::string field;    // the scenario key it is about
+    std::string message;  // what and why, with the numbers
+};
+void to_json(nlohmann::json& j, const Finding& f);
+
+// Peak electrical rate over the run, as samples per electrical cycle at that rate (the
+// smallest number of samples any cycle of the run gets). +inf for a motion that never moves.
+double min_samples_per_cycle(const Scenario& sc);
+
+// Checks that need only the scenario (and the device URI's settings). Throws ConfigError for
+// the first error; returns the warnings.
+std::vector<Finding> preflight(const Scenario& sc);
+// Checks that need the opened device's description (a board profile's converter, ...).
+std::vector<Finding> preflight_device(const Scenario& sc, const dev::DeviceInfo& d);
+
+}  // namespace fringe

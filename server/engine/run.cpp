@@ -1,0 +1,518 @@
+#include "server/engine/run.hpp"
+
+#include "server/analysis/bounds.hpp"
+#include "drivers/capture_file.hpp"
+#include "drivers/device.hpp"
+#include "estimator/estimator.hpp"
+#include "server/engine/frame_source.hpp"
+#include "server/analysis/analyser.hpp"
+#include "server/analysis/scoring.hpp"
+#include "server/analysis/spectrum.hpp"
+#include "server/analysis/task_pool.hpp"
+#include "server/analysis/traces.hpp"
+#include "signal_gen/base/config.hpp"
+#include "signal_gen/fastmath.hpp"
+
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <ctime>
+#include <limits>
+#include <random>
+#include <thread>
+
+#include "server/engine/provenance.hpp"
+
+#ifndef FRINGE_VERSION
+#define FRINGE_VERSION "dev"
+#endif
+
+namespace fringe {
+
+using nlohmann::json;
+
+std::string iso_now() {
+    const auto t = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
+    std::tm tm{};
+    gmtime_r(&t, &tm);
+    char buf[32];
+    std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
+    return buf;
+}
+
+std::string new_run_id() { return new_uuid7(); }
+
+namespace {
+
+est::EstimatorConfig estimator_config(const Scenario& sc, const EstimatorSpec& spec) {
+    est::EstimatorConfig cfg;
+    cfg.sample_rate_hz = sc.sample_rate_hz;
+    cfg.encoder = spec.encoder ? spec.encoder : sc.encoder_known ? std::optional(sc.encoder) : std::nullopt;
+    cfg.params = spec.params;
+    return cfg;
+}
+
+// Can this estimator be given an efficiency? (A tracker must declare its prior.)
+std::string why_no_efficiency(const EstimatorSpec& spec, const est::Estimator* built) {
+    if (est::traits_of(spec.name).child_process || !built) {
+        const std::string model = spec.params.is_object() ? spec.params.value("model", std::string("unknown")) : "unknown";
+        return model == "unknown" ? "the " + spec.name + " estimator declares no model: set params.model (memoryless, tracker-cv or tracker-ca) "
+                                    "and, for a tracker, params.natural_freq_hz (docs/external-estimator.md)"
+                                  : "";
+    }
+    if (built->bound_class() == est::BoundClass::Tracker && !built->prior()) return spec.label + " (" + spec.name + ") declares no tracking prior";
+    return "";
+}
+
+}  // namespace
+
+std::vector<Finding> validate_run(const Scenario& sc, std::vector<std::unique_ptr<est::Estimator>>* built_out) {
+    if (sc.estimators.empty()) throw ConfigError("estimators", "a run needs at least one estimator under test");
+    // Each estimator is built once here (its parameters checked by its reset) and kept for the
+    // run; a child process is not started before the run.
+    std::vector<std::unique_ptr<est::Estimator>> built(sc.estimators.size());
+    for (std::size_t i = 0; i < sc.estimators.size(); ++i) {
+        const auto& spec = sc.estimators[i];
+        try {
+            const auto& info = est::find(spec.name);
+            const Params p = resolve_params(info.params, spec.params);  // cheap checks first; external is not started here
+            if (!info.traits.child_process) built[i] = est::make(spec.name, estimator_config(sc, spec));
+            else if (p.string("model").rfind("tracker", 0) == 0 && !(p.number("natural_freq_hz") > 0))
+                throw ConfigError("params.natural_freq_hz", "a tracker's declared prior needs its natural frequency (> 0 Hz)");
+        } catch (const ConfigError& e) {
+            // An unknown estimator is the scenario's "name" key (est::find names the CLI's --estimator).
+            if (e.field() == "estimator") throw ConfigError("estimators[" + std::to_string(i) + "].name", e.message());
+            throw e.prefixed("estimators[" + std::to_string(i) + "]");
+        }
+    }
+    for (std::size_t i = 0; i < sc.limits.size(); ++i) {
+        const auto& l = sc.limits[i];
+        const std::string path = "limits[" + std::to_string(i) + "]";
+        if (!find_metric(l.metric)) {
+            std::string known;
+            for (const auto& m : metric_catalog()) known += (known.empty() ? "" : ", ") + m.name;
+            throw ConfigError(path + ".metric", "unknown metric '" + l.metric + "' (known: " + known + ", and harmonic_Nx_rad up to 64x)");
+        }
+        if (find_metric(l.metric)->run_level) {
+            if (l.estimator != "*" && l.estimator != "run")
+                throw ConfigError(path + ".estimator", "'" + l.metric + "' is measured once for the run (alignment): leave estimator out or give \"run\"");
+        } else if (l.estimator != "*") {
+            bool found = false;
+            for (const auto& e : sc.estimators) found |= e.label == l.estimator;
+            found |= l.estimator == "dut";  // a DUT board's own position (step mode)
+            if (!found) throw ConfigError(path + ".estimator", "no estimator labelled '" + l.estimator + "' in this scenario");
+        }
+        // A limit that can never be measured is refused now, not failed later.
+        if (l.metric == "efficiency") {
+            if (l.estimator == "dut") throw ConfigError(path + ".estimator", "a DUT's own position has no efficiency (it declares no model)");
+            for (std::size_t k = 0; k < sc.estimators.size(); ++k) {
+                const auto& e = sc.estimators[k];
+                if (l.estimator != "*" && l.estimator != e.label) continue;
+                if (const std::string why = why_no_efficiency(e, built[k].get()); !why.empty())
+                    throw ConfigError(path + ".metric", "efficiency cannot be computed for '" + e.label + "': " + why);
+            }
+        }
+    }
+    // The device URIs' form and settings (the devices themselves are opened when the run starts).
+    check_device_uris(sc);
+    auto findings = preflight(sc);
+    if (built_out) *built_out = std::move(built);
+    return findings;
+}
+
+void check_device_uris(const Scenario& sc) {
+    for (const auto& [field, uri] : sc.device_uris()) {
+        dev::UriParts parts;
+        try {
+            parts = dev::check_uri(uri);
+        } catch (const ConfigError& e) {
+            // check_uri names "device" or "device.<setting>": the same under this URI's field.
+            const std::string f = e.field();
+            throw ConfigError(f.rfind("device", 0) == 0 ? field + f.substr(6) : field, e.message());
+        }
+        if (parts.scheme == "loopback" && !parts.path.empty())
+            throw ConfigError(field, "loopback takes no path (got '" + parts.path + "'); use loopback:?key=value");
+    }
+    if (sc.instruments && !sc.instruments->dut.empty())
+        throw ConfigError("device.dut", "a separate DUT readout device is not supported yet (the URI is valid; runs with output and input instruments "
+                                        "score the estimators under test)");
+}
+
+json unstarted_report(const Scenario& sc, const std::string& id, const std::string& started_at, const std::string& status,
+                      const std::string& verdict, const std::string& error, const json& provenance) {
+    json r = json{{"schema", "fringe.report"}, {"schema_version", 3}, {"fringe_version", FRINGE_VERSION}, {"id", id},
+                {"started_at", started_at}, {"finished_at", iso_now()}, {"wall_s", 0.0}, {"scenario", sc}, {"seed", sc.seed},
+                {"device", nullptr}, {"alignment", nullptr}, {"status", status}, {"verdict", verdict}, {"error", error}, {"warnings", json::array()},
+                {"samples", {{"planned", sc.samples()}, {"processed", 0}}}, {"estimators", json::array()},
+                {"measurements", json::array()}, {"traces", json::object()}};
+    if (!provenance.is_null()) r["provenance"] = provenance;
+    return r;
+}
+
+namespace {
+
+// One estimator under test (or the DUT's own position) with its analysers. Its output for a
+// block stays in one of two slots while the traces of that block are drawn beside the next.
+struct Lane {
+    const EstimatorSpec* spec;
+    std::unique_ptr<est::Estimator> e;  // null: the DUT's own position
+    AnalyserSet analysers;
+    std::vector<double> th, om;
+    std::vector<std::uint8_t> valid;
+    std::vector<double> err[2];  // theta_hat - theta_true, NaN where invalid (plot traces), per slot
+    double estimator_s = 0;  // time inside the estimator
+    std::function<void(std::size_t, const double*, const double*, const double*, const std::uint8_t*)> tap;  // RunOptions::estimates
+    Lane(const EstimatorSpec* s, const LaneContext& ctx) : spec(s), analysers(ctx) {}
+
+    void process(const Frames& f, int slot) {
+        const std::size_t m = f.size();
+        th.resize(m); om.resize(m); valid.resize(m);
+        if (!e) {  // the DUT's own position: no rate
+            for (std::size_t i = 0; i < m; ++i) {
+                th[i] = f.dut_theta_rad[i];
+                om[i] = std::numeric_limits<double>::quiet_NaN();
+                valid[i] = std::isfinite(th[i]);
+            }
+        } else {
+            const auto t0 = std::chrono::steady_clock::now();
+            e->process({std::span(f.sin_v), std::span(f.cos_v)}, {std::span(th), std::span(om), std::span(valid)});
+            estimator_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        }
+        if (tap) tap(m, f.t_s.data(), th.data(), om.data(), valid.data());
+        for (std::size_t i = 0; i < m; ++i) valid[i] = valid[i] && f.truth_known[i];
+        LaneBlock b;
+        b.n = m;
+        b.t_s = f.t_s.data();
+        b.sin_v = f.sin_v.data();
+        b.cos_v = f.cos_v.data();
+        b.theta_true_rad = f.theta_true_rad.data();
+        b.omega_true_rad_s = f.omega_true_rad_s.data();
+        b.truth_known = f.truth_known.data();
+        b.theta_hat_rad = th.data();
+        b.omega_hat_rad_s = e ? om.data() : nullptr;
+        b.valid = valid.data();
+        analysers.add(b);
+        auto& out = err[slot];
+        out.resize(m);
+        for (std::size_t i = 0; i < m; ++i) out[i] = valid[i] ? th[i] - f.theta_true_rad[i] : std::numeric_limits<double>::quiet_NaN();
+    }
+};
+
+// The pipeline's threads: asked for, else FRINGE_THREADS, else one per hardware thread.
+unsigned pipeline_threads(unsigned asked) {
+    if (asked) return asked;
+    if (const char* env = std::getenv("FRINGE_THREADS")) {
+        const long v = std::strtol(env, nullptr, 10);
+        if (v >= 1 && v <= 64) return static_cast<unsigned>(v);
+    }
+    return std::max(1u, std::thread::hardware_concurrency());
+}
+
+// The spectrum's segment length wants the electrical frequency: the mean planned rate.
+double planned_electrical_hz(const Scenario& sc) {
+    constexpr std::size_t n = 1000;
+    std::vector<double> t(n), phi(n), om(n), al(n);
+    for (std::size_t i = 0; i < n; ++i) t[i] = sc.t0_s + sc.duration_s * static_cast<double>(i) / (n - 1);
+    sc.motion.evaluate(t.data(), n, phi.data(), om.data(), al.data());
+    double sum = 0;
+    for (double w : om) sum += std::fabs(w);
+    return sum / n * sc.encoder.lines_per_rev / kTwoPi;
+}
+
+class Recorder {
+public:
+    Recorder(const std::string& path, const Scenario& sc, const dev::DeviceInfo& d, const std::string& id) {
+        json meta{{"sample_rate_hz", sc.sample_rate_hz}, {"t0_s", sc.t0_s}, {"encoder", sc.encoder}, {"scenario", sc},
+                  {"device", d}, {"board_id", d.board_id}, {"run_id", id},
+                  {"note", "device input recorded by fringe run; theta_true aligned for the device latency (0 where unknown)"}};
+        w_.emplace(path, CaptureColumns{true, true, false}, meta);
+    }
+    void add(const Frames& f) {
+        rec_.t_s = f.t_s;
+        rec_.sin_v = f.sin_v;
+        rec_.cos_v = f.cos_v;
+        rec_.theta_true_rad = f.theta_true_rad;
+        rec_.omega_true_rad_s = f.omega_true_rad_s;
+        for (std::size_t i = 0; i < f.size(); ++i)
+            if (!f.truth_known[i]) rec_.theta_true_rad[i] = rec_.omega_true_rad_s[i] = 0.0;
+        w_->write(rec_);
+    }
+    void close() { w_->close(); }
+
+private:
+    std::optional<CaptureWriter> w_;
+    CaptureData rec_;
+};
+
+// The scored lanes' report entries: metrics with their evidence, bounds from the signal as
+// delivered, and convention findings.
+json score_lanes(const Scenario& sc, const dev::DeviceInfo& dinfo, std::vector<std::unique_ptr<Lane>>& lanes, const json& dut_readout,
+                 json& warnings) {
+    json basis;
+    const EncoderProfile delivered = delivered_profile(sc.encoder, dinfo.converter, &basis);
+    json out = json::array();
+    for (auto& lane : lanes) {
+        const LaneResults res = lane->analysers.finish();
+        const ErrorMetrics m = res.error.value_or(ErrorMetrics{});
+        json ej;
+        ej["label"] = lane->spec->label;
+        ej["name"] = lane->spec->name;
+        ej["params"] = lane->spec->params;
+        ej["state"] = lane->e ? lane->e->state() : json();
+        ej["metrics"] = to_json(m, sc.encoder_known ? sc.encoder.lines_per_rev : 0);  // arcsec need lines_per_rev
+        // The DUT's ABZ readout: what the decoder counted is part of its metrics (limits name
+        // abz_illegal_transitions, abz_index_errors), and an illegal transition is an error.
+        if (!lane->e && dut_readout.is_object()) {
+            ej["metrics"]["abz"] = dut_readout;
+            const auto illegal = dut_readout.value("illegal_transitions", std::uint64_t{0});
+            if (illegal > 0)
+                warnings.push_back({{"severity", "error"}, {"code", "dut_illegal_transitions"}, {"field", "estimators.dut"},
+                                    {"message", "dut: " + std::to_string(illegal) + " illegal A/B transitions (both lines changed between two samples); "
+                                                "the position was invalid from each until the next index (" +
+                                                std::to_string(dut_readout.value("invalid_samples", std::uint64_t{0})) + " samples without a position)"}});
+            const auto index_errors = dut_readout.value("index_errors", std::uint64_t{0});
+            if (index_errors > 0)
+                warnings.push_back({{"severity", "error"}, {"code", "dut_index_errors"}, {"field", "estimators.dut"},
+                                    {"message", "dut: the count was off at " + std::to_string(index_errors) + " index pulses (by up to " +
+                                                std::to_string(dut_readout.value("max_index_error_counts", 0LL)) + " counts) and was reset there"}});
+        }
+        ej["spectrum"] = res.spectrum;
+        if (!res.extra.empty()) ej["analysers"] = res.extra;
+        if (m.scored > 0 && lane->e && sc.encoder_known) {  // bounds need the signal model
+            ej["bounds"] = bounds_json(delivered, *lane->e, sc.sample_rate_hz, m.scored, m.rms_rad);
+            ej["bounds"]["signal_as_delivered"] = basis;
+        } else {
+            ej["bounds"] = nullptr;
+        }
+        json diag = json::array();
+        ej["metrics"]["convention_violations"] = res.conventions.size();
+        for (const auto& f : res.conventions) {
+            diag.push_back({{"code", f.code}, {"message", f.message}});
+            warnings.push_back({{"severity", "warning"}, {"code", f.code}, {"field", "estimators." + lane->spec->label}, {"message", lane->spec->label + ": " + f.message}});
+        }
+        if (ej["bounds"].is_object() && ej["bounds"].value("efficiency_not_credible", json()).is_string()) {
+            const std::string msg = ej["bounds"]["efficiency_not_credible"].get<std::string>();
+            diag.push_back({{"code", "efficiency_not_credible"}, {"message", msg}});
+            warnings.push_back({{"severity", "warning"}, {"code", "efficiency_not_credible"}, {"field", "estimators." + lane->spec->label}, {"message", lane->spec->label + ": " + msg}});
+        }
+        ej["diagnosis"] = diag;
+        out.push_back(std::move(ej));
+    }
+    return out;
+}
+
+// One DeviceInfo for a generator and a digitizer: the digitizer's, with the generator's DAC
+// and the label of both (report "device"; each in full under "output" and "input").
+dev::DeviceInfo combined_info(const Scenario& sc, const dev::DeviceInfo& out, const dev::DeviceInfo& in) {
+    if (sc.instruments->output == sc.instruments->input) return in;
+    dev::DeviceInfo d = in;
+    d.driver = out.driver == in.driver ? in.driver : out.driver + "+" + in.driver;
+    d.uri = sc.device_label();
+    d.description = out.description + " -> " + in.description;
+    d.can_play = out.can_play;
+    d.max_play_samples = out.max_play_samples;
+    d.own_clock = out.own_clock || in.own_clock;
+    auto& c = d.converter;
+    c.known = out.converter.known && in.converter.known;
+    c.dac_bits = out.converter.dac_bits;
+    c.dac_range_v = out.converter.dac_range_v;
+    c.dac_step_v = out.converter.dac_step_v;
+    c.added_noise_v = c.independent_noise_v();
+    c.note = "generator's DAC and digitizer's ADC quantise independently";
+    return d;
+}
+
+}  // namespace
+
+json execute_run(const Scenario& sc, const RunOptions& o) {
+    std::vector<std::unique_ptr<est::Estimator>> built;
+    json warnings = validate_run(sc, &built);
+    json report;
+    report["schema"] = "fringe.report";
+    report["schema_version"] = 3;
+    report["fringe_version"] = FRINGE_VERSION;
+    report["id"] = o.run_id.empty() ? new_run_id() : o.run_id;
+    report["started_at"] = iso_now();
+    report["scenario"] = sc;
+    report["seed"] = sc.seed;
+    report["device"] = nullptr;
+    if (!o.provenance.is_null()) report["provenance"] = o.provenance;
+    RunStatus status = RunStatus::Done;
+    std::string error;
+    const auto wall0 = std::chrono::steady_clock::now();
+
+    std::vector<std::unique_ptr<Lane>> lanes;
+    dev::DeviceInfo dinfo;
+    const std::uint64_t total = sc.samples();
+    std::uint64_t processed = 0;
+    std::optional<TraceRecorder> traces;
+    json dut_readout;
+    static const EstimatorSpec dut_spec{"dut", "dut", nlohmann::json::object(), std::nullopt};
+    const std::size_t segment = ErrorSpectrum::choose_segment(
+        sc.sample_rate_hz, planned_electrical_hz(sc), static_cast<std::uint64_t>(std::max(0.0, (sc.duration_s - sc.settle_s) * sc.sample_rate_hz)));
+    json alignment = nullptr;
+    try {
+        // Separate instruments: the generator (output) and the digitizer (input); the same URI
+        // twice is one device. Faults name the scenario field.
+        std::unique_ptr<dev::Device> device, input_device;
+        dev::DeviceInfo out_info, in_info;
+        auto open_named = [](const std::string& field, const std::string& uri) {
+            try {
+                return dev::open(uri);
+            } catch (const std::exception& e) {
+                throw std::runtime_error(field + ": " + e.what());
+            }
+        };
+        if (sc.instruments) {
+            device = open_named("device.output", sc.instruments->output);
+            if (sc.instruments->input != sc.instruments->output) input_device = open_named("device.input", sc.instruments->input);
+            out_info = device->info();
+            in_info = input_device ? input_device->info() : out_info;
+            if (!out_info.can_play)
+                throw std::runtime_error("device.output: " + out_info.uri + " cannot play a waveform from memory (not a generator; a loopback needs own_clock=1)");
+            if (!in_info.can_record)
+                throw std::runtime_error("device.input: " + in_info.uri + " cannot record a block (not a digitizer; a loopback needs own_clock=1)");
+            dinfo = combined_info(sc, out_info, in_info);
+        } else {
+            device = dev::open(sc.device);
+            dinfo = device->info();
+        }
+        for (auto* d : {device.get(), input_device.get()})
+            if (d) d->set_cancel(o.cancel);  // a device waiting on a failing board sees a cancel
+        for (const auto& f : preflight_device(sc, dinfo)) warnings.push_back(f);
+        const LaneContext lane_ctx{sc.sample_rate_hz, sc.settle_s, sc.scoring.max_harmonic, segment};
+        for (std::size_t i = 0; i < sc.estimators.size(); ++i) {
+            const auto& spec = sc.estimators[i];
+            auto lane = std::make_unique<Lane>(&spec, lane_ctx);
+            lane->e = built[i] ? std::move(built[i]) : est::make(spec.name, estimator_config(sc, spec));
+            if (lanes.empty()) lane->tap = o.estimates;
+            lanes.push_back(std::move(lane));
+        }
+        // A board that reports its own interpolated position is scored like an estimator, "dut".
+        if (dinfo.dut_position) lanes.push_back(std::make_unique<Lane>(&dut_spec, lane_ctx));
+        {
+            std::vector<std::string> labels;
+            for (auto& lane : lanes) labels.push_back(lane->spec->label);
+            // Angle folds from the settle time on, so a lock transient does not swamp them.
+            traces.emplace(total, o.trace_points, labels, sc.t0_s + sc.settle_s);
+        }
+        auto source = sc.instruments ? make_instrument_source(sc, *device, input_device ? *input_device : *device, out_info)
+                                     : make_frame_source(sc, *device, dinfo, o.block);
+        if (!sc.instruments) dinfo = device->info();  // started: converter figures at the run's rate
+        report["device"] = dinfo;
+        if (input_device) {
+            report["device"]["output"] = out_info;
+            report["device"]["input"] = in_info;
+        }
+        if (report.contains("provenance") && report["provenance"]["dut"]["serial"] == "") report["provenance"]["dut"]["serial"] = dinfo.board_id;
+        std::optional<Recorder> recorder;
+        if (!o.record_path.empty()) recorder.emplace(o.record_path, sc, dinfo, report["id"]);
+        // The pipeline, one step per block: the source fills block k+1, the lanes process block
+        // k (each lane a task of its own), and block k-1 goes to the recorder and the traces,
+        // all side by side; each task touches only its own slot, so the report is the same for
+        // any thread count. Frames delivered before a fault or a cancel are processed.
+        TaskPool pool(pipeline_threads(o.threads));
+        Frames slot[3];
+        SourceStatus st;
+        bool source_done = false;
+        std::exception_ptr source_failure;
+        std::uint64_t produced = 0, laned = 0;  // frames delivered by the source, and through the lanes
+        std::size_t have[3] = {0, 0, 0};  // frames in each slot
+        std::vector<std::function<void()>> tasks;
+        std::vector<std::exception_ptr> errors;
+        for (std::uint64_t step = 0;; ++step) {
+            if (!source_done && o.cancel && o.cancel->load()) { status = RunStatus::Aborted; error = "cancelled"; source_done = true; }
+            const bool produce = !source_done && produced < total;
+            const bool lane_step = step >= 1 && have[(step - 1) % 3] > 0;  // block step-1
+            const bool trace_step = step >= 2 && have[(step - 2) % 3] > 0;  // block step-2
+            if (!produce && !lane_step && !trace_step) break;
+            tasks.clear();
+            if (produce)
+                tasks.emplace_back([&, k = step % 3] {
+                    st = source->next(o.block, slot[k]);
+                    alignment = source->alignment();
+                });
+            if (lane_step)
+                for (auto& lane : lanes)
+                    tasks.emplace_back([&, l = lane.get(), k = (step - 1) % 3] { l->process(slot[k], static_cast<int>((step - 1) % 2)); });
+            if (trace_step)
+                tasks.emplace_back([&, k = (step - 2) % 3] {
+                    const Frames& f = slot[k];
+                    if (recorder) recorder->add(f);
+                    std::vector<const double*> errs;
+                    for (auto& lane : lanes) errs.push_back(lane->err[(step - 2) % 2].data());
+                    traces->add(f.size(), f.t_s.data(), f.sin_v.data(), f.cos_v.data(), f.theta_true_rad.data(), f.truth_known.data(), errs);
+                });
+            pool.run(tasks, errors);
+            std::size_t t = 0;
+            if (trace_step) have[(step - 2) % 3] = 0;
+            if (produce) {
+                if (errors[t]) {
+                    source_failure = errors[t];  // like a fault: what came before is still processed
+                    have[step % 3] = 0;
+                    source_done = true;
+                } else {
+                    have[step % 3] = slot[step % 3].size();
+                    produced += have[step % 3];
+                    if (!st.ok) { status = RunStatus::Error; error = st.error; source_done = true; }
+                    if (st.end) source_done = true;
+                }
+                ++t;
+            }
+            if (lane_step) {
+                for (std::size_t j = 0; j < lanes.size(); ++j, ++t)
+                    if (errors[t]) std::rethrow_exception(errors[t]);  // an estimator failed: the run ends here
+                laned += have[(step - 1) % 3];
+                processed = laned;
+                if (o.progress) o.progress(processed, total);
+            }
+            if (trace_step && errors[t]) std::rethrow_exception(errors[t]);
+        }
+        if (source_failure) std::rethrow_exception(source_failure);
+        source->stop();
+        if (dinfo.dut_position) dut_readout = device->dut_readout();
+        if (status == RunStatus::Done)
+            for (auto& lane : lanes)
+                if (lane->e) lane->e->finish();
+        if (recorder) recorder->close();
+    } catch (const std::exception& e) {  // device, estimator and capture faults, and anything unforeseen
+        status = RunStatus::Error;
+        error = e.what();
+    } catch (...) {
+        status = RunStatus::Error;
+        error = "the run failed with an unknown exception";
+    }
+
+    if (o.estimator_s && !lanes.empty()) *o.estimator_s = lanes[0]->estimator_s;
+    json estimators;
+    try {
+        estimators = score_lanes(sc, dinfo, lanes, dut_readout, warnings);
+    } catch (const std::exception& e) {
+        estimators = json::array();
+        if (status == RunStatus::Done) status = RunStatus::Error;
+        if (error.empty()) error = std::string("scoring failed: ") + e.what();
+    }
+    Verdict verdict;
+    report["alignment"] = alignment;
+    report["measurements"] = evaluate_limits(sc, estimators, status, verdict, alignment);
+    report["status"] = to_string(status);
+    report["verdict"] = to_string(verdict);
+    report["error"] = error.empty() ? json() : json(error);
+    report["warnings"] = warnings;
+    report["samples"] = {{"planned", total}, {"processed", processed}};
+    report["estimators"] = estimators;
+    report["traces"] = traces ? traces->to_json() : json::object();
+    report["finished_at"] = iso_now();
+    report["wall_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+    return report;
+}
+
+int exit_code(const json& report) {
+    if (!report.contains("verdict") || !report["verdict"].is_string()) return 2;  // no verdict (a capture without truth)
+    const std::string v = report["verdict"].get<std::string>();
+    if (v == "PASS" || v == "MARGINAL") return 0;
+    if (v == "FAIL") return 1;
+    return 2;
+}
+
+}  // namespace fringe

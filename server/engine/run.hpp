@@ -1,0 +1,75 @@
+// The run engine: generate the encoder signals, play them through a device, capture, run the
+// estimators under test, score against truth, apply limits, and build the report
+// (schema "fringe.report", version 3). Streams in blocks: memory does not grow with the run
+// length (traces are decimated to a fixed number of points).
+#pragma once
+
+#include "server/engine/limits.hpp"
+#include "server/engine/preflight.hpp"
+#include "server/engine/scenario.hpp"
+
+#include <nlohmann/json.hpp>
+
+#include <atomic>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+
+namespace fringe {
+
+namespace est {
+class Estimator;
+}
+
+struct RunOptions {
+    std::size_t block = 65536;
+    std::size_t trace_points = 2000;
+    std::function<void(std::uint64_t done, std::uint64_t total)> progress;
+    const std::atomic<bool>* cancel = nullptr;
+    std::string run_id;
+    // Record the device input (with the aligned truth) to this capture (.csv or .fcap).
+    std::string record_path;
+    // Where the run came from (provenance.hpp): copied into report["provenance"]; its DUT
+    // serial is filled from the device's board id when neither scenario nor bench set one.
+    nlohmann::json provenance;
+    // Threads for the pipeline (the source, the lanes and the traces side by side); 0: one per
+    // hardware thread. The report does not depend on it.
+    unsigned threads = 0;
+    // Each block's output of the first estimator under test as it left the estimator (before
+    // the samples without truth are dropped from scoring): `fringe estimate` writes its
+    // estimates CSV from it. A throw ends the run with status "error".
+    std::function<void(std::size_t n, const double* t_s, const double* theta_rad, const double* omega_rad_s, const std::uint8_t* valid)>
+        estimates;
+    // Filled when the run ends: seconds spent inside the first estimator (its throughput).
+    double* estimator_s = nullptr;
+};
+
+// Validates a scenario for running (estimators exist and accept their parameters, limits
+// name known metrics and estimators, preflight finds no error). Throws ConfigError naming the
+// key; returns the preflight warnings.
+// With built_out, the estimators it built (one per scenario estimator, null for a child
+// process, which starts with the run) are handed back for the run to use.
+std::vector<Finding> validate_run(const Scenario& sc, std::vector<std::unique_ptr<est::Estimator>>* built_out = nullptr);
+// The form and settings of every device URI the scenario names (without opening anything);
+// errors name "device", "device.output", "device.input" or "device.dut".
+void check_device_uris(const Scenario& sc);
+
+// Never throws once the scenario is valid: device faults, sample loss, estimator failure,
+// cancellation and any unexpected exception end the run with status "error" or "aborted" and
+// a report of what was processed until then. Throws ConfigError from validate_run only.
+nlohmann::json execute_run(const Scenario& sc, const RunOptions& o = {});
+
+// The report of a run that ended before it produced a sample (cancelled while queued, or the
+// engine could not start): the same keys as execute_run's, so every rendering works.
+nlohmann::json unstarted_report(const Scenario& sc, const std::string& id, const std::string& started_at, const std::string& status,
+                                const std::string& verdict, const std::string& error, const nlohmann::json& provenance = nullptr);
+
+// Exit code for a report: 0 PASS/MARGINAL, 1 FAIL, 2 ERROR/ABORTED.
+int exit_code(const nlohmann::json& report);
+
+// A UUIDv7 ("0193a4f2-6c1e-7b3d-9f00-1a2b3c4d5e6f"): unique across hosts, sorts by time.
+std::string new_run_id();
+std::string iso_now();  // "2026-11-21T15:07:45Z"
+
+}  // namespace fringe

@@ -1,0 +1,737 @@
+#include "server/report/report_formats.hpp"
+
+#include "signal_gen/base/text.hpp"
+#include "signal_gen/base/constants.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <stdexcept>
+
+namespace fringe {
+
+using nlohmann::json;
+
+// Text from a scenario or a device may hold anything: XML 1.0 forbids C0 controls but tab,
+// LF and CR (written as references so attribute values keep them), and the document must be
+// UTF-8 (other bytes become U+FFFD). Forbidden controls are shown as \xNN.
+std::string xml_escape(const std::string& s) {
+    const std::string u = sanitize_utf8(s);
+    std::string o;
+    o.reserve(u.size());
+    char hex[8];
+    for (std::size_t i = 0; i < u.size(); ++i) {
+        const char c = u[i];
+        switch (c) {
+            case '&': o += "&amp;"; break;
+            case '<': o += "&lt;"; break;
+            case '>': o += "&gt;"; break;
+            case '"': o += "&quot;"; break;
+            case '\'': o += "&apos;"; break;
+            case '\t': o += "&#9;"; break;
+            case '\n': o += "&#10;"; break;
+            case '\r': o += "&#13;"; break;
+            default:
+                if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) {
+                    std::snprintf(hex, sizeof hex, "\\x%02x", static_cast<unsigned>(static_cast<unsigned char>(c)));
+                    o += hex;
+                } else if (u.compare(i, 3, "\xef\xbf\xbe") == 0 || u.compare(i, 3, "\xef\xbf\xbf") == 0) {  // U+FFFE, U+FFFF: not XML characters
+                    o += "\xef\xbf\xbd";
+                    i += 2;
+                } else {
+                    o += c;
+                }
+        }
+    }
+    return o;
+}
+
+void write_file_atomic(const std::string& path, const std::string& text) {
+    // A device, FIFO or terminal (/dev/null, /dev/stdout, a pipe to another program) is written
+    // in place: a file renamed over it would replace it (as root, /dev/null itself).
+    std::error_code ec;
+    const auto st = std::filesystem::status(path, ec);
+    if (!ec && std::filesystem::exists(st) && !std::filesystem::is_regular_file(st)) {
+        if (std::filesystem::is_directory(st)) throw std::runtime_error(path + ": is a directory");
+        std::ofstream f(path, std::ios::binary);
+        if (!f) throw std::runtime_error(path + ": cannot write");
+        f << text;
+        f.flush();
+        if (!f) throw std::runtime_error(path + ": write failed");
+        return;
+    }
+    const std::string tmp = path + ".tmp";
+    {
+        std::ofstream f(tmp, std::ios::binary);
+        if (!f) throw std::runtime_error(path + ": cannot write");
+        f << text;
+        f.flush();
+        if (!f) throw std::runtime_error(path + ": write failed");
+    }
+    std::filesystem::rename(tmp, path);
+}
+
+namespace {
+// j[a][b], or null when either level is missing (statistics of an unscored estimator are null).
+json sub(const json& j, const char* a, const char* b) {
+    if (!j.is_object() || !j.contains(a) || !j[a].is_object() || !j[a].contains(b)) return json();
+    return j[a][b];
+}
+std::string num(const json& v) {
+    if (!v.is_number()) return "";
+    std::ostringstream os;
+    os.precision(6);
+    os << v.get<double>();
+    return os.str();
+}
+// A 95 % interval [lo, hi] as "lo..hi", "" when there is none.
+std::string interval(const json& iv) {
+    if (!iv.is_array() || iv.size() != 2 || !iv[0].is_number() || !iv[1].is_number()) return "";
+    std::ostringstream os;
+    os.precision(4);
+    os << iv[0].get<double>() << ".." << iv[1].get<double>();
+    return os.str();
+}
+}  // namespace
+
+std::string junit_xml(const json& r) {
+    const auto& ms = r["measurements"];
+    int failures = 0, errors = 0;
+    for (const auto& m : ms) {
+        if (m["outcome"] == "FAIL") ++failures;
+        if (m["outcome"] == "ERROR") ++errors;
+    }
+    const bool run_error = r["status"] != "done";
+    std::ostringstream x;
+    const std::string name = r["scenario"].value("name", std::string("run"));
+    x << "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n";
+    x << "<testsuites name=\"fringe\">\n";
+    x << "  <testsuite name=\"" << xml_escape(name) << "\" tests=\"" << (ms.size() + (run_error ? 1 : 0)) << "\" failures=\"" << failures
+      << "\" errors=\"" << (errors + (run_error ? 1 : 0)) << "\" timestamp=\"" << xml_escape(r.value("started_at", std::string())) << "\" time=\""
+      << num(r.value("wall_s", json())) << "\">\n";
+    x << "    <properties>\n";
+    x << "      <property name=\"run_id\" value=\"" << xml_escape(r.value("id", std::string())) << "\"/>\n";
+    x << "      <property name=\"verdict\" value=\"" << xml_escape(r.value("verdict", std::string())) << "\"/>\n";
+    // A report of any age or shape renders: missing keys are skipped, never looked up.
+    x << "      <property name=\"seed\" value=\"" << r.value("seed", json()).dump() << "\"/>\n";
+    if (r.contains("device") && r["device"].is_object()) x << "      <property name=\"device\" value=\"" << xml_escape(r["device"].value("uri", std::string())) << "\"/>\n";
+    // Preflight and convention warnings: what the verdict was reached under.
+    for (const auto& w : r.value("warnings", json::array()))
+        x << "      <property name=\"warning\" value=\"" << xml_escape(w.value("code", std::string()) + ": " + w.value("message", std::string())) << "\"/>\n";
+    x << "    </properties>\n";
+    if (run_error)
+        x << "    <testcase classname=\"" << xml_escape(name) << "\" name=\"run\"><error message=\""
+          << xml_escape(r["error"].is_string() ? r["error"].get<std::string>() : "") << "\"/></testcase>\n";
+    for (const auto& m : ms) {
+        const std::string est = m["estimator"].get<std::string>(), metric = m["metric"].get<std::string>();
+        x << "    <testcase classname=\"" << xml_escape(name + "." + est) << "\" name=\"" << xml_escape(metric) << "\">\n";
+        x << "      <properties>\n";
+        x << "        <property name=\"value\" value=\"" << num(m["value"]) << "\"/>\n";
+        x << "        <property name=\"unit\" value=\"" << xml_escape(m["unit"].get<std::string>()) << "\"/>\n";
+        if (const std::string iv = interval(m.value("interval_95", json())); !iv.empty())
+            x << "        <property name=\"interval_95\" value=\"" << iv << "\"/>\n";
+        if (m["limit"].contains("max")) x << "        <property name=\"max\" value=\"" << num(m["limit"]["max"]) << "\"/>\n";
+        if (m["limit"].contains("min")) x << "        <property name=\"min\" value=\"" << num(m["limit"]["min"]) << "\"/>\n";
+        x << "        <property name=\"marginal_fraction\" value=\"" << num(m["limit"]["marginal_fraction"]) << "\"/>\n";
+        x << "        <property name=\"outcome\" value=\"" << xml_escape(m["outcome"].get<std::string>()) << "\"/>\n";
+        if (m.value("implicit", false)) x << "        <property name=\"evidence\" value=\"true\"/>\n";
+        if (m.contains("reason")) x << "        <property name=\"reason\" value=\"" << xml_escape(m["reason"].get<std::string>()) << "\"/>\n";
+        x << "      </properties>\n";
+        const std::string iv = interval(m.value("interval_95", json()));
+        const std::string what = est + " " + metric + " = " + (m["value"].is_number() ? num(m["value"]) : std::string("unmeasured")) + " " +
+                                 m["unit"].get<std::string>() + (iv.empty() ? std::string() : " (95 % " + iv + ")");
+        // The limit it was held to, in the message a CI log shows (not only in the properties).
+        std::string unit;
+        if (!m["unit"].get<std::string>().empty()) {
+            unit += ' ';
+            unit += m["unit"].get<std::string>();
+        }
+        std::string lim;
+        if (m["limit"].contains("min") && m["limit"].contains("max"))
+            lim = num(m["limit"]["min"]) + " <= " + metric + " <= " + num(m["limit"]["max"]) + unit;
+        else if (m["limit"].contains("max"))
+            lim = "<= " + num(m["limit"]["max"]) + unit;
+        else if (m["limit"].contains("min"))
+            lim = ">= " + num(m["limit"]["min"]) + unit;
+        if (!lim.empty() && m["limit"].value("marginal_fraction", 0.0) > 0)
+            lim += " (marginal within " + num(100.0 * m["limit"]["marginal_fraction"].get<double>()) + " %)";
+        const std::string against = lim.empty() ? what : what + ", limit " + lim;
+        if (m["outcome"] == "FAIL")
+            x << "      <failure message=\"" << xml_escape(m.contains("reason") ? against + ": " + m["reason"].get<std::string>() : against + ": outside its limit") << "\"/>\n";
+        if (m["outcome"] == "ERROR") x << "      <error message=\"" << xml_escape(what + ": the run did not complete") << "\"/>\n";
+        x << "    </testcase>\n";
+    }
+    x << "  </testsuite>\n</testsuites>\n";
+    return x.str();
+}
+
+namespace {
+
+const char* kColours[] = {"#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b"};
+
+// Inline SVG plot (issue 11): linear or log axes with tick values and units, and layers that
+// never join samples that are not neighbours: points, polylines broken at nulls, min/max bands.
+struct Axis {
+    std::string label;
+    bool log = false;
+    double lo = 1e300, hi = -1e300;
+    void see(const json& v) {
+        if (!v.is_number()) return;
+        const double x = v.get<double>();
+        if (!std::isfinite(x) || (log && x <= 0)) return;
+        lo = std::min(lo, x);
+        hi = std::max(hi, x);
+    }
+    void see_all(const json& a) {
+        if (a.is_array())
+            for (const auto& v : a) see(v);
+    }
+    void finish(double pad = 0.05) {
+        if (lo > hi) { lo = log ? 1 : -1; hi = log ? 10 : 1; }
+        if (!log && pad == 0 && hi > lo) return;
+        if (log) {
+            if (hi <= lo) hi = lo * 10;
+            lo = std::pow(10, std::floor(std::log10(lo)));
+            hi = std::pow(10, std::ceil(std::log10(hi)));
+            return;
+        }
+        double d = (hi - lo) * pad;
+        if (d == 0) d = std::fabs(hi) * 0.1 + 1e-12;
+        lo -= d;
+        hi += d;
+    }
+    double frac(double v) const { return log ? (std::log10(v) - std::log10(lo)) / (std::log10(hi) - std::log10(lo)) : (v - lo) / (hi - lo); }
+    std::vector<double> ticks() const {
+        std::vector<double> t;
+        if (log) {
+            const int step = std::max(1, static_cast<int>(std::ceil((std::log10(hi) - std::log10(lo)) / 6)));
+            // Few decades: 2x and 5x between them too, so the axis is labelled inside, not only at its ends.
+            const bool fill = std::log10(hi) - std::log10(lo) < 2.5;
+            for (int e = static_cast<int>(std::floor(std::log10(lo))); e <= static_cast<int>(std::ceil(std::log10(hi))); e += step)
+                for (double m : fill ? std::vector<double>{1, 2, 5} : std::vector<double>{1}) {
+                    const double v = m * std::pow(10.0, e);
+                    if (v >= lo * 0.999 && v <= hi * 1.001) t.push_back(v);
+                }
+            return t;
+        }
+        const double raw = (hi - lo) / 5, mag = std::pow(10, std::floor(std::log10(raw)));
+        const double n = raw / mag, step = (n < 1.5 ? 1 : n < 3.5 ? 2 : n < 7.5 ? 5 : 10) * mag;
+        for (double v = std::ceil(lo / step) * step; v <= hi + step * 1e-9; v += step) t.push_back(std::fabs(v) < step * 1e-9 ? 0 : v);
+        return t;
+    }
+};
+
+// A tick label a person reads at a glance: 0.25, 120, 1.5e-5 (not 1.5e-05), 3e+06 as 3e6.
+std::string fmt_num(double v) {
+    if (v == 0) return "0";
+    char b[32];
+    const double a = std::fabs(v);
+    if (a < 1e7 && v == std::floor(v)) {  // counts and round ticks in full: 90000 samples, not 9e+04
+        std::snprintf(b, sizeof b, "%.0f", v);
+        return b;
+    }
+    if (a >= 1e-2 && a < 1e5) {
+        std::snprintf(b, sizeof b, "%.3g", v);
+        return b;
+    }
+    std::snprintf(b, sizeof b, "%.2e", v);  // d.dde[+-]XX: drop the mantissa's trailing zeros and the exponent's padding
+    const char* e = std::strchr(b, 'e');
+    const char* end = e;
+    while (end > b && end[-1] == '0') --end;
+    if (end > b && end[-1] == '.') --end;
+    const bool neg = e[1] == '-';
+    const char* x = e + 2;
+    while (x[0] == '0' && x[1] != '\0') ++x;
+    return std::string(b, static_cast<std::size_t>(end - b)) + (neg ? "e-" : "e") + x;
+}
+
+class SvgPlot {
+public:
+    SvgPlot(std::string id, std::string title, Axis x, Axis y, double w = 640, double h = 360)
+        : id_(std::move(id)), title_(std::move(title)), x_(std::move(x)), y_(std::move(y)), W(w), H(h) {
+        s_.precision(5);
+    }
+    bool in(double x, double y) const {
+        return std::isfinite(x) && std::isfinite(y) && (!x_.log || x > 0) && (!y_.log || y > 0);
+    }
+    double X(double x) const { return L + std::clamp(x_.frac(x), -0.02, 1.02) * (W - L - R); }
+    double Y(double y) const { return H - B - std::clamp(y_.frac(y), -0.02, 1.02) * (H - T - B); }
+    // Points only: no line between samples.
+    void points(const json& xs, const json& ys, const char* col, double r = 1.3) {
+        s_ << "<g class=\"points\" fill=\"" << col << "\">";
+        for (std::size_t i = 0; i < xs.size() && i < ys.size(); ++i)
+            if (xs[i].is_number() && ys[i].is_number() && in(xs[i].get<double>(), ys[i].get<double>()))
+                s_ << "<circle cx=\"" << X(xs[i].get<double>()) << "\" cy=\"" << Y(ys[i].get<double>()) << "\" r=\"" << r << "\"/>";
+        s_ << "</g>";
+    }
+    // A line through consecutive entries, broken where either is null; closed joins the last to the first.
+    void line(const json& xs, const json& ys, const char* col, bool closed = false, double width = 1.2) {
+        std::vector<std::vector<std::pair<double, double>>> runs(1);
+        const std::size_t n = std::min(xs.size(), ys.size());
+        for (std::size_t i = 0; i < n; ++i) {
+            if (xs[i].is_number() && ys[i].is_number() && in(xs[i].get<double>(), ys[i].get<double>()))
+                runs.back().push_back({X(xs[i].get<double>()), Y(ys[i].get<double>())});
+            else if (!runs.back().empty())
+                runs.emplace_back();
+        }
+        if (closed && runs.size() == 1 && runs[0].size() == n && n > 2) runs[0].push_back(runs[0].front());
+        for (const auto& r : runs) {
+            if (r.empty()) continue;
+            s_ << "<polyline fill=\"none\" stroke=\"" << col << "\" stroke-width=\"" << width << "\" points=\"";
+            for (const auto& [px, py] : r) s_ << px << "," << py << " ";
+            s_ << "\"/>";
+        }
+    }
+    // The region between lo and hi over x, one polygon per run of entries where both are numbers.
+    void band(const json& xs, const json& lo, const json& hi, const char* col, double opacity = 0.35) {
+        const std::size_t n = std::min({xs.size(), lo.size(), hi.size()});
+        std::size_t i = 0;
+        while (i < n) {
+            auto ok = [&](std::size_t k) { return xs[k].is_number() && lo[k].is_number() && hi[k].is_number(); };
+            if (!ok(i)) { ++i; continue; }
+            std::size_t j = i;
+            while (j < n && ok(j)) ++j;
+            s_ << "<polygon fill=\"" << col << "\" fill-opacity=\"" << opacity << "\" stroke=\"" << col << "\" stroke-width=\"0.6\" points=\"";
+            for (std::size_t k = i; k < j; ++k) s_ << X(xs[k].get<double>()) << "," << Y(hi[k].get<double>()) << " ";
+            for (std::size_t k = j; k-- > i;) s_ << X(xs[k].get<double>()) << "," << Y(lo[k].get<double>()) << " ";
+            s_ << "\"/>";
+            i = j;
+        }
+    }
+    // A labelled vertical marker (e.g. a harmonic order on a frequency axis), drawn at the top.
+    void vmark(double x, const std::string& text) {
+        if (!in(x, y_.log ? y_.hi : 0) || x < x_.lo || x > x_.hi) return;
+        s_ << "<line x1=\"" << X(x) << "\" x2=\"" << X(x) << "\" y1=\"" << T << "\" y2=\"" << H - B << "\" stroke=\"#bbb\" stroke-dasharray=\"2,3\"/>";
+        if (!text.empty()) s_ << "<text x=\"" << X(x) << "\" y=\"" << T - 3 << "\" text-anchor=\"middle\" font-size=\"9\">" << xml_escape(text) << "</text>";
+    }
+    // Legends in a row between the title and the plot area: inside it they covered data.
+    void legend(const std::string& name, const char* col, bool dashed = false) {
+        const double y = T - 16;
+        s_ << "<g class=\"legend\"><line x1=\"" << legend_x_ << "\" x2=\"" << legend_x_ + 14 << "\" y1=\"" << y - 4 << "\" y2=\"" << y - 4 << "\" stroke=\"" << col
+           << "\" stroke-width=\"" << (dashed ? 1.2 : 4) << "\"" << (dashed ? " stroke-dasharray=\"3,2\"" : "") << "/><text x=\"" << legend_x_ + 18 << "\" y=\"" << y
+           << "\" fill=\"" << col << "\" font-size=\"11\">" << xml_escape(name) << "</text></g>";
+        legend_x_ += 28 + 6.2 * static_cast<double>(name.size());
+        ++legends_;
+    }
+    // A shaded span of x (the settle time), with its words at the top.
+    void xspan(double x0, double x1, const std::string& text) {
+        const double a = X(std::max(x0, x_.lo)), b = X(std::min(x1, x_.hi));
+        if (!(b > a)) return;
+        s_ << "<g class=\"settle\"><rect x=\"" << a << "\" y=\"" << T << "\" width=\"" << b - a << "\" height=\"" << H - T - B
+           << "\" fill=\"#8c959f\" fill-opacity=\"0.25\"/><text x=\"" << a + 3 << "\" y=\"" << T + 12 << "\" font-size=\"10\" fill=\"#57606a\">"
+           << xml_escape(text) << "</text></g>";
+    }
+    // A dashed horizontal line (a limit) across the plot, labelled at its right end.
+    void hline(double y, const std::string& text, const char* col) {
+        if (!in(x_.log ? x_.hi : 0, y) || y < y_.lo || y > y_.hi) return;
+        s_ << "<g class=\"limit\"><line x1=\"" << L << "\" x2=\"" << W - R << "\" y1=\"" << Y(y) << "\" y2=\"" << Y(y) << "\" stroke=\"" << col
+           << "\" stroke-width=\"1.3\" stroke-dasharray=\"6,4\"/><text x=\"" << W - R - 3 << "\" y=\"" << Y(y) - 3
+           << "\" text-anchor=\"end\" font-size=\"10\" fill=\"" << col << "\">" << xml_escape(text) << "</text></g>";
+    }
+    // A label at the bottom of the plot area beside x (e.g. "Nyquist" at its marker).
+    void xspan_label(double x, const std::string& text) {
+        if (!in(x, y_.log ? y_.hi : 0) || x < x_.lo || x > x_.hi) return;
+        s_ << "<text class=\"nyquist\" x=\"" << X(x) - 3 << "\" y=\"" << H - B - 4 << "\" text-anchor=\"end\" font-size=\"10\" fill=\"#57606a\">"
+           << xml_escape(text) << "</text>";
+    }
+    // The height that makes the plot area square for a width (a Lissajous drawn 1:1).
+    static double square_height(double w) { return w - L - R + T + B; }
+    void note(const std::string& text) {
+        s_ << "<text x=\"" << (L + W - R) / 2 << "\" y=\"" << (T + H - B) / 2 << "\" text-anchor=\"middle\" fill=\"#666\">" << xml_escape(text) << "</text>";
+    }
+    std::string str() const {
+        std::ostringstream o;
+        o.precision(5);
+        o << "<svg id=\"" << id_ << "\" class=\"plot\" xmlns=\"http://www.w3.org/2000/svg\" width=\"" << W << "\" height=\"" << H << "\" viewBox=\"0 0 " << W
+          << " " << H << "\">";
+        o << "<text x=\"" << W / 2 << "\" y=\"14\" text-anchor=\"middle\" font-weight=\"bold\">" << xml_escape(title_) << "</text>";
+        o << "<rect x=\"" << L << "\" y=\"" << T << "\" width=\"" << W - L - R << "\" height=\"" << H - T - B << "\" fill=\"none\" stroke=\"#999\"/>";
+        // Gridlines across the plot at every tick, both axes, and a label at each tick.
+        for (double t : x_.ticks()) {
+            const double px = L + x_.frac(t) * (W - L - R);
+            o << "<line class=\"grid\" x1=\"" << px << "\" x2=\"" << px << "\" y1=\"" << T << "\" y2=\"" << H - B + 4 << "\" stroke=\"#e4e4e4\"/>";
+            o << "<text class=\"xtick\" x=\"" << px << "\" y=\"" << H - B + 15 << "\" text-anchor=\"middle\" font-size=\"11\">" << fmt_num(t) << "</text>";
+        }
+        for (double t : y_.ticks()) {
+            const double py = H - B - y_.frac(t) * (H - T - B);
+            o << "<line class=\"grid\" x1=\"" << L - 4 << "\" x2=\"" << W - R << "\" y1=\"" << py << "\" y2=\"" << py << "\" stroke=\"#e4e4e4\"/>";
+            o << "<text class=\"ytick\" x=\"" << L - 6 << "\" y=\"" << py + 4 << "\" text-anchor=\"end\" font-size=\"11\">" << fmt_num(t) << "</text>";
+        }
+        o << "<text class=\"xlabel\" x=\"" << (L + W - R) / 2 << "\" y=\"" << H - 6 << "\" text-anchor=\"middle\">" << xml_escape(x_.label) << "</text>";
+        o << "<text class=\"ylabel\" x=\"12\" y=\"" << (T + H - B) / 2 << "\" transform=\"rotate(-90 12 " << (T + H - B) / 2
+          << ")\" text-anchor=\"middle\">" << xml_escape(y_.label) << "</text>";
+        o << s_.str() << "</svg>";
+        return o.str();
+    }
+
+private:
+    std::string id_, title_;
+    Axis x_, y_;
+    double W, H;
+    static constexpr double L = 70, R = 12, T = 46, B = 40;
+    std::ostringstream s_;
+    int legends_ = 0;
+    double legend_x_ = L;
+};
+
+// One colour per estimator across every plot: its place in the report's estimators.
+struct Palette {
+    std::vector<std::string> order;
+    explicit Palette(const json& estimators) {
+        for (const auto& e : estimators) order.push_back(e.value("label", std::string()));
+    }
+    const char* operator()(const std::string& label) const {
+        for (std::size_t i = 0; i < order.size(); ++i)
+            if (order[i] == label) return kColours[i % 6];
+        return "#57606a";
+    }
+};
+
+// Amplitude spectrum of each estimator's error (computed at the full rate by the scorer):
+// log-log, Hz below, harmonic orders of the electrical frequency marked along the top.
+std::string svg_spectrum(const json& estimators) {
+    Axis x{"frequency (Hz); top: orders of the electrical frequency", true}, y{"amplitude (rad)", true};
+    std::vector<const json*> with;
+    double fe = 0;
+    std::string why = "no spectrum in this report";
+    for (const auto& e : estimators) {
+        if (!e.contains("spectrum") || !e["spectrum"].is_object()) continue;
+        const auto& sp = e["spectrum"];
+        if (sp["f_hz"].empty()) {
+            why = "no spectrum: no run of " + sp["segment_samples"].dump() + " contiguous scored samples";
+            continue;
+        }
+        with.push_back(&e);
+        x.see_all(sp["f_hz"]);
+        y.see_all(sp["amplitude_rad"]);
+        if (fe == 0 && sp["electrical_hz"].is_number()) fe = sp["electrical_hz"].get<double>();
+    }
+    if (with.empty()) return "<p id=\"plot-spectrum\" class=\"no-spectrum\">" + xml_escape(why) + "</p>";
+    y.lo = std::max(y.lo, y.hi * 1e-7);  // noise-free runs reach 1e-20: keep the peaks readable
+    x.finish();
+    y.finish();
+    const auto& sp0 = (*with.front())["spectrum"];
+    // Harmonic markers only below Nyquist (half the sample rate): above it there are no bins.
+    double nyq = sp0.value("sample_rate_hz", json()).is_number() ? sp0["sample_rate_hz"].get<double>() / 2 : 0;
+    if (!(nyq > 0))
+        for (const json* e : with)
+            for (const auto& f : (*e)["spectrum"]["f_hz"]) nyq = std::max(nyq, f.get<double>());
+    SvgPlot p("plot-spectrum", "Error spectrum (full rate, Welch, " + sp0["segment_samples"].dump() + "-sample Hann segments)", x, y);
+    if (fe > 0)
+        for (int k = 1; k <= 16; ++k)
+            if (k * fe <= nyq * (1 + 1e-9)) p.vmark(k * fe, (k <= 4 || k % 4 == 0) ? std::to_string(k) + "x" : "");
+    p.vmark(nyq, "");
+    p.xspan_label(nyq, "Nyquist");
+    const Palette colour(estimators);
+    for (const json* e : with) {
+        const char* col = colour((*e)["label"].get<std::string>());
+        p.line((*e)["spectrum"]["f_hz"], (*e)["spectrum"]["amplitude_rad"], col);
+        p.legend((*e)["label"].get<std::string>(), col);
+    }
+    if (fe > 0) p.legend("harmonic orders below Nyquist", "#bbbbbb", true);
+    return p.str();
+}
+
+// Reports written before issue 11: traces are every stride-th sample. Drawn as points only
+// (a line through them would invent the signal between samples), with a note saying so.
+std::string stride_plots(const json& tr, const json& estimators) {
+    const Palette colour(estimators);
+    std::string out = "<p class=\"old-traces\">Old report: traces are stride samples (every " + tr.value("stride", json()).dump() +
+                      "th sample), drawn as points; lines between them would alias.</p>\n";
+    const json none = json::array();
+    auto arr = [&](const char* k) -> const json& { return tr.contains(k) ? tr[k] : none; };
+    {
+        Axis x{"cos (V)"}, y{"sin (V)"};
+        x.see_all(arr("cos_v")); y.see_all(arr("sin_v"));
+        const double a = std::max({std::fabs(x.lo), std::fabs(x.hi), std::fabs(y.lo), std::fabs(y.hi), 1e-9}) * 1.05;
+        if (x.lo > x.hi || y.lo > y.hi) { x.finish(); y.finish(); } else { x.lo = y.lo = -a; x.hi = y.hi = a; }  // 1:1, as the envelope one
+        SvgPlot p("plot-lissajous", "Lissajous (stride samples)", x, y, 380, SvgPlot::square_height(380));
+        p.points(arr("cos_v"), arr("sin_v"), kColours[0]);
+        out += p.str();
+    }
+    const json& errs = tr.contains("error_rad") && tr["error_rad"].is_object() ? tr["error_rad"] : json::object();
+    {
+        Axis x{"electrical angle (rad)"}, y{"error (rad)"};
+        x.lo = -kPi; x.hi = kPi;
+        for (const auto& [label, e] : errs.items()) y.see_all(e);
+        y.finish();
+        SvgPlot p("plot-by-angle", "Error vs electrical angle (stride samples)", x, y);
+        for (const auto& [label, e] : errs.items()) {
+            p.points(arr("theta_true_wrapped_rad"), e, colour(label));
+            p.legend(label, colour(label));
+        }
+        out += p.str();
+    }
+    {
+        Axis x{"time (s)"}, y{"error (rad)"};
+        x.see_all(arr("t_s"));
+        x.finish(0.0);
+        for (const auto& [label, e] : errs.items()) y.see_all(e);
+        y.finish();
+        SvgPlot p("plot-time", "Error vs time (stride samples)", x, y);
+        for (const auto& [label, e] : errs.items()) {
+            p.points(arr("t_s"), e, colour(label));
+            p.legend(label, colour(label));
+        }
+        out += p.str();
+    }
+    return out;
+}
+
+// Plots from "kind":"envelope" traces (TraceRecorder) and each estimator's "spectrum" (ErrorSpectrum).
+// The scenario's settle time [t0, t0 + settle_s] (not scored), when the report states it.
+bool settle_span(const json& r, double& a, double& b) {
+    const json sc = r.value("scenario", json::object());
+    if (!sc.is_object() || !sc.value("settle_s", json()).is_number() || !(sc["settle_s"].get<double>() > 0)) return false;
+    a = sc.value("t0_s", json()).is_number() ? sc["t0_s"].get<double>() : 0.0;
+    b = a + sc["settle_s"].get<double>();
+    return true;
+}
+
+// Limits that bound every sample of an error plot: max_abs_rad (+-max) and max_dev_rad (mean +- max).
+struct ErrLimit { std::string label, text; std::vector<double> ys; };
+std::vector<ErrLimit> error_limits(const json& r) {
+    std::vector<ErrLimit> out;
+    for (const auto& m : r.value("measurements", json::array())) {
+        if (!m.value("limit", json()).is_object() || !m["limit"].value("max", json()).is_number()) continue;
+        const double mx = m["limit"]["max"].get<double>();
+        const std::string label = m.value("estimator", std::string()), metric = m.value("metric", std::string());
+        if (metric == "max_abs_rad") out.push_back({label, "limit " + label + " |e| <= " + fmt_num(mx) + " rad", {mx, -mx}});
+        if (metric == "max_dev_rad")
+            for (const auto& e : r.value("estimators", json::array()))
+                if (e.value("label", std::string()) == label && sub(e.value("metrics", json()), "mean", "rad").is_number()) {
+                    const double mu = sub(e["metrics"], "mean", "rad").get<double>();
+                    out.push_back({label, "limit " + label + " |e - mean| <= " + fmt_num(mx) + " rad", {mu + mx, mu - mx}});
+                }
+    }
+    return out;
+}
+
+std::string envelope_plots(const json& tr, const json& estimators, const json& report) {
+    std::string out;
+    const auto limits = error_limits(report);
+    const Palette colour(estimators);
+    const auto& liss = tr["lissajous"];
+    {  // Lissajous: real samples as points, the folded electrical cycle as one closed line
+        Axis x{"cos (V)"}, y{"sin (V)"};
+        x.see_all(liss["points"]["cos_v"]); y.see_all(liss["points"]["sin_v"]);
+        x.see_all(liss["cycle"]["cos_v"]); y.see_all(liss["cycle"]["sin_v"]);
+        const double a = std::max({std::fabs(x.lo), std::fabs(x.hi), std::fabs(y.lo), std::fabs(y.hi), 1e-9}) * 1.05;
+        x.lo = y.lo = -a; x.hi = y.hi = a;
+        SvgPlot p("plot-lissajous", "Lissajous: samples, folded cycle (1:1)", x, y, 380, SvgPlot::square_height(380));
+        p.line(liss["cycle"]["cos_v"], liss["cycle"]["sin_v"], kColours[0], true, 1.6);
+        p.points(liss["points"]["cos_v"], liss["points"]["sin_v"], "#57606a", 1.1);  // over the mean: their spread shows
+        p.legend("samples", "#57606a");
+        p.legend("folded cycle", kColours[0]);
+        out += p.str();
+    }
+    {  // error vs electrical angle: mean line, min/max band
+        const auto& ba = tr["by_angle"];
+        Axis x{"electrical angle (rad)"}, y{"error (rad)"};
+        x.lo = 0; x.hi = 2 * kPi;
+        for (const auto& [label, f] : ba["error_rad"].items()) { y.see_all(f["min"]); y.see_all(f["max"]); }
+        const double peak = std::max(std::fabs(y.lo), std::fabs(y.hi));
+        for (const auto& l : limits)  // a limit near the data is kept in view (within 3x of its peak)
+            if (ba["error_rad"].contains(l.label))
+                for (double v : l.ys) if (std::fabs(v) <= 3 * peak) { y.lo = std::min(y.lo, v); y.hi = std::max(y.hi, v); }
+        y.finish();
+        SvgPlot p("plot-by-angle", "Error vs electrical angle (mean, min..max)", x, y);
+        for (const auto& l : limits)
+            if (ba["error_rad"].contains(l.label))
+                for (double v : l.ys) p.hline(v, l.text, "#d1242f");
+        for (const auto& [label, f] : ba["error_rad"].items()) {
+            const char* col = colour(label);
+            p.band(ba["theta_rad"], f["min"], f["max"], col, 0.2);
+            p.line(ba["theta_rad"], f["mean"], col);
+            p.legend(label, col);
+        }
+        out += p.str();
+    }
+    {  // error vs time: per-bucket min/max envelope at the full rate
+        Axis x{"time (s)"}, y{"error (rad)"};
+        x.see_all(tr["t_s"]);
+        x.finish(0.0);
+        for (const auto& [label, e] : tr["error_rad"].items()) { y.see_all(e["min"]); y.see_all(e["max"]); }
+        const double peak = std::max(std::fabs(y.lo), std::fabs(y.hi));
+        for (const auto& l : limits)
+            if (tr["error_rad"].contains(l.label))
+                for (double v : l.ys) if (std::fabs(v) <= 3 * peak) { y.lo = std::min(y.lo, v); y.hi = std::max(y.hi, v); }
+        y.finish();
+        SvgPlot p("plot-time", "Error vs time (min..max per " + tr["bucket_samples"].dump() + " samples)", x, y);
+        double s0, s1;
+        if (settle_span(report, s0, s1)) p.xspan(s0, s1, "settle: not scored");
+        for (const auto& l : limits)
+            if (tr["error_rad"].contains(l.label))
+                for (double v : l.ys) p.hline(v, l.text, "#d1242f");
+        for (const auto& [label, e] : tr["error_rad"].items()) {
+            const char* col = colour(label);
+            p.band(tr["t_s"], e["min"], e["max"], col, 0.45);
+            p.legend(label, col);
+        }
+        out += p.str();
+    }
+    out += svg_spectrum(estimators);
+    return out;
+}
+std::string svg_bars(const json& estimators) {
+    const double W = 640, H = 300, L = 70, R = 12, B = 40, T = 46;  // legend row above the plot area: inside it, it covered the 1x bar
+    double vmax = 0;
+    for (const auto& e : estimators)
+        for (const auto& h : e["metrics"]["harmonics"]) vmax = std::max(vmax, h["amplitude"]["rad"].get<double>());
+    if (vmax <= 0) vmax = 1;
+    Axis y{"amplitude (rad)"};
+    y.lo = 0;
+    y.hi = vmax * 1.05;
+    std::ostringstream s;
+    s.precision(4);
+    s << "<svg id=\"plot-harmonics\" class=\"plot\" xmlns=\"http://www.w3.org/2000/svg\" width=\"" << W << "\" height=\"" << H << "\" viewBox=\"0 0 " << W << " " << H
+      << "\">";
+    s << "<text x=\"" << W / 2 << "\" y=\"16\" text-anchor=\"middle\" font-weight=\"bold\">Error harmonics (amplitude, rad)</text>";
+    const std::size_t ne = std::max<std::size_t>(estimators.size(), 1);
+    int orders = 6;  // every fitted order (16 by default), at least 1x..6x
+    for (const auto& e : estimators)
+        for (const auto& h : e["metrics"]["harmonics"]) orders = std::max(orders, h["order"].get<int>());
+    const double group = (W - L - R) / static_cast<double>(orders), bw = group * 0.8 / static_cast<double>(ne);
+    auto Y = [&](double v) { return H - B - y.frac(v) * (H - T - B); };
+    s << "<rect x=\"" << L << "\" y=\"" << T << "\" width=\"" << W - L - R << "\" height=\"" << H - T - B << "\" fill=\"none\" stroke=\"#999\"/>";
+    for (double t : y.ticks()) {
+        s << "<line class=\"grid\" x1=\"" << L - 4 << "\" x2=\"" << W - R << "\" y1=\"" << Y(t) << "\" y2=\"" << Y(t) << "\" stroke=\"#e4e4e4\"/>";
+        s << "<text class=\"ytick\" x=\"" << L - 6 << "\" y=\"" << Y(t) + 4 << "\" text-anchor=\"end\" font-size=\"11\">" << fmt_num(t) << "</text>";
+    }
+    s << "<text x=\"" << (L + W) / 2 << "\" y=\"" << H - 6 << "\" text-anchor=\"middle\">harmonic order (x electrical frequency)</text>";
+    s << "<text x=\"12\" y=\"" << (T + H - B) / 2 << "\" transform=\"rotate(-90 12 " << (T + H - B) / 2 << ")\" text-anchor=\"middle\">amplitude (rad)</text>";
+    for (int k = 1; k <= orders; ++k) {
+        const double px = L + group * (k - 0.5);
+        s << "<line class=\"grid\" x1=\"" << L + group * k << "\" x2=\"" << L + group * k << "\" y1=\"" << T << "\" y2=\"" << H - B << "\" stroke=\"#f0f0f0\"/>";
+        s << "<text class=\"xtick\" x=\"" << px << "\" y=\"" << H - B + 15 << "\" text-anchor=\"middle\" font-size=\"11\">" << k << "x</text>";
+    }
+    std::size_t ei = 0;
+    double legend_x = L;
+    for (const auto& e : estimators) {
+        const char* col = kColours[ei % 6];
+        for (const auto& h : e["metrics"]["harmonics"]) {
+            const int k = h["order"].get<int>();
+            const double v = h["amplitude"]["rad"].get<double>();
+            const double hh = H - B - Y(v);
+            s << "<rect x=\"" << L + group * (k - 1) + group * 0.1 + bw * static_cast<double>(ei) << "\" y=\"" << Y(v) << "\" width=\"" << bw
+              << "\" height=\"" << hh << "\" fill=\"" << col << "\"><title>" << xml_escape(e["label"].get<std::string>()) << " " << k << "x: " << fmt_num(v)
+              << " rad</title></rect>";
+        }
+        s << "<g class=\"legend\"><rect x=\"" << legend_x << "\" y=\"" << T - 24 << "\" width=\"12\" height=\"10\" fill=\"" << col << "\"/><text x=\"" << legend_x + 16
+          << "\" y=\"" << T - 15 << "\" fill=\"" << col << "\" font-size=\"11\">" << xml_escape(e["label"].get<std::string>()) << "</text></g>";
+        legend_x += 28 + 6.2 * static_cast<double>(e["label"].get<std::string>().size());
+        ++ei;
+    }
+    s << "</svg>";
+    return s.str();
+}
+
+}  // namespace
+
+std::string report_html(const json& r) {
+    std::ostringstream h;
+    // Values for people: 3 significant digits (the JSON and JUnit keep every digit).
+    auto num = [](const json& v) { return v.is_number() ? fmt_num(v.get<double>()) : std::string(); };
+    // A count that was not measured (an unscored estimator) reads "not scored", never "null".
+    auto count = [](const json& v) { return v.is_number() ? fmt_num(v.get<double>()) : std::string("not scored"); };
+    const std::string name = r["scenario"].value("name", std::string("run"));
+    const std::string verdict = r.value("verdict", std::string("ERROR"));
+    h << "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><meta name=\"viewport\" content=\"width=device-width, initial-scale=1\"><title>fringe report " << xml_escape(name) << " "
+      << xml_escape(verdict) << "</title>\n<style>body{font-family:sans-serif;margin:1.5em;max-width:1400px;overflow-wrap:break-word}"
+      << "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:3px 8px;text-align:left}"
+      << ".PASS{background:#c8f0c8}.MARGINAL{background:#f8e8a0}.FAIL{background:#f4b4b4}.ERROR,.ABORTED{background:#f4b4b4}"
+      << ".plots svg{margin:6px;border:1px solid #eee;max-width:calc(100% - 14px);height:auto}"
+      // The page fits its window: wide tables scroll inside themselves, long lines wrap.
+      << ".table-wrap{max-width:100%;overflow-x:auto}pre{white-space:pre-wrap;overflow-wrap:anywhere}</style></head><body>\n";
+    h << "<h1>" << xml_escape(name) << " <span id=\"verdict\" class=\"" << xml_escape(verdict) << "\">" << xml_escape(verdict) << "</span></h1>\n";
+    h << "<p>Run <code>" << xml_escape(r.value("id", std::string())) << "</code>, started " << xml_escape(r.value("started_at", std::string()))
+      << ", seed " << r["seed"].dump() << ", device <code>" << xml_escape(r["device"].is_object() ? r["device"].value("uri", std::string()) : "")
+      << "</code>, " << r["samples"]["processed"].dump() << " of " << r["samples"]["planned"].dump() << " samples, fringe "
+      << xml_escape(r.value("fringe_version", std::string())) << ".</p>\n";
+    if (r["error"].is_string()) h << "<p class=\"ERROR\"><b>Error:</b> " << xml_escape(r["error"].get<std::string>()) << "</p>\n";
+    if (!r.value("warnings", json::array()).empty()) {
+        h << "<h2>Warnings</h2><ul id=\"warnings\">\n";
+        for (const auto& w : r["warnings"])
+            h << "<li><code>" << xml_escape(w.value("code", std::string())) << "</code> " << xml_escape(w.value("message", std::string())) << "</li>\n";
+        h << "</ul>\n";
+    }
+    h << "<h2>Measurements</h2><div class=\"table-wrap\"><table id=\"measurements\"><tr><th>estimator</th><th>metric</th><th>value</th><th>unit</th><th>limit</th><th>outcome</th></tr>\n";
+    for (const auto& m : r["measurements"]) {
+        std::string lim;
+        if (m["limit"].contains("min")) lim += "&ge; " + num(m["limit"]["min"]) + " ";
+        if (m["limit"].contains("max")) lim += "&le; " + num(m["limit"]["max"]);
+        if (!lim.empty() && !m["unit"].get<std::string>().empty()) {
+            lim += ' ';
+            lim += xml_escape(m["unit"].get<std::string>());
+        }
+        h << "<tr><td>" << xml_escape(m["estimator"].get<std::string>()) << "</td><td>" << xml_escape(m["metric"].get<std::string>()) << "</td><td>"
+          << (m["value"].is_number() ? num(m["value"]) : std::string("not measured"))
+          << (interval(m.value("interval_95", json())).empty() ? std::string() : " <span class=\"iv\">(95 % " + interval(m["interval_95"]) + ")</span>")
+          << "</td><td>" << xml_escape(m["unit"].get<std::string>()) << "</td><td>" << lim
+          << (m.value("implicit", false) ? " (evidence)" : "") << "</td><td class=\""
+          << xml_escape(m["outcome"].get<std::string>()) << "\">" << xml_escape(m["outcome"].get<std::string>())
+          << (m.contains("reason") ? ": " + xml_escape(m["reason"].get<std::string>()) : std::string()) << "</td></tr>\n";
+    }
+    h << "</table></div>\n<h2>Estimators</h2><div class=\"table-wrap\"><table id=\"estimators\"><tr><th>estimator</th><th>rms (rad)</th><th>max |e| (rad)</th><th>rms (% period)</th><th>rms (arcsec mech)</th>"
+      << "<th>slipped</th><th>scored samples</th><th>scored cycles</th><th>valid</th><th>per-sample CRB (rad)</th><th>PCRB (rad)</th><th>efficiency</th></tr>\n";
+    for (const auto& e : r["estimators"]) {
+        const auto& m = e["metrics"];
+        const auto& b = e["bounds"];
+        const json ev = m.value("evidence", json::object());
+        auto bget = [&](const char* k) { return b.is_object() && b.contains(k) ? num(b[k]) : std::string(); };
+        const std::string rms_iv = interval(m.value("uncertainty", json::object()).value("rms_rad", json()));
+        h << "<tr><td>" << xml_escape(e["label"].get<std::string>()) << "</td><td>" << num(sub(m, "rms", "rad"))
+          << (rms_iv.empty() ? std::string() : " <span class=\"iv\">(95 % " + rms_iv + ")</span>") << "</td><td>" << num(sub(m, "max_abs", "rad"))
+          << "</td><td>" << num(sub(m, "rms", "percent_period")) << "</td><td>" << num(sub(m, "rms", "arcsec_mech")) << "</td><td>" << count(m.value("slipped_samples", json()))
+          << "</td><td>" << count(ev.value("scored_samples", json())) << "</td><td>" << num(ev.value("scored_cycles", json()))
+          << "</td><td>" << (ev.value("valid_fraction", json()).is_number() ? num(100.0 * ev["valid_fraction"].get<double>()) + " %" : std::string())
+          << "</td><td>" << bget("per_sample_crb_rad") << "</td><td>" << bget("pcrb_rad") << "</td><td>" << bget("efficiency") << "</td></tr>\n";
+    }
+    h << "</table></div>\n<h2>Plots</h2><div class=\"plots\">\n";
+    const json& tr = r.contains("traces") && r["traces"].is_object() ? r["traces"] : json::object();
+    const bool envelope = tr.value("kind", std::string()) == "envelope";
+    if (envelope ? tr["t_s"].empty() : (!tr.contains("t_s") || tr["t_s"].empty())) {
+        h << "<p>No traces: the run processed no samples.</p>";
+    } else if (envelope) {
+        h << envelope_plots(tr, r["estimators"], r);
+        h << svg_bars(r["estimators"]);
+    } else {
+        h << stride_plots(tr, r["estimators"]);
+        h << svg_bars(r["estimators"]);
+        h << svg_spectrum(r["estimators"]);
+    }
+    // The harmonics' figures with their 95 % intervals (the bars above show the amplitudes).
+    {
+        std::ostringstream t;
+        for (const auto& e : r["estimators"]) {
+            const json& m = e["metrics"];
+            if (!m.is_object() || !m.contains("harmonics") || !m["harmonics"].is_array()) continue;
+            const json unc = m.value("uncertainty", json::object());
+            for (const auto& x : m["harmonics"]) {
+                std::string iv;
+                for (const auto& u : unc.value("harmonics", json::array()))
+                    if (u.value("order", 0) == x.value("order", 0)) iv = interval(u.value("amplitude_rad", json()));
+                t << "<tr><td>" << xml_escape(e["label"].get<std::string>()) << "</td><td>" << x.value("order", 0) << "x</td><td>"
+                  << num(sub(x, "amplitude", "rad")) << (iv.empty() ? std::string() : " <span class=\"iv\">(95 % " + iv + ")</span>") << "</td></tr>\n";
+            }
+        }
+        if (!t.str().empty())
+            h << "</div>\n<h2>Error harmonics</h2><div class=\"table-wrap\"><table id=\"harmonics\"><tr><th>estimator</th><th>order</th><th>amplitude (rad)</th></tr>\n"
+              << t.str() << "</table></div>\n<div class=\"plots\">";
+    }
+    // dump() escapes every control character inside strings: its own line breaks stay raw.
+    std::string scenario = r["scenario"].dump(2, ' ', false, json::error_handler_t::replace), pre;
+    for (std::size_t pos = 0; pos <= scenario.size();) {
+        const auto nl = std::min(scenario.find('\n', pos), scenario.size());
+        pre += xml_escape(scenario.substr(pos, nl - pos)) + (nl < scenario.size() ? "\n" : "");
+        pos = nl + 1;
+    }
+    h << "\n</div>\n<h2>Scenario as run</h2><pre>" << pre << "</pre>\n</body></html>\n";
+    return h.str();
+}
+
+}  // namespace fringe
