@@ -4,10 +4,31 @@
 #include "signal_gen/generator.hpp"
 #include "signal_gen/motion.hpp"
 
+#include <unistd.h>
+
 #include <cmath>
+#include <filesystem>
+#include <random>
+#include <string>
 #include <vector>
 
 namespace fringe::test {
+
+// A fresh folder under the system's temporary folder, removed with all it holds when the
+// object goes (also when a test fails).
+struct TempDir {
+    std::filesystem::path path;
+    explicit TempDir(const std::string& prefix = "fringe-test") {
+        path = std::filesystem::temp_directory_path() / (prefix + "-" + std::to_string(getpid()) + "-" + std::to_string(std::random_device{}()));
+        std::filesystem::create_directories(path);
+    }
+    ~TempDir() {
+        std::error_code ec;
+        std::filesystem::remove_all(path, ec);
+    }
+    TempDir(const TempDir&) = delete;
+    TempDir& operator=(const TempDir&) = delete;
+};
 
 inline EncoderProfile clean_ideal(int lines = 1024) {
     EncoderProfile e;

@@ -2,6 +2,7 @@
 // 127.0.0.1: raw bytes on the wire (no client library to clean them up), then the status,
 // the JSON error code, a body that is valid JSON and UTF-8, and a service that still
 // answers /api/v1/health.
+#include "helpers.hpp"
 #include "server/http/http_server.hpp"
 #include "server/report/report_formats.hpp"
 #include "server/http/service.hpp"
@@ -32,17 +33,7 @@ namespace {
 
 constexpr const char* kToken = "0123456789abcdef0123456789abcdef";
 
-struct TempDir {
-    fs::path path;
-    TempDir() {
-        path = fs::temp_directory_path() / ("fringe-hostile-" + std::to_string(getpid()) + "-" + std::to_string(std::random_device{}()));
-        fs::create_directories(path);
-    }
-    ~TempDir() {
-        std::error_code ec;
-        fs::remove_all(path, ec);
-    }
-};
+using test::TempDir;
 
 ServiceConfig config(const TempDir& d) {
     ServiceConfig c;

@@ -1,6 +1,7 @@
 // One pipeline: the same capture through `fringe estimate` (the built executable), the HTTP
 // evaluation (Service::handle, after an upload) and a run of a scenario file whose device is
 // capture:PATH gives identical figures, in the same report schema; so does a DUT's ABZ lane.
+#include "helpers.hpp"
 #include "drivers/capture_file.hpp"
 #include "server/engine/capture_run.hpp"
 #include "server/engine/run.hpp"
@@ -27,17 +28,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
-struct TempDir {
-    fs::path path;
-    TempDir() {
-        path = fs::temp_directory_path() / ("fringe-pipe-" + std::to_string(getpid()) + "-" + std::to_string(std::random_device{}()));
-        fs::create_directories(path);
-    }
-    ~TempDir() {
-        std::error_code ec;
-        fs::remove_all(path, ec);
-    }
-};
+using test::TempDir;
 
 std::string read_all(const fs::path& p) {
     std::ifstream f(p, std::ios::binary);
