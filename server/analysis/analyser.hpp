@@ -64,7 +64,6 @@ public:
 struct AnalyserInfo {
     std::string name;      // key in results and docs
     std::string summary;   // one line, for `GET /schema` and the docs
-    bool needs_truth = true;  // scores against theta_true (nothing to say on a capture without it)
     std::function<std::unique_ptr<Analyser>(const LaneContext&)> make;
 };
 

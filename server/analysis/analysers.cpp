@@ -78,11 +78,11 @@ std::mutex& registry_mutex() {
 std::vector<AnalyserInfo>& registry() {
     static std::vector<AnalyserInfo> r{
         {"truth", "the error against theta_true: moments, slips, harmonics 1x..Kx, broadband rest, rate error, lag, lock time, "
-                  "evidence and the 95 % intervals", true,
+                  "evidence and the 95 % intervals",
          [](const LaneContext& c) { return std::make_unique<TruthScorer>(c); }},
-        {"conventions", "signs that theta is not unwrapped radians (wrapped, degrees, degrees wrapped)", true,
+        {"conventions", "signs that theta is not unwrapped radians (wrapped, degrees, degrees wrapped)",
          [](const LaneContext&) { return std::make_unique<Conventions>(); }},
-        {"spectrum", "the error's amplitude spectrum at the full rate (Welch, Hann, 50 % overlap)", true,
+        {"spectrum", "the error's amplitude spectrum at the full rate (Welch, Hann, 50 % overlap)",
          [](const LaneContext& c) { return std::make_unique<Spectrum>(c); }},
     };
     return r;
