@@ -224,13 +224,72 @@ std::vector<MetricInfo> build_catalog() {
         m.run_level = true;
         m.lanes = aligned;
         m.uncertainty = "none: a fit";
-        m.value = [key](const json& a, std::string* why) { return alignment_value(a, key, why); };
+        m.value = [key](const json& run, std::string* why) { return alignment_value(sub(run, "alignment"), key, why); };
         return m;
     };
     v.push_back(R("alignment_delay_s", "s", "delay from the record's start to the output's first sample (alignment)", "delay_s"));
     v.push_back(R("clock_offset_ppm", "ppm", "generator clock relative to the digitizer's (alignment)", "clock_offset_ppm"));
     v.push_back(R("alignment_residual", "", "alignment fit residual rms / recorded signal rms", "residual_relative"));
     v.push_back(R("alignment_residual_rms_v", "V", "alignment fit residual rms", "residual_rms_v"));
+    // The signals' quality (signal_quality.hpp, docs/signal-quality.md): means over the run's
+    // whole electrical periods, from the signals alone.
+    auto S = [&](std::string name, std::string unit, std::string desc, std::vector<const char*> path) {
+        MetricInfo m;
+        m.name = std::move(name);
+        m.unit = std::move(unit);
+        m.description = std::move(desc);
+        m.run_level = true;
+        m.group = "signal";
+        m.lanes = "the run, once (estimator \"run\"), from the signals of every run and capture (truth not needed)";
+        m.uncertainty = "none yet: a mean over the run's periods (their spread is in report signal.*_range)";
+        m.value = [path](const json& run, std::string* why) -> Value {
+            const json sq = sub(run, "signal");
+            if (!sq.is_object()) return none(why, "the run has no signal analysis (a report older than fringe 0.13, or no samples)");
+            if (sq.value("periods", 0) == 0)
+                return none(why, sq.value("note", json()).is_string() ? sq["note"].get<std::string>() : std::string("no whole electrical period"));
+            json j = sq;
+            for (const char* k : path) j = sub(j, k);
+            return number(j, why, "not measured");
+        };
+        return m;
+    };
+    v.push_back(S("signal_vpp_a_v", "V", "A (sin) channel amplitude, peak to peak (fundamental)", {"a", "vpp_v"}));
+    v.push_back(S("signal_vpp_b_v", "V", "B (cos) channel amplitude, peak to peak (fundamental)", {"b", "vpp_v"}));
+    v.push_back(S("signal_ab_ratio", "", "amplitude ratio A / B (1 ideal)", {"ab_ratio"}));
+    v.push_back(S("signal_phase_deg", "deg", "phase between A and B (90 ideal)", {"phase_deg"}));
+    v.push_back(S("signal_phase_error_deg", "deg", "phase between A and B minus 90", {"phase_error_deg"}));
+    v.push_back(S("signal_offset_a_v", "V", "A channel offset", {"a", "offset_v"}));
+    v.push_back(S("signal_offset_b_v", "V", "B channel offset", {"b", "offset_v"}));
+    v.push_back(S("signal_offset_a_percent", "%", "A channel offset, % of its amplitude", {"a", "offset_percent"}));
+    v.push_back(S("signal_offset_b_percent", "%", "B channel offset, % of its amplitude", {"b", "offset_percent"}));
+    v.push_back(S("signal_tv_a_deg", "deg", "A channel on/off ratio TV: time above 0 V minus 180 deg", {"a", "tv_deg"}));
+    v.push_back(S("signal_tv_b_deg", "deg", "B channel on/off ratio TV: time above 0 V minus 180 deg", {"b", "tv_deg"}));
+    v.push_back(S("signal_sym_a", "", "A channel asymmetry |P - N| / (2 M)", {"a", "sym"}));
+    v.push_back(S("signal_sym_b", "", "B channel asymmetry |P - N| / (2 M)", {"b", "sym"}));
+    v.push_back(S("signal_thd_a_percent", "%", "A channel harmonic distortion h2..h8, % of the fundamental", {"a", "thd_percent"}));
+    v.push_back(S("signal_thd_b_percent", "%", "B channel harmonic distortion h2..h8, % of the fundamental", {"b", "thd_percent"}));
+    v.push_back(S("signal_noise_a_v", "V", "A channel noise about its fitted shape, rms", {"a", "noise_v_rms"}));
+    v.push_back(S("signal_noise_b_v", "V", "B channel noise about its fitted shape, rms", {"b", "noise_v_rms"}));
+    v.push_back(S("signal_radius_min_v", "V", "smallest sqrt(A^2 + B^2) of any sample", {"radius_min_v"}));
+    v.push_back(S("signal_radius_max_v", "V", "largest sqrt(A^2 + B^2) of any sample", {"radius_max_v"}));
+    v.push_back(S("signal_freq_hz", "Hz", "signal (electrical) frequency, mean over the periods", {"freq_hz"}));
+    for (auto& m : v) {
+        if (m.name == "signal_vpp_a_v") m.column = "A";
+        if (m.name == "signal_vpp_b_v") m.column = "B";
+        if (m.name == "signal_ab_ratio") m.column = "A/B";
+        if (m.name == "signal_phase_deg") m.column = "phase";
+        if (m.name == "signal_offset_a_v") m.column = "offset A";
+        if (m.name == "signal_offset_b_v") m.column = "offset B";
+        if (m.name == "signal_tv_a_deg") m.column = "TV A";
+        if (m.name == "signal_tv_b_deg") m.column = "TV B";
+        if (m.name == "signal_thd_a_percent") m.column = "THD A";
+        if (m.name == "signal_thd_b_percent") m.column = "THD B";
+        if (m.name == "signal_noise_a_v") m.column = "noise A";
+        if (m.name == "signal_noise_b_v") m.column = "noise B";
+        if (m.name == "signal_radius_min_v") m.column = "radius min";
+        if (m.name == "signal_radius_max_v") m.column = "radius max";
+        if (m.name == "signal_freq_hz") m.column = "frequency";
+    }
     return v;
 }
 
@@ -248,10 +307,10 @@ std::optional<MetricInfo> find_metric(const std::string& name) {
     return std::nullopt;
 }
 
-std::vector<const MetricInfo*> summary_metrics() {
+std::vector<const MetricInfo*> summary_metrics(bool run_level) {
     std::vector<const MetricInfo*> out;
     for (const auto& m : metric_catalog())
-        if (!m.column.empty()) out.push_back(&m);
+        if (!m.column.empty() && m.run_level == run_level) out.push_back(&m);
     return out;
 }
 
@@ -262,10 +321,10 @@ std::optional<double> metric_value(const std::string& name, const json& metrics,
     return m->value(json{{"metrics", metrics}, {"bounds", bounds}}, why);
 }
 
-std::optional<double> run_metric_value(const std::string& name, const json& alignment, std::string* why) {
+std::optional<double> run_metric_value(const std::string& name, const json& run, std::string* why) {
     const auto m = find_metric(name);
     if (!m || !m->run_level) return none(why, "unknown metric");
-    return m->value(alignment, why);
+    return m->value(run, why);
 }
 
 std::optional<std::pair<double, double>> metric_interval(const std::string& name, const json& metrics, double value) {
@@ -277,11 +336,10 @@ std::optional<std::pair<double, double>> metric_interval(const std::string& name
 std::vector<MetricCell> report_metrics(const json& report) {
     std::vector<MetricCell> out;
     const json ests = report.is_object() && report.value("estimators", json()).is_array() ? report["estimators"] : json::array();
-    const json alignment = report.is_object() ? report.value("alignment", json()) : json();
     for (const auto& info : metric_catalog()) {
         if (info.run_level) {
-            MetricCell c{&info, "run", info.value(alignment, nullptr), std::nullopt, ""};
-            if (!c.value) info.value(alignment, &c.why);
+            MetricCell c{&info, "run", info.value(report, nullptr), std::nullopt, ""};
+            if (!c.value) info.value(report, &c.why);
             out.push_back(std::move(c));
             continue;
         }

@@ -22,9 +22,9 @@ struct MetricInfo {
     bool limitable = true;     // a scenario limit may name it
     std::string uncertainty;   // how its 95 % interval is computed ("none: ..." when it has none)
     std::string column;        // heading in the summary tables (CLI, HTML, web, compare); "" = full table only
-    std::string group = "error";  // "error", "bound" or "evidence": the CLI summary prints one line per group
+    std::string group = "error";  // "error", "bound", "evidence" (the CLI summary's lines) or "signal"
     // Its value from an estimator's report entry {"metrics", "bounds", ...} (run-level: from the
-    // report's "alignment"); nullopt and why when it could not be measured.
+    // report, its "alignment" or "signal"); nullopt and why when it could not be measured.
     std::function<std::optional<double>(const nlohmann::json& entry, std::string* why)> value;
     // Its 95 % interval given the entry and the value; nullopt when it has none.
     std::function<std::optional<std::pair<double, double>>(const nlohmann::json& entry, double value)> interval;
@@ -33,15 +33,17 @@ struct MetricInfo {
 // The fixed metrics, then harmonic_1x_rad .. harmonic_16x_rad (any order up to 64 is accepted).
 const std::vector<MetricInfo>& metric_catalog();
 std::optional<MetricInfo> find_metric(const std::string& name);  // nullopt if unknown
-// The summary columns, in table order.
-std::vector<const MetricInfo*> summary_metrics();
+// The summary columns, in table order: of each estimator lane, or (run_level) of the run (the
+// signal's quality).
+std::vector<const MetricInfo*> summary_metrics(bool run_level = false);
 
 // A metric's value from an estimator's report "metrics" and "bounds" (nullopt if it could not
 // be measured; why in *why when given).
 std::optional<double> metric_value(const std::string& name, const nlohmann::json& metrics, const nlohmann::json& bounds,
                                    std::string* why = nullptr);
-// A run-level metric's value from the report's "alignment" (nullopt and why when not measured).
-std::optional<double> run_metric_value(const std::string& name, const nlohmann::json& alignment, std::string* why = nullptr);
+// A run-level metric's value from the run's facts: the report, or any object with its
+// "alignment" and "signal" (nullopt and why when not measured).
+std::optional<double> run_metric_value(const std::string& name, const nlohmann::json& run, std::string* why = nullptr);
 // A metric's 95 % interval from the report's metrics "uncertainty" (value: the metric's value, for
 // the same figure in other units); nullopt for metrics without one (extremes, counts, evidence).
 std::optional<std::pair<double, double>> metric_interval(const std::string& name, const nlohmann::json& metrics, double value);

@@ -18,14 +18,14 @@ std::string fmt_g(double v) {
 
 }  // namespace
 
-json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus status, Verdict& verdict, const json& alignment) {
+json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus status, Verdict& verdict, const json& run) {
     json out = json::array();
     verdict = Verdict::Pass;
     auto measure = [&](const std::string& label, const std::string& metric, std::optional<double> max, std::optional<double> min,
                        double marginal, bool implicit, const json& ej) {
         const auto mi = find_metric(metric);
         std::string why;
-        const auto v = mi && mi->run_level ? run_metric_value(metric, alignment, &why)
+        const auto v = mi && mi->run_level ? run_metric_value(metric, run, &why)
                                            : metric_value(metric, ej.value("metrics", json()), ej.value("bounds", json()), &why);
         json mj{{"estimator", label}, {"metric", metric}, {"unit", mi ? mi->unit : ""}, {"value", v ? json(*v) : json()}};
         if (implicit) mj["implicit"] = true;

@@ -19,8 +19,8 @@ namespace fringe {
 // The measurements of a finished run (report "measurements") from its "estimators" array.
 // status: the run's; measurements of a run that did not complete are ERROR. verdict receives
 // the worst outcome (PASS when there is none).
-// alignment: the report's "alignment" (null without one); run-level metrics read it, measured
-// once with estimator "run".
+// run: the run's facts, {"alignment", "signal"} as in the report (null without them); run-level
+// metrics read them, measured once with estimator "run".
 nlohmann::json evaluate_limits(const Scenario& sc, const nlohmann::json& estimators, RunStatus status, Verdict& verdict,
-                               const nlohmann::json& alignment = nullptr);
+                               const nlohmann::json& run = nullptr);
 }  // namespace fringe

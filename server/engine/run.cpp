@@ -1,4 +1,5 @@
 #include "server/engine/run.hpp"
+#include "server/analysis/signal_quality.hpp"
 
 #include "server/analysis/bounds.hpp"
 #include "drivers/capture_file.hpp"
@@ -145,7 +146,7 @@ json unstarted_report(const Scenario& sc, const std::string& id, const std::stri
                       const std::string& verdict, const std::string& error, const json& provenance) {
     json r = json{{"schema", "fringe.report"}, {"schema_version", 3}, {"fringe_version", FRINGE_VERSION}, {"id", id},
                 {"started_at", started_at}, {"finished_at", iso_now()}, {"wall_s", 0.0}, {"scenario", sc}, {"seed", sc.seed},
-                {"device", nullptr}, {"alignment", nullptr}, {"status", status}, {"verdict", verdict}, {"error", error}, {"warnings", json::array()},
+                {"device", nullptr}, {"alignment", nullptr}, {"signal", nullptr}, {"status", status}, {"verdict", verdict}, {"error", error}, {"warnings", json::array()},
                 {"samples", {{"planned", sc.samples()}, {"processed", 0}}}, {"estimators", json::array()},
                 {"measurements", json::array()}, {"traces", json::object()}};
     if (!provenance.is_null()) r["provenance"] = provenance;
@@ -349,6 +350,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
     const std::uint64_t total = sc.samples();
     std::uint64_t processed = 0;
     std::optional<TraceRecorder> traces;
+    SignalQuality signal;  // the signals' quality, drawn beside the traces
     json dut_readout;
     static const EstimatorSpec dut_spec{"dut", "dut", nlohmann::json::object(), std::nullopt};
     const std::size_t segment = ErrorSpectrum::choose_segment(
@@ -445,6 +447,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
                     std::vector<const double*> errs;
                     for (auto& lane : lanes) errs.push_back(lane->err[(step - 2) % 2].data());
                     traces->add(f.size(), f.t_s.data(), f.sin_v.data(), f.cos_v.data(), f.theta_true_rad.data(), f.truth_known.data(), errs);
+                    signal.add(f.t_s.data(), f.sin_v.data(), f.cos_v.data(), f.size());
                 });
             pool.run(tasks, errors);
             std::size_t t = 0;
@@ -497,7 +500,8 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
     }
     Verdict verdict;
     report["alignment"] = alignment;
-    report["measurements"] = evaluate_limits(sc, estimators, status, verdict, alignment);
+    report["signal"] = signal.to_json();
+    report["measurements"] = evaluate_limits(sc, estimators, status, verdict, json{{"alignment", alignment}, {"signal", report["signal"]}});
     report["status"] = to_string(status);
     report["verdict"] = to_string(verdict);
     report["error"] = error.empty() ? json() : json(error);

@@ -138,7 +138,7 @@ SweepResult sweep_result(const Sweep& s, const SweepRow& row, const json& rep) {
         std::optional<double> v;
         std::optional<std::pair<double, double>> iv;
         if (const auto m = find_metric(c.metric); m && m->run_level) {  // the run's alignment, once
-            v = run_metric_value(c.metric, rep.value("alignment", json()));
+            v = run_metric_value(c.metric, rep);
             res.values.push_back(v);
             res.intervals.push_back(iv);
             continue;

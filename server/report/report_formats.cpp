@@ -685,7 +685,18 @@ std::string metric_tables_html(const json& r) {
         for (const auto* m : summary_metrics()) h << td(find(m, l), false);
         h << "</tr>\n";
     }
-    h << "</table></div>\n<h2>All metrics</h2><div class=\"table-wrap\"><table id=\"metrics\"><tr><th>metric</th><th>unit</th>";
+    h << "</table></div>\n";
+    // The signals' quality, once for the run.
+    if (const auto sig = summary_metrics(true); !sig.empty()) {
+        h << "<h2>Signal quality</h2><div class=\"table-wrap\"><table id=\"signal\"><tr>";
+        for (const auto* m : sig)
+            h << "<th title=\"" << xml_escape(m->name + ": " + m->description) << "\">" << xml_escape(m->column)
+              << (m->unit.empty() ? std::string() : " (" + xml_escape(m->unit) + ")") << "</th>";
+        h << "</tr>\n<tr>";
+        for (const auto* m : sig) h << td(find(m, "run"), false);
+        h << "</tr>\n</table></div>\n";
+    }
+    h << "<h2>All metrics</h2><div class=\"table-wrap\"><table id=\"metrics\"><tr><th>metric</th><th>unit</th>";
     for (const auto& l : lanes) h << "<th>" << xml_escape(l) << "</th>";
     h << "<th>run</th><th>meaning</th></tr>\n";
     for (const auto& m : metric_catalog()) {

@@ -1,0 +1,362 @@
+#include "server/analysis/signal_quality.hpp"
+
+#include "signal_gen/base/constants.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace fringe {
+
+using nlohmann::json;
+
+namespace {
+
+double wrap_deg(double d) {
+    d = std::fmod(d, 360.0);
+    if (d <= -180.0) d += 360.0;
+    if (d > 180.0) d -= 360.0;
+    return d;
+}
+
+// Fourier series of one channel over one period, by the trapezoid rule on the period's points.
+ChannelQuality fit_channel(const std::vector<double>& phi, const std::vector<double>& w, const std::vector<double>& x) {
+    constexpr int K = SignalQuality::kHarmonics;
+    const std::size_t n = phi.size();
+    double c0 = 0, a[K + 1] = {}, b[K + 1] = {};
+    for (std::size_t i = 0; i < n; ++i) {
+        const double c1 = std::cos(phi[i]), s1 = std::sin(phi[i]);
+        double ck = 1, sk = 0;
+        const double wx = w[i] * x[i];
+        c0 += wx;
+        for (int k = 1; k <= K; ++k) {
+            const double cn = ck * c1 - sk * s1, sn = sk * c1 + ck * s1;
+            ck = cn;
+            sk = sn;
+            a[k] += wx * ck;
+            b[k] += wx * sk;
+        }
+    }
+    c0 /= kTwoPi;
+    for (int k = 1; k <= K; ++k) {
+        a[k] /= kPi;
+        b[k] /= kPi;
+    }
+    ChannelQuality q;
+    q.amplitude_v = std::hypot(a[1], b[1]);
+    q.vpp_v = 2 * q.amplitude_v;
+    q.offset_v = c0;
+    q.phase_rad = std::atan2(a[1], b[1]);  // amplitude sin(phi + p) = amplitude (sin phi cos p + cos phi sin p)
+    double h2 = 0;
+    for (int k = 2; k <= K; ++k) {
+        const double hk = q.amplitude_v > 0 ? 100.0 * std::hypot(a[k], b[k]) / q.amplitude_v : 0.0;
+        q.h_percent[k - 2] = hk;
+        h2 += hk * hk;
+    }
+    q.thd_percent = std::sqrt(h2);
+    auto shape = [&](double p) {
+        double v = c0;
+        for (int k = 1; k <= K; ++k) v += a[k] * std::cos(k * p) + b[k] * std::sin(k * p);
+        return v;
+    };
+    // The fitted shape's extremes on a fine grid (the samples' own extremes grow with noise).
+    constexpr int kGrid = 360;
+    q.max_v = -std::numeric_limits<double>::infinity();
+    q.min_v = std::numeric_limits<double>::infinity();
+    for (int g = 0; g < kGrid; ++g) {
+        const double v = shape(kTwoPi * g / kGrid);
+        q.max_v = std::max(q.max_v, v);
+        q.min_v = std::min(q.min_v, v);
+    }
+    const double P = q.max_v, N = -q.min_v, M = q.max_v - q.min_v;
+    q.sym = M > 0 ? std::fabs(P - N) / (2 * M) : 0.0;
+    // Noise: the samples about the shape (the interpolated end points are not samples).
+    double r2 = 0;
+    for (std::size_t i = 1; i + 1 < n; ++i) {
+        const double d = x[i] - shape(phi[i]);
+        r2 += d * d;
+    }
+    q.noise_v_rms = n > 2 ? std::sqrt(r2 / static_cast<double>(n - 2)) : 0.0;
+    // On/off ratio: the share of the period the channel is above 0 V, crossings interpolated.
+    double high = 0;
+    for (std::size_t i = 0; i + 1 < n; ++i) {
+        const double len = std::fabs(phi[i + 1] - phi[i]), x0 = x[i], x1 = x[i + 1];
+        if (x0 > 0 && x1 > 0) high += len;
+        else if (x0 > 0 || x1 > 0) {
+            const double f = x0 / (x0 - x1);  // where the segment crosses 0
+            high += x0 > 0 ? f * len : (1 - f) * len;
+        }
+    }
+    q.tv_deg = high * 180.0 / kPi - 180.0;
+    return q;
+}
+
+}  // namespace
+
+PeriodQuality SignalQuality::analyse_period(const std::vector<double>& t_s, const std::vector<double>& phi, const std::vector<double>& a_v,
+                                            const std::vector<double>& b_v) {
+    const std::size_t n = phi.size();
+    std::vector<double> w(n, 0.0);
+    for (std::size_t i = 0; i + 1 < n; ++i) {
+        const double h = 0.5 * std::fabs(phi[i + 1] - phi[i]);
+        w[i] += h;
+        w[i + 1] += h;
+    }
+    PeriodQuality p;
+    p.t_start_s = t_s.front();
+    p.t_end_s = t_s.back();
+    p.direction = phi.back() >= phi.front() ? 1 : -1;
+    p.samples = n >= 2 ? n - 2 : 0;
+    p.a = fit_channel(phi, w, a_v);
+    p.b = fit_channel(phi, w, b_v);
+    p.ab_ratio = p.b.amplitude_v > 0 ? p.a.amplitude_v / p.b.amplitude_v : 0.0;
+    p.phase_deg = wrap_deg((p.b.phase_rad - p.a.phase_rad) * 180.0 / kPi);
+    p.radius_min_v = std::numeric_limits<double>::infinity();
+    p.radius_max_v = 0;
+    for (std::size_t i = 1; i + 1 < n; ++i) {
+        const double r = std::hypot(a_v[i], b_v[i]);
+        p.radius_min_v = std::min(p.radius_min_v, r);
+        p.radius_max_v = std::max(p.radius_max_v, r);
+    }
+    if (n <= 2) p.radius_min_v = 0;
+    p.freq_hz = p.t_end_s > p.t_start_s ? 1.0 / (p.t_end_s - p.t_start_s) : 0.0;
+    return p;
+}
+
+void SignalQuality::start_period(double t, double a, double b, long long k, int direction) {
+    open_ = true;
+    too_long_ = false;
+    k_start_ = k;
+    dir_ = direction;
+    pt_.assign(1, t);
+    pa_.assign(1, a);
+    pb_.assign(1, b);
+}
+
+void SignalQuality::close_period(double t, double a, double b) {
+    open_ = false;
+    if (too_long_) {
+        ++skipped_;
+        ++skipped_long_;
+        return;
+    }
+    pt_.push_back(t);
+    pa_.push_back(a);
+    pb_.push_back(b);
+    const double t0 = pt_.front(), T = t - t0;
+    if (!(T > 0) || pt_.size() < 8) {  // fewer than 6 samples in a period: not a shape
+        ++skipped_;
+        ++skipped_short_;
+        return;
+    }
+    std::vector<double> phi(pt_.size());
+    for (std::size_t i = 0; i < pt_.size(); ++i) phi[i] = dir_ * kTwoPi * (pt_[i] - t0) / T;
+    const PeriodQuality p = analyse_period(pt_, phi, pa_, pb_);
+    if (!have_worst_) {
+        worst_lo_ = worst_hi_ = p;
+        radius_min_v_ = p.radius_min_v;
+        radius_max_v_ = p.radius_max_v;
+        have_worst_ = true;
+    }
+    auto lohi = [](double v, double& lo, double& hi) {
+        lo = std::min(lo, v);
+        hi = std::max(hi, v);
+    };
+    lohi(p.a.vpp_v, worst_lo_.a.vpp_v, worst_hi_.a.vpp_v);
+    lohi(p.b.vpp_v, worst_lo_.b.vpp_v, worst_hi_.b.vpp_v);
+    lohi(p.ab_ratio, worst_lo_.ab_ratio, worst_hi_.ab_ratio);
+    lohi(p.phase_deg, worst_lo_.phase_deg, worst_hi_.phase_deg);
+    lohi(p.a.tv_deg, worst_lo_.a.tv_deg, worst_hi_.a.tv_deg);
+    lohi(p.b.tv_deg, worst_lo_.b.tv_deg, worst_hi_.b.tv_deg);
+    radius_min_v_ = std::min(radius_min_v_, p.radius_min_v);
+    radius_max_v_ = std::max(radius_max_v_, p.radius_max_v);
+    // Running sums for the means.
+    auto add_ch = [](ChannelQuality& s, const ChannelQuality& c) {
+        s.amplitude_v += c.amplitude_v;
+        s.vpp_v += c.vpp_v;
+        s.offset_v += c.offset_v;
+        s.tv_deg += c.tv_deg;
+        s.sym += c.sym;
+        for (std::size_t k = 0; k < s.h_percent.size(); ++k) s.h_percent[k] += c.h_percent[k];
+        s.thd_percent += c.thd_percent;
+        s.noise_v_rms += c.noise_v_rms * c.noise_v_rms;  // mean square
+        s.max_v += c.max_v;
+        s.min_v += c.min_v;
+    };
+    add_ch(sum_.a, p.a);
+    add_ch(sum_.b, p.b);
+    sum_.ab_ratio += p.ab_ratio;
+    sum_.phase_deg += p.phase_deg;
+    sum_.freq_hz += p.freq_hz;
+    sum_.samples += p.samples;
+    ++periods_;
+    auto mean_ch = [&](const ChannelQuality& s) {
+        ChannelQuality m = s;
+        const double n = static_cast<double>(periods_);
+        m.amplitude_v /= n;
+        m.vpp_v /= n;
+        m.offset_v /= n;
+        m.tv_deg /= n;
+        m.sym /= n;
+        for (auto& h : m.h_percent) h /= n;
+        m.thd_percent /= n;
+        m.noise_v_rms = std::sqrt(m.noise_v_rms / n);
+        m.max_v /= n;
+        m.min_v /= n;
+        return m;
+    };
+    mean_.a = mean_ch(sum_.a);
+    mean_.b = mean_ch(sum_.b);
+    mean_.ab_ratio = sum_.ab_ratio / static_cast<double>(periods_);
+    mean_.phase_deg = sum_.phase_deg / static_cast<double>(periods_);
+    mean_.freq_hz = sum_.freq_hz / static_cast<double>(periods_);
+    record(p);
+}
+
+void SignalQuality::record(const PeriodQuality& p) {
+    const double n = static_cast<double>(pending_.count), m = n + 1;
+    auto blend = [&](double& acc, double v) { acc = (acc * n + v) / m; };
+    if (pending_.count == 0) pending_.first = periods_ - 1;
+    blend(pending_.t_s, 0.5 * (p.t_start_s + p.t_end_s));
+    blend(pending_.vpp_a, p.a.vpp_v);
+    blend(pending_.vpp_b, p.b.vpp_v);
+    blend(pending_.ratio, p.ab_ratio);
+    blend(pending_.phase_deg, p.phase_deg);
+    blend(pending_.tv_a, p.a.tv_deg);
+    blend(pending_.tv_b, p.b.tv_deg);
+    blend(pending_.offset_a, p.a.offset_v);
+    blend(pending_.offset_b, p.b.offset_v);
+    ++pending_.count;
+    if (pending_.count < per_record_) return;
+    records_.push_back(pending_);
+    pending_ = Record{};
+    if (records_.size() < kMaxRecords) return;
+    // Full: every two neighbours become one, and each bucket takes twice as many periods.
+    std::vector<Record> merged;
+    merged.reserve(kMaxRecords / 2);
+    for (std::size_t i = 0; i + 1 < records_.size(); i += 2) {
+        const Record& x = records_[i];
+        const Record& y = records_[i + 1];
+        const double wx = static_cast<double>(x.count), wy = static_cast<double>(y.count), s = wx + wy;
+        auto mix = [&](double u, double v) { return (u * wx + v * wy) / s; };
+        merged.push_back({x.first, x.count + y.count, mix(x.t_s, y.t_s), mix(x.vpp_a, y.vpp_a), mix(x.vpp_b, y.vpp_b), mix(x.ratio, y.ratio),
+                          mix(x.phase_deg, y.phase_deg), mix(x.tv_a, y.tv_a), mix(x.tv_b, y.tv_b), mix(x.offset_a, y.offset_a), mix(x.offset_b, y.offset_b)});
+    }
+    records_ = std::move(merged);
+    per_record_ *= 2;
+}
+
+void SignalQuality::add(const double* t_s, const double* a_v, const double* b_v, std::size_t n) {
+    for (std::size_t i = 0; i < n; ++i) {
+        const double t = t_s[i], a = a_v[i], b = b_v[i];
+        if (!std::isfinite(t) || !std::isfinite(a) || !std::isfinite(b)) {  // a gap: the open period is lost
+            if (open_) ++skipped_;
+            open_ = false;
+            have_prev_ = false;
+            continue;
+        }
+        if (samples_++ == 0) t_first_ = t;
+        t_last_ = t;
+        const double raw = std::atan2(a, b);
+        if (!have_prev_) {
+            prev_t_ = t;
+            prev_a_ = a;
+            prev_b_ = b;
+            prev_psi_ = raw;
+            have_prev_ = true;
+            continue;
+        }
+        double d = raw - std::remainder(prev_psi_, kTwoPi);
+        d -= kTwoPi * std::round(d / kTwoPi);
+        const double psi = prev_psi_ + d;
+        const long long k0 = static_cast<long long>(std::floor(prev_psi_ / kTwoPi)), k1 = static_cast<long long>(std::floor(psi / kTwoPi));
+        if (k1 != k0) {
+            // At most one boundary between two samples unless the signal jumps by more than a
+            // period (then the open period is lost).
+            if (std::llabs(k1 - k0) > 1) {
+                if (open_) ++skipped_;
+                open_ = false;
+            } else {
+                const int s = k1 > k0 ? 1 : -1;
+                const long long m = s > 0 ? k1 : k0;  // the boundary 2 pi m crossed
+                const double f = (kTwoPi * static_cast<double>(m) - prev_psi_) / (psi - prev_psi_);
+                const double tc = prev_t_ + f * (t - prev_t_), ac = prev_a_ + f * (a - prev_a_), bc = prev_b_ + f * (b - prev_b_);
+                if (open_ && dir_ == s && k_start_ + s == m) close_period(tc, ac, bc);
+                else if (open_) ++skipped_;  // turned back inside the period
+                start_period(tc, ac, bc, m, s);
+            }
+        }
+        if (open_ && !too_long_) {
+            if (pt_.size() >= kMaxPeriodSamples) {
+                too_long_ = true;
+                pt_.clear();
+                pa_.clear();
+                pb_.clear();
+            } else {
+                pt_.push_back(t);
+                pa_.push_back(a);
+                pb_.push_back(b);
+            }
+        }
+        prev_t_ = t;
+        prev_a_ = a;
+        prev_b_ = b;
+        prev_psi_ = psi;
+    }
+}
+
+json SignalQuality::to_json() const {
+    if (periods_ == 0) {
+        std::string note = "no whole electrical period in the signals (the angle atan2(A, B) never went once round between two multiples of 2 pi)";
+        if (samples_ == 0) note = "no samples";
+        else if (skipped_short_ > 0)
+            note = std::to_string(skipped_short_) + " periods with fewer than 6 samples each: too few samples per electrical cycle to see a period's shape";
+        else if (skipped_long_ > 0)
+            note = std::to_string(skipped_long_) + " periods longer than " + std::to_string(kMaxPeriodSamples) + " samples each (slower than the analysis takes)";
+        return {{"periods", 0}, {"skipped_periods", skipped_}, {"samples", samples_}, {"note", note}};
+    }
+    auto ch = [&](const ChannelQuality& c, const ChannelQuality& lo, const ChannelQuality& hi) {
+        json h = json::object();
+        static const char* const kNames[] = {"h2", "h3", "h4", "h5", "h6", "h7", "h8"};
+        for (std::size_t k = 0; k < c.h_percent.size(); ++k) h[kNames[k]] = c.h_percent[k];
+        return json{{"amplitude_v", c.amplitude_v}, {"vpp_v", c.vpp_v}, {"offset_v", c.offset_v},
+                    {"offset_percent", c.amplitude_v > 0 ? 100.0 * c.offset_v / c.amplitude_v : 0.0}, {"tv_deg", c.tv_deg}, {"sym", c.sym},
+                    {"harmonics_percent", h}, {"thd_percent", c.thd_percent}, {"noise_v_rms", c.noise_v_rms}, {"max_v", c.max_v}, {"min_v", c.min_v},
+                    {"vpp_range_v", {lo.vpp_v, hi.vpp_v}}, {"tv_range_deg", {lo.tv_deg, hi.tv_deg}}};
+    };
+    json rec{{"periods_per_point", per_record_}, {"first_period", json::array()}, {"t_s", json::array()}, {"vpp_a_v", json::array()},
+             {"vpp_b_v", json::array()}, {"ab_ratio", json::array()}, {"phase_deg", json::array()}, {"tv_a_deg", json::array()},
+             {"tv_b_deg", json::array()}, {"offset_a_v", json::array()}, {"offset_b_v", json::array()}};
+    auto push = [&](const Record& r) {
+        rec["first_period"].push_back(r.first);
+        rec["t_s"].push_back(r.t_s);
+        rec["vpp_a_v"].push_back(r.vpp_a);
+        rec["vpp_b_v"].push_back(r.vpp_b);
+        rec["ab_ratio"].push_back(r.ratio);
+        rec["phase_deg"].push_back(r.phase_deg);
+        rec["tv_a_deg"].push_back(r.tv_a);
+        rec["tv_b_deg"].push_back(r.tv_b);
+        rec["offset_a_v"].push_back(r.offset_a);
+        rec["offset_b_v"].push_back(r.offset_b);
+    };
+    for (const auto& r : records_) push(r);
+    if (pending_.count > 0) push(pending_);
+    return {{"periods", periods_},
+            {"skipped_periods", skipped_},
+            {"samples", samples_},
+            {"freq_hz", mean_.freq_hz},
+            {"a", ch(mean_.a, worst_lo_.a, worst_hi_.a)},
+            {"b", ch(mean_.b, worst_lo_.b, worst_hi_.b)},
+            {"ab_ratio", mean_.ab_ratio},
+            {"ab_ratio_range", {worst_lo_.ab_ratio, worst_hi_.ab_ratio}},
+            {"phase_deg", mean_.phase_deg},
+            {"phase_error_deg", mean_.phase_deg - 90.0},
+            {"phase_range_deg", {worst_lo_.phase_deg, worst_hi_.phase_deg}},
+            {"radius_min_v", radius_min_v_},
+            {"radius_max_v", radius_max_v_},
+            {"recording", rec},
+            {"method", "each electrical period between crossings of atan2(A, B) through a multiple of 2 pi; angle linear in time within a "
+                       "period; Fourier series to the 8th harmonic by the trapezoid rule; figures are means over the periods"}};
+}
+
+}  // namespace fringe
