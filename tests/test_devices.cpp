@@ -326,7 +326,7 @@ TEST_CASE("devices: a step-only device is driven through its step port and never
     CHECK(d.stream_calls == 0);
 }
 
-TEST_CASE("devices: a device with streams and steps is streamed; one without a usable port is refused by name", "[device][capabilities]") {
+TEST_CASE("devices: a device with streams and steps is streamed, and one without a usable port is refused by name", "[device][capabilities]") {
     const Scenario sc = step_scenario();
     StreamAndStep both;
     {
