@@ -182,19 +182,29 @@ function warningsList(r) {
     h('ul', { id: 'warnings' }, w.map((x) => h('li', {}, h('code', {}, x.code), ' ', x.message))));
 }
 
-function estimatorsTable(r) {
+// The metric table of a report (GET runs/{id}/metrics): every metric of every lane, read by the
+// server from its one metric table (fringe metrics); the web adds no metric of its own.
+function valueCell(m, v) {
+  if (!v) return h('td', {}, '');
+  if (v.value == null) return h('td', { class: `num m-${m.name} muted`, title: v.why || 'not measured' }, 'not measured');
+  return h('td', { class: `num m-${m.name}` }, sig(v.value), intervalSpan(v.interval_95));
+}
+const heading = (m) => [m.column || m.name, m.unit ? h('span', { class: 'unit' }, ` (${m.unit})`) : ''];
+
+function estimatorsTable(mt) {
+  const cols = mt.metrics.filter((m) => m.column);
+  const lanes = mt.lanes.filter((l) => l !== 'run');
   return scroller(h('table', { id: 'estimators' },
-    h('thead', {}, h('tr', {}, ['estimator', 'rms', 'max |e|', 'mean', 'slipped', 'scored samples', 'scored cycles', 'valid',
-      'PCRB', 'efficiency', 'lock time'].map((c) => h('th', {}, c)))),
-    h('tbody', {}, (r.estimators || []).map((e) => {
-      const m = e.metrics || {}, b = e.bounds || {}, ev = m.evidence || {};
-      const eff = b.efficiency == null ? h('span', { class: 'muted', title: b.efficiency_against ? `graded against: ${b.efficiency_against}` : 'no bound to grade against' }, 'n/a') : sig(b.efficiency);
-      return h('tr', {}, h('td', {}, e.label), h('td', { class: 'num rms' }, withUnit(m.rms && m.rms.rad, 'rad'), intervalSpan((m.uncertainty || {}).rms_rad)), h('td', { class: 'num' }, withUnit(m.max_abs && m.max_abs.rad, 'rad')),
-        h('td', { class: 'num' }, withUnit(m.mean && m.mean.rad, 'rad'), intervalSpan((m.uncertainty || {}).mean_rad)), h('td', { class: 'num' }, fmt(m.slipped_samples)),
-        h('td', { class: 'num' }, fmt(ev.scored_samples)), h('td', { class: 'num' }, fmt(ev.scored_cycles)),
-        h('td', { class: 'num' }, ev.valid_fraction == null ? '' : `${sig(100 * ev.valid_fraction)} %`), h('td', { class: 'num' }, withUnit(b.pcrb_rad, 'rad')),
-        h('td', { class: 'num' }, eff), h('td', { class: 'num' }, withUnit(m.lock_time_s, 's')));
-    }))));
+    h('thead', {}, h('tr', {}, h('th', {}, 'estimator'), cols.map((m) => h('th', { title: `${m.name}: ${m.description}` }, ...heading(m))))),
+    h('tbody', {}, lanes.map((l) => h('tr', {}, h('td', {}, l), cols.map((m) => valueCell(m, m.values[l])))))));
+}
+
+function allMetricsTable(mt) {
+  return h('details', { id: 'all-metrics' }, h('summary', {}, `All metrics (${mt.metrics.length})`),
+    scroller(h('table', { id: 'metrics' },
+      h('thead', {}, h('tr', {}, ['metric', 'unit', ...mt.lanes, 'meaning'].map((c) => h('th', {}, c)))),
+      h('tbody', {}, mt.metrics.map((m) => h('tr', { 'data-metric': m.name }, h('td', {}, h('code', {}, m.name)), h('td', { class: 'unit' }, m.unit),
+        mt.lanes.map((l) => valueCell(m, m.values[l])), h('td', { class: 'muted' }, m.description)))))));
 }
 
 // Every fitted harmonic of each estimator's error, with its 95 % interval (the bars in the
@@ -215,9 +225,9 @@ function harmonicsTable(r) {
 }
 
 async function report(id, into) {
-  let r, tr;
+  let r, tr, mt;
   try {
-    [r, tr] = await Promise.all([api.get(`runs/${encodeURIComponent(id)}/report.json`), api.get(`runs/${encodeURIComponent(id)}/traces`)]);
+    [r, tr, mt] = await Promise.all(['report.json', 'traces', 'metrics'].map((p) => api.get(`runs/${encodeURIComponent(id)}/${p}`)));
   } catch (e) { into.replaceChildren(showError(e)); return; }
   const base = `/api/v1/runs/${encodeURIComponent(id)}`;
   const plotBox = h('div', { class: 'plots', id: 'plots' });
@@ -231,7 +241,7 @@ async function report(id, into) {
       h('a', { href: `${base}/report.html?download=1`, download: '', id: 'dl-html' }, 'HTML'),
       h('a', { href: `#/compare/${id}` }, 'compare with…')),
     h('h2', {}, 'Measurements'), measurementsTable(r),
-    h('h2', {}, 'Estimators'), estimatorsTable(r), harmonicsTable(r),
+    h('h2', {}, 'Estimators'), estimatorsTable(mt), allMetricsTable(mt), harmonicsTable(r),
     h('h2', {}, 'Plots'), plotBox);
   const t = tr.traces || {};
   const empty = !t.t_s || !t.t_s.length;
@@ -250,22 +260,22 @@ async function compare(a, b) {
   h('label', { class: 'field' }, 'run B', h('input', { name: 'b', value: b || '', size: 26 })), h('button', { type: 'submit' }, 'compare'));
   view.replaceChildren(h('h1', {}, 'Compare runs'), pickForm);
   if (!a || !b) return;
-  let ra, rb, ta, tb;
+  let ra, rb, ta, tb, ma0, mb0;
   try {
-    [ra, rb, ta, tb] = await Promise.all([`${a}/report.json`, `${b}/report.json`, `${a}/traces`, `${b}/traces`].map((p) => api.get(`runs/${p}`)));
+    [ra, rb, ta, tb, ma0, mb0] = await Promise.all([`${a}/report.json`, `${b}/report.json`, `${a}/traces`, `${b}/traces`, `${a}/metrics`, `${b}/metrics`]
+      .map((p) => api.get(`runs/${p}`)));
   } catch (e) { view.append(showError(e)); return; }
-  const byLabel = (r) => Object.fromEntries((r.estimators || []).map((e) => [e.label, e]));
-  const ea = byLabel(ra), eb = byLabel(rb);
-  const labels = [...new Set([...Object.keys(ea), ...Object.keys(eb)])];
+  // The summary columns of the metric table, lane by lane, A beside B.
+  const labels = [...new Set([...ma0.lanes, ...mb0.lanes])].filter((l) => l !== 'run');
+  const byName = (mt) => Object.fromEntries(mt.metrics.map((m) => [m.name, m]));
+  const na = byName(ma0), nb = byName(mb0);
+  const cols = ma0.metrics.filter((m) => m.column);
   const rows = [];
-  const metric = (e, f) => (e ? f(e) : null);
-  const defs = [['rms (rad)', (e) => e.metrics.rms && e.metrics.rms.rad], ['max|e| (rad)', (e) => e.metrics.max_abs && e.metrics.max_abs.rad],
-    ['slipped', (e) => e.metrics.slipped_samples],
-    ['efficiency', (e) => e.bounds && e.bounds.efficiency]];
+  const val = (m, l) => (m && m.values[l] ? m.values[l].value : null);
   for (const l of labels)
-    for (const [name, f] of defs) {
-      const va = metric(ea[l], f), vb = metric(eb[l], f);
-      rows.push(h('tr', {}, h('td', {}, l), h('td', {}, name), h('td', { class: 'num' }, fmt(va)), h('td', { class: 'num' }, fmt(vb)),
+    for (const m of cols) {
+      const va = val(na[m.name], l), vb = val(nb[m.name], l);
+      rows.push(h('tr', {}, h('td', {}, l), h('td', {}, ...heading(m)), h('td', { class: 'num' }, fmt(va)), h('td', { class: 'num' }, fmt(vb)),
         h('td', { class: 'num' }, va && vb ? `${(vb / va).toFixed(3)}×` : '-')));
     }
   // Limits and outcomes of each run, side by side: the runs may differ in limits as well as in values.

@@ -29,7 +29,7 @@ struct RunCliOptions {
     std::string bench, dut, dut_part, operator_name;
     double forward_wait_s = 10;
     std::int64_t seed = -1;
-    bool no_db = false, quiet = false;
+    bool no_db = false, quiet = false, metrics = false;
 };
 
 // fringe run --server URL: the scenario is read and checked here (file references inlined),
@@ -65,7 +65,7 @@ int run_run_remote(const RunCliOptions& o, const Scenario& sc) {
         return kExitError;
     }
     if (!o.report.empty()) write_file_atomic(o.report, r.dump(2, ' ', false, json::error_handler_t::replace) + "\n");
-    if (!o.quiet) print_run_summary(r, sc.name);
+    if (!o.quiet) print_run_summary(r, sc.name, o.metrics);
     if (r["error"].is_string()) spdlog::error("{}", r["error"].get<std::string>());
     return exit_code(r);
 }
@@ -149,7 +149,7 @@ int run_run(const RunCliOptions& o) {
         if (p.pending) forward_note = "forwarding pending: " + std::to_string(p.pending) + " run(s) kept in " + forwarder->describe() +
                                            " are not in the shared store yet (" + p.error + "); the next fringe run, serve or sweep with this --data and --store forwards them";
     }
-    if (!o.quiet) print_run_summary(r, sc.name);
+    if (!o.quiet) print_run_summary(r, sc.name, o.metrics);
     if (r["status"] == "error") spdlog::error("{}", r["error"].get<std::string>());
     if (!forward_note.empty()) spdlog::warn("{}", forward_note);
     if (!store_error.empty()) {
@@ -184,6 +184,7 @@ Command add_run(CLI::App& app) {
     rn->add_option("--device", o->device, "Override the scenario's device URI (e.g. modbus+tcp://127.0.0.1:1502?board=dut-interpolator)");
     rn->add_option("--record", o->record, "Record the device input with aligned truth to this capture (.csv or .fcap)");
     rn->add_flag("-q,--quiet", o->quiet, "No summary or progress");
+    rn->add_flag("--metrics", o->metrics, "Also print every metric of every estimator (fringe metrics describes them)");
     rn->add_option("--server", o->server, "Run it on a fringe serve at this URL (http://HOST:PORT): the scenario is checked here, run there, its report fetched");
     rn->add_option("--token-file", o->token_file, "With --server: the service's bearer token file (default $FRINGE_DATA/token or ~/.local/share/fringe/token)");
     return {rn, [o] { return run_run(*o); }};

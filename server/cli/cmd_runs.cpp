@@ -22,7 +22,7 @@ using nlohmann::json;
 struct RunsOptions {
     std::string data, store, verdict, scenario, since, show, bench, dut;
     int limit = 20;
-    bool as_json = false;
+    bool as_json = false, metrics = false;
 };
 
 int run_runs(const RunsOptions& o) {
@@ -38,7 +38,7 @@ int run_runs(const RunsOptions& o) {
         // ensure_ascii: every non-ASCII character as \uXXXX, so no C1 control or bidi override
         // reaches the terminal raw (JSON already escapes ESC and the other C0 controls).
         if (o.as_json) std::printf("%s\n", r->dump(2, ' ', true, json::error_handler_t::replace).c_str());
-        else print_run_summary(*r, (*r)["scenario"].is_object() ? (*r)["scenario"].value("name", std::string("run")) : std::string("run"));
+        else print_run_summary(*r, (*r)["scenario"].is_object() ? (*r)["scenario"].value("name", std::string("run")) : std::string("run"), o.metrics);
         return kExitOk;
     }
     RunFilter f;
@@ -96,6 +96,7 @@ Command add_runs(CLI::App& app) {
     rs->add_option("--limit", o->limit, "At most this many")->check(CLI::PositiveNumber);
     rs->add_option("--show", o->show, "Print the summary of this run (its whole report with --json)");
     rs->add_flag("--json", o->as_json, "As JSON");
+    rs->add_flag("--metrics", o->metrics, "With --show: also every metric of every estimator");
     return {rs, [o] { return run_runs(*o); }};
 }
 

@@ -14,5 +14,6 @@ Command add_serve(CLI::App& app);
 Command add_board_sim(CLI::App& app);
 Command add_devices(CLI::App& app);
 Command add_instrument_sim(CLI::App& app);
+Command add_metrics(CLI::App& app);
 
 }  // namespace fringe::cli

@@ -1,5 +1,7 @@
 // What the fringe commands share (common.hpp).
 #include "common.hpp"
+#include "server/analysis/metrics.hpp"
+#include "server/report/report_formats.hpp"
 #include "signal_gen/base/text.hpp"
 
 #include "signal_gen/base/config.hpp"
@@ -130,7 +132,7 @@ std::string interval_text(const json& iv) {
 }
 
 // Every string here comes from a report: a scenario file, a client or a device wrote it.
-void print_run_summary(const json& r, const std::string& name) {
+void print_run_summary(const json& r, const std::string& name, bool all_metrics) {
     const auto str = [](const json& v) { return term_escape(v.is_string() ? v.get<std::string>() : v.dump()); };
     std::printf("run %s: %s %s (%s)\n", str(r["id"]).c_str(), term_escape(name).c_str(), str(r["verdict"]).c_str(), str(r["status"]).c_str());
     if (r["error"].is_string()) std::printf("error: %s\n", str(r["error"]).c_str());
@@ -144,13 +146,26 @@ void print_run_summary(const json& r, const std::string& name) {
                         ev.value("valid_fraction", json()).is_number() ? (std::to_string(100.0 * ev["valid_fraction"].get<double>()).substr(0, 5) + " %").c_str() : "-");
             continue;
         }
-        const std::string rms_iv = interval_text(m.value("uncertainty", json::object()).value("rms_rad", json()));
-        std::printf("  %-20s rms %.3e rad%s, max|e| %.3e rad, slipped %llu; scored %llu samples, %.1f cycles, valid %.1f %%\n",
-                    str(e["label"]).c_str(), m["rms"]["rad"].get<double>(), rms_iv.c_str(), m["max_abs"]["rad"].get<double>(),
-                    static_cast<unsigned long long>(m["slipped_samples"].get<std::uint64_t>()),
-                    static_cast<unsigned long long>(ev.value("scored_samples", std::uint64_t{0})), ev.value("scored_cycles", 0.0),
-                    100.0 * ev.value("valid_fraction", 0.0));
+        // The metric table's summary columns that were measured, each with its unit and interval:
+        // a line for the error figures, one for the bounds, one for the evidence.
+        for (const char* group : {"error", "bound", "evidence"}) {
+            std::string line;
+            for (const auto* mi : summary_metrics()) {
+                if (mi->group != group) continue;
+                const auto v = mi->value(e, nullptr);
+                if (!v) continue;
+                char b[40];
+                if (*v == std::floor(*v) && std::fabs(*v) < 1e15) std::snprintf(b, sizeof b, "%.0f", *v);
+                else if (std::fabs(*v) >= 1e-2 && std::fabs(*v) < 1e5) std::snprintf(b, sizeof b, "%.4g", *v);
+                else std::snprintf(b, sizeof b, "%.3e", *v);
+                line += (line.empty() ? "" : ", ") + mi->column + " " + b + (mi->unit.empty() ? "" : " " + mi->unit);
+                if (mi->interval)
+                    if (const auto iv = mi->interval(e, *v)) line += interval_text(json::array({iv->first, iv->second}));
+            }
+            if (!line.empty()) std::printf("  %-20s %s\n", std::string(group) == "error" ? str(e["label"]).c_str() : "", line.c_str());
+        }
     }
+    if (all_metrics) std::printf("%s", term_escape(metrics_text(r), true).c_str());
     for (const auto& e : r["estimators"])
         if (const std::string n = state_notes(e.value("state", json())); !n.empty())
             std::printf("  %-20s %s\n", str(e["label"]).c_str(), term_escape(n).c_str());

@@ -69,6 +69,7 @@ void install_cancel_handlers();
 std::string state_notes(const nlohmann::json& state);
 // " (95 % lo..hi)" for a [lo, hi] interval, "" for anything else.
 std::string interval_text(const nlohmann::json& interval);
-void print_run_summary(const nlohmann::json& report, const std::string& name);
+// all_metrics: also every metric of the table for every lane (--metrics).
+void print_run_summary(const nlohmann::json& report, const std::string& name, bool all_metrics = false);
 
 }  // namespace fringe::cli

@@ -90,9 +90,12 @@ std::vector<Finding> validate_run(const Scenario& sc, std::vector<std::unique_pt
         const std::string path = "limits[" + std::to_string(i) + "]";
         if (!find_metric(l.metric)) {
             std::string known;
-            for (const auto& m : metric_catalog()) known += (known.empty() ? "" : ", ") + m.name;
+            for (const auto& m : metric_catalog())
+                if (m.limitable) known += (known.empty() ? "" : ", ") + m.name;
             throw ConfigError(path + ".metric", "unknown metric '" + l.metric + "' (known: " + known + ", and harmonic_Nx_rad up to 64x)");
         }
+        if (!find_metric(l.metric)->limitable)
+            throw ConfigError(path + ".metric", "'" + l.metric + "' is a bound of the signal, not a figure of the estimator: a limit on it grades nothing");
         if (find_metric(l.metric)->run_level) {
             if (l.estimator != "*" && l.estimator != "run")
                 throw ConfigError(path + ".estimator", "'" + l.metric + "' is measured once for the run (alignment): leave estimator out or give \"run\"");

@@ -89,9 +89,7 @@ json scenario_schema() {
         num("min", "", nullptr, -kInf, kInf, "FAIL below (the metric's unit)"),
         num("marginal_fraction", "", 0.0, 0.0, 1.0, "MARGINAL within this fraction of |limit| on the passing side"),
     };
-    json metrics = json::array();
-    for (const auto& m : metric_catalog()) metrics.push_back({{"name", m.name}, {"unit", m.unit}, {"description", m.description}});
-    return {{"scenario", scenario}, {"encoder", encoder}, {"motion", motion}, {"limit", limit}, {"metrics", metrics}};
+    return {{"scenario", scenario}, {"encoder", encoder}, {"motion", motion}, {"limit", limit}, {"metrics", metric_table_json()}};
 }
 
 }  // namespace fringe

@@ -137,6 +137,12 @@ SweepResult sweep_result(const Sweep& s, const SweepRow& row, const json& rep) {
     for (const auto& c : s.columns) {
         std::optional<double> v;
         std::optional<std::pair<double, double>> iv;
+        if (const auto m = find_metric(c.metric); m && m->run_level) {  // the run's alignment, once
+            v = run_metric_value(c.metric, rep.value("alignment", json()));
+            res.values.push_back(v);
+            res.intervals.push_back(iv);
+            continue;
+        }
         for (const auto& e : rep.value("estimators", json::array()))
             if (e["label"] == c.estimator) {
                 v = metric_value(c.metric, e["metrics"], e["bounds"]);
@@ -284,7 +290,10 @@ std::string sweep_csv(const Sweep& s, const std::vector<SweepResult>& rs) {
 std::string sweep_markdown(const Sweep& s, const std::vector<SweepResult>& rs) {
     std::ostringstream o;
     o << "| row |";
-    for (const auto& c : s.columns) o << " " << c.estimator << " " << c.metric << " |";
+    for (const auto& c : s.columns) {
+        const auto m = find_metric(c.metric);
+        o << " " << c.estimator << " " << c.metric << (m && !m->unit.empty() ? " (" + m->unit + ")" : std::string()) << " |";
+    }
     for (const auto& n : s.reference_names) o << " " << n << " |";
     if (!s.reference_names.empty()) o << " measured / " << s.reference_names.front() << " |";
     o << "\n|---|";

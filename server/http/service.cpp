@@ -126,7 +126,7 @@ bool Service::is_heavy(const std::string& method, const std::string& target) {
         if (seg[2] == "captures" && seg[4] == "evaluate") return method == "POST";
         // The first read of a report parses and renders it (it can be hundreds of MB); later
         // reads come from the cache and stay on the I/O thread.
-        if (seg[2] == "runs" && (seg[4] == "report.json" || seg[4] == "report.xml" || seg[4] == "report.html" || seg[4] == "traces")) {
+        if (seg[2] == "runs" && (seg[4] == "report.json" || seg[4] == "report.xml" || seg[4] == "report.html" || seg[4] == "traces" || seg[4] == "metrics")) {
             if (method != "GET") return false;
             std::lock_guard<std::mutex> l(cache_mu_);
             return cache_.count(seg[3]) == 0;
@@ -319,7 +319,7 @@ HttpResponse Service::route(const HttpRequest& req, const std::string& path, con
             r.content_type = "text/event-stream";
             return r;
         }
-        if (what == "report.json" || what == "report.xml" || what == "report.html" || what == "traces") {
+        if (what == "report.json" || what == "report.xml" || what == "report.html" || what == "traces" || what == "metrics") {
             if (!get) return wrong_method("GET");
             return run_artifact(id, what, query);
         }
@@ -528,7 +528,8 @@ HttpResponse Service::get_run(const std::string& id) {
     j["links"] = {{"events", base + "/events"}, {"cancel", base + "/cancel"}};
     if (s->finished() && s->status != "interrupted")
         j["links"].update({{"report_json", base + "/report.json"}, {"report_xml", base + "/report.xml"},
-                           {"report_html", base + "/report.html"}, {"traces", base + "/traces"}});
+                           {"report_html", base + "/report.html"}, {"traces", base + "/traces"},
+                           {"metrics", base + "/metrics"}});
     return json_ok(j);
 }
 

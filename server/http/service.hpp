@@ -148,7 +148,7 @@ private:
     std::string capture_path(const std::string& id) const;  // "" if no such upload
 
     struct Cached {
-        std::string json, json_full, xml, html, traces;
+        std::string json, json_full, xml, html, traces, metrics;
     };
     std::shared_ptr<const Cached> cached_report(const std::string& id);
 

@@ -2,6 +2,7 @@
 // HTML, traces), kept in a small LRU cache, served as artifacts.
 #include "server/http/service_internal.hpp"
 
+#include "server/analysis/metrics.hpp"
 #include "server/report/report_formats.hpp"
 
 
@@ -41,6 +42,7 @@ std::shared_ptr<const Service::Cached> Service::cached_report(const std::string&
                                     {"harmonics", e.contains("metrics") ? e["metrics"].value("harmonics", json::array()) : json::array()},
                                     {"spectrum", e.value("spectrum", json())}});  // null in reports older than issue 11
     c->traces = dump_safe(tr);
+    c->metrics = public_text(dump_safe(report_metrics_json(*rep)));
     c->xml = public_text(junit_xml(*rep));
     c->html = public_text(report_html(*rep));
     std::lock_guard<std::mutex> l(cache_mu_);
@@ -67,6 +69,7 @@ HttpResponse Service::run_artifact(const std::string& id, const std::string& wha
     HttpResponse r;
     if (what == "report.json") r.body = query.count("traces") && query.at("traces") != "0" ? c->json_full : c->json;
     else if (what == "traces") r.body = c->traces;
+    else if (what == "metrics") r.body = c->metrics;
     else if (what == "report.xml") {
         r.content_type = "application/xml";
         r.body = c->xml;
@@ -77,7 +80,7 @@ HttpResponse Service::run_artifact(const std::string& id, const std::string& wha
         r.headers.emplace_back("Content-Security-Policy", "default-src 'none'; style-src 'unsafe-inline'; img-src data:");
     }
     if (query.count("download"))
-        r.headers.emplace_back("Content-Disposition", "attachment; filename=\"fringe-" + id + "-" + (what == "traces" ? "traces.json" : what) + "\"");
+        r.headers.emplace_back("Content-Disposition", "attachment; filename=\"fringe-" + id + "-" + (what == "traces" ? "traces.json" : what == "metrics" ? "metrics.json" : what) + "\"");
     return r;
 }
 

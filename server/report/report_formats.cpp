@@ -1,5 +1,7 @@
 #include "server/report/report_formats.hpp"
 
+#include "server/analysis/metrics.hpp"
+
 #include "signal_gen/base/text.hpp"
 #include "signal_gen/base/constants.hpp"
 
@@ -122,6 +124,12 @@ std::string junit_xml(const json& r) {
     // Preflight and convention warnings: what the verdict was reached under.
     for (const auto& w : r.value("warnings", json::array()))
         x << "      <property name=\"warning\" value=\"" << xml_escape(w.value("code", std::string()) + ": " + w.value("message", std::string())) << "\"/>\n";
+    // Every metric of the table, per lane: "value unit (95 % lo..hi)" or "not measured: why".
+    for (const auto& c : report_metrics(r)) {
+        std::string v = c.value ? num(json(*c.value)) + (c.info->unit.empty() ? "" : " " + c.info->unit) : "not measured: " + c.why;
+        if (c.interval_95) v += " (95 % " + interval(json::array({c.interval_95->first, c.interval_95->second})) + ")";
+        x << "      <property name=\"metric." << xml_escape(c.lane + "." + c.info->name) << "\" value=\"" << xml_escape(v) << "\"/>\n";
+    }
     x << "    </properties>\n";
     if (run_error)
         x << "    <testcase classname=\"" << xml_escape(name) << "\" name=\"run\"><error message=\""
@@ -632,12 +640,87 @@ std::string svg_bars(const json& estimators) {
 
 }  // namespace
 
+namespace {
+
+// A metric's value for people: 3 significant digits, its unit, its 95 % interval.
+std::string cell_text(const MetricCell& c, bool with_unit) {
+    if (!c.value) return "";
+    std::string s = fmt_num(*c.value);
+    if (with_unit && !c.info->unit.empty()) s += " " + c.info->unit;
+    return s;
+}
+std::string cell_interval(const MetricCell& c) {
+    if (!c.interval_95) return "";
+    return fmt_num(c.interval_95->first) + ".." + fmt_num(c.interval_95->second);
+}
+
+}  // namespace
+
+// The estimators' summary (the table's summary columns) and every metric of every lane.
+std::string metric_tables_html(const json& r) {
+    std::ostringstream h;
+    const auto cells = report_metrics(r);
+    std::vector<std::string> lanes;
+    for (const auto& e : r.value("estimators", json::array()))
+        lanes.push_back(e.is_object() && e.value("label", json()).is_string() ? e["label"].get<std::string>() : std::string("?"));
+    auto find = [&](const MetricInfo* m, const std::string& lane) -> const MetricCell* {
+        for (const auto& c : cells)
+            if (c.info->name == m->name && c.lane == lane) return &c;
+        return nullptr;
+    };
+    auto td = [&](const MetricCell* c, bool with_unit) {
+        std::string o = "<td class=\"num m-" + (c ? xml_escape(c->info->name) : std::string()) + "\"";
+        if (c && !c->value) return o + " title=\"" + xml_escape(c->why) + "\">not measured</td>";
+        o += ">" + (c ? xml_escape(cell_text(*c, with_unit)) : std::string());
+        if (c && c->interval_95) o += " <span class=\"iv\">(95 % " + cell_interval(*c) + ")</span>";
+        return o + "</td>";
+    };
+    h << "<h2>Estimators</h2><div class=\"table-wrap\"><table id=\"estimators\"><tr><th>estimator</th>";
+    for (const auto* m : summary_metrics())
+        h << "<th title=\"" << xml_escape(m->name + ": " + m->description) << "\">" << xml_escape(m->column)
+          << (m->unit.empty() ? std::string() : " (" + xml_escape(m->unit) + ")") << "</th>";
+    h << "</tr>\n";
+    for (const auto& l : lanes) {
+        h << "<tr><td>" << xml_escape(l) << "</td>";
+        for (const auto* m : summary_metrics()) h << td(find(m, l), false);
+        h << "</tr>\n";
+    }
+    h << "</table></div>\n<h2>All metrics</h2><div class=\"table-wrap\"><table id=\"metrics\"><tr><th>metric</th><th>unit</th>";
+    for (const auto& l : lanes) h << "<th>" << xml_escape(l) << "</th>";
+    h << "<th>run</th><th>meaning</th></tr>\n";
+    for (const auto& m : metric_catalog()) {
+        h << "<tr><td><code>" << xml_escape(m.name) << "</code></td><td>" << xml_escape(m.unit) << "</td>";
+        for (const auto& l : lanes) h << (m.run_level ? "<td></td>" : td(find(&m, l), false));
+        h << (m.run_level ? td(find(&m, "run"), false) : "<td></td>") << "<td>" << xml_escape(m.description) << "</td></tr>\n";
+    }
+    h << "</table></div>\n";
+    return h.str();
+}
+
+std::string metrics_text(const json& r) {
+    const auto cells = report_metrics(r);
+    std::vector<std::string> lanes;
+    for (const auto& c : cells)
+        if (std::find(lanes.begin(), lanes.end(), c.lane) == lanes.end()) lanes.push_back(c.lane);
+    std::ostringstream o;
+    for (const auto& l : lanes) {
+        o << l << ":\n";
+        for (const auto& c : cells) {
+            if (c.lane != l) continue;
+            char name[40];
+            std::snprintf(name, sizeof name, "  %-26s", c.info->name.c_str());
+            o << name << (c.value ? cell_text(c, true) : "not measured: " + c.why);
+            if (c.interval_95) o << " (95 % " << cell_interval(c) << ")";
+            o << "\n";
+        }
+    }
+    return o.str();
+}
+
 std::string report_html(const json& r) {
     std::ostringstream h;
     // Values for people: 3 significant digits (the JSON and JUnit keep every digit).
     auto num = [](const json& v) { return v.is_number() ? fmt_num(v.get<double>()) : std::string(); };
-    // A count that was not measured (an unscored estimator) reads "not scored", never "null".
-    auto count = [](const json& v) { return v.is_number() ? fmt_num(v.get<double>()) : std::string("not scored"); };
     const std::string name = r["scenario"].value("name", std::string("run"));
     const std::string verdict = r.value("verdict", std::string("ERROR"));
     h << "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><meta name=\"viewport\" content=\"width=device-width, initial-scale=1\"><title>fringe report " << xml_escape(name) << " "
@@ -676,22 +759,9 @@ std::string report_html(const json& r) {
           << xml_escape(m["outcome"].get<std::string>()) << "\">" << xml_escape(m["outcome"].get<std::string>())
           << (m.contains("reason") ? ": " + xml_escape(m["reason"].get<std::string>()) : std::string()) << "</td></tr>\n";
     }
-    h << "</table></div>\n<h2>Estimators</h2><div class=\"table-wrap\"><table id=\"estimators\"><tr><th>estimator</th><th>rms (rad)</th><th>max |e| (rad)</th><th>rms (% period)</th><th>rms (arcsec mech)</th>"
-      << "<th>slipped</th><th>scored samples</th><th>scored cycles</th><th>valid</th><th>per-sample CRB (rad)</th><th>PCRB (rad)</th><th>efficiency</th></tr>\n";
-    for (const auto& e : r["estimators"]) {
-        const auto& m = e["metrics"];
-        const auto& b = e["bounds"];
-        const json ev = m.value("evidence", json::object());
-        auto bget = [&](const char* k) { return b.is_object() && b.contains(k) ? num(b[k]) : std::string(); };
-        const std::string rms_iv = interval(m.value("uncertainty", json::object()).value("rms_rad", json()));
-        h << "<tr><td>" << xml_escape(e["label"].get<std::string>()) << "</td><td>" << num(sub(m, "rms", "rad"))
-          << (rms_iv.empty() ? std::string() : " <span class=\"iv\">(95 % " + rms_iv + ")</span>") << "</td><td>" << num(sub(m, "max_abs", "rad"))
-          << "</td><td>" << num(sub(m, "rms", "percent_period")) << "</td><td>" << num(sub(m, "rms", "arcsec_mech")) << "</td><td>" << count(m.value("slipped_samples", json()))
-          << "</td><td>" << count(ev.value("scored_samples", json())) << "</td><td>" << num(ev.value("scored_cycles", json()))
-          << "</td><td>" << (ev.value("valid_fraction", json()).is_number() ? num(100.0 * ev["valid_fraction"].get<double>()) + " %" : std::string())
-          << "</td><td>" << bget("per_sample_crb_rad") << "</td><td>" << bget("pcrb_rad") << "</td><td>" << bget("efficiency") << "</td></tr>\n";
-    }
-    h << "</table></div>\n<h2>Plots</h2><div class=\"plots\">\n";
+    h << "</table></div>\n";
+    h << metric_tables_html(r);
+    h << "<h2>Plots</h2><div class=\"plots\">\n";
     const json& tr = r.contains("traces") && r["traces"].is_object() ? r["traces"] : json::object();
     const bool envelope = tr.value("kind", std::string()) == "envelope";
     if (envelope ? tr["t_s"].empty() : (!tr.contains("t_s") || tr["t_s"].empty())) {

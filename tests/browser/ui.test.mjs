@@ -189,7 +189,15 @@ try {
   const evidence = await page.$$eval('#measurements tbody tr.evidence', (r) => r.map((x) => x.textContent));
   check(evidence.length >= 3 && evidence.some((t) => t.includes('scored_samples')) && evidence.some((t) => t.includes('valid_fraction')),
     `the report states its evidence beside the limits (${evidence.length} evidence rows)`);
-  check((await page.$$eval('#estimators th', (c) => c.map((x) => x.textContent))).includes('scored cycles'), 'the estimators table shows scored cycles');
+  const heads = await page.$$eval('#estimators th', (c) => c.map((x) => x.textContent));
+  check(heads.some((x) => x.startsWith('scored cycles')), `the estimators table shows scored cycles (${heads.join(' | ')})`);
+  { // Every metric of the server's table, with its unit, in the report's all-metrics table.
+  const table = await page.evaluate(() => fetch('/api/v1/schema').then((x) => x.json()).then((s) => s.metrics));
+  const rowsShown = await page.$$eval('#metrics tbody tr', (trs) => trs.map((tr) => [tr.dataset.metric, tr.querySelector('td.unit').textContent, tr.textContent]));
+  const missing = table.filter((m) => !rowsShown.some(([name, unit]) => name === m.name && unit === m.unit));
+  check(table.length > 40 && missing.length === 0, `all ${table.length} metrics of GET /schema with their units in #metrics (missing: ${missing.map((m) => m.name).join(', ')})`);
+  check(rowsShown.some(([name, , text]) => name === 'alignment_delay_s' && text.includes('not measured')), 'a metric the run could not measure reads "not measured"');
+  }
   await page.waitForFunction(() => document.querySelectorAll('#plots canvas').length >= 5);
   const ink = await inkedCanvases(page);
   check(ink.length >= 5 && ink.every((f) => f > 0.003), `all ${ink.length} plot canvases drew (inked fractions ${ink.map((f) => f.toFixed(3)).join(', ')})`);

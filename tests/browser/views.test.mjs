@@ -241,7 +241,7 @@ try {
     // Every error figure with its 95 % interval: the rms of each estimator, the limited values.
     const hivs = await p.$$eval('#harmonics tbody tr', (trs) => trs.map((tr) => tr.textContent));
     check(hivs.length >= 4 && hivs.every((t) => /\(95 % /.test(t)), `${at}: each fitted harmonic with its 95 % interval (${hivs.length} rows; ${hivs[0]})`);
-    const ivs = await p.$$eval('#estimators tbody td.rms', (tds) => tds.map((td) => td.textContent));
+    const ivs = await p.$$eval('#estimators tbody td.m-rms_rad', (tds) => tds.map((td) => td.textContent));
     check(ivs.length >= 1 && ivs.every((t) => /\(95 % [-0-9.e]+\.\.[-0-9.e]+\)/.test(t)) && rows.slice(0, nFail).every((r) => /\(95 % /.test(r.text)),
       `${at}: each rms and each limited value shows its 95 % interval (${ivs[0]})`);
     await p.screenshot({ path: join(artifacts, `views-report-${w}.png`), fullPage: true });

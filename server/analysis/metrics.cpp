@@ -1,0 +1,349 @@
+#include "server/analysis/metrics.hpp"
+
+#include <algorithm>
+#include <cstdlib>
+
+namespace fringe {
+
+using nlohmann::json;
+
+namespace {
+
+using Value = std::optional<double>;
+using Interval = std::optional<std::pair<double, double>>;
+
+Value none(std::string* why, const std::string& w) {
+    if (why) *why = w;
+    return std::nullopt;
+}
+Value number(const json& j, std::string* why, const std::string& w) {
+    if (j.is_number()) return j.get<double>();
+    return none(why, w);
+}
+const json& metrics_of(const json& entry) {
+    static const json null;
+    return entry.is_object() && entry.contains("metrics") ? entry["metrics"] : null;
+}
+const json& bounds_of(const json& entry) {
+    static const json null;
+    return entry.is_object() && entry.contains("bounds") ? entry["bounds"] : null;
+}
+json sub(const json& j, const char* k) { return j.is_object() ? j.value(k, json()) : json(); }
+
+// harmonic_<k>x_rad -> k (1..64), else 0
+int harmonic_order(const std::string& name) {
+    if (name.rfind("harmonic_", 0) != 0 || name.size() < 15 || name.compare(name.size() - 5, 5, "x_rad") != 0) return 0;
+    const std::string digits = name.substr(9, name.size() - 14);
+    if (digits.empty() || digits.size() > 2 || digits.find_first_not_of("0123456789") != std::string::npos || digits[0] == '0') return 0;
+    const int k = std::atoi(digits.c_str());
+    return k >= 1 && k <= 64 ? k : 0;
+}
+
+Interval pair_of(const json& j) {
+    if (!j.is_array() || j.size() != 2 || !j[0].is_number() || !j[1].is_number()) return std::nullopt;
+    return std::make_pair(j[0].get<double>(), j[1].get<double>());
+}
+json uncertainty_of(const json& entry) {
+    const json& m = metrics_of(entry);
+    return m.is_object() && m.value("uncertainty", json()).is_object() ? m["uncertainty"] : json();
+}
+
+// The error statistics: metrics.<stat>.<unit> (angle_units in scoring.cpp).
+std::function<Value(const json&, std::string*)> stat(const char* key, const char* unit) {
+    return [key, unit](const json& e, std::string* why) -> Value {
+        const json s = sub(metrics_of(e), key);
+        if (!s.is_object()) return metrics_of(e).is_object() ? none(why, "no scored samples") : none(why, "no metrics (the estimator was not scored)");
+        return number(s.value(unit, json()), why, "not defined for this encoder (mechanical units need lines per revolution)");
+    };
+}
+std::function<Value(const json&, std::string*)> field(std::vector<const char*> path, std::string missing) {
+    return [path, missing](const json& e, std::string* why) -> Value {
+        const json& m = metrics_of(e);
+        if (!m.is_object()) return none(why, "no metrics (the estimator was not scored)");
+        json j = m;
+        for (const char* k : path) j = sub(j, k);
+        return number(j, why, missing);
+    };
+}
+// The interval stored under uncertainty.<key>.
+std::function<Interval(const json&, double)> stored(const char* key) {
+    return [key](const json& e, double) { return pair_of(sub(uncertainty_of(e), key)); };
+}
+// The same figure as rms_rad in other units: its interval scales with it.
+Interval rms_scaled(const json& e, double value) {
+    const auto r = pair_of(sub(uncertainty_of(e), "rms_rad"));
+    const json rad = sub(sub(metrics_of(e), "rms"), "rad");
+    if (!r || !rad.is_number() || rad.get<double>() == 0) return std::nullopt;
+    const double k = value / rad.get<double>();
+    return std::make_pair(std::min(r->first * k, r->second * k), std::max(r->first * k, r->second * k));
+}
+
+Value alignment_value(const json& a, const char* key, std::string* why) {
+    if (!a.is_object())
+        return none(why, "the run has no alignment (only runs whose device plays and records on its own clock are aligned: docs/alignment.md)");
+    if (!a.value("ok", false))
+        return none(why, "the alignment failed: " + (a.value("error", json()).is_string() ? a["error"].get<std::string>() : std::string("not run")));
+    return number(a.value(key, json()), why, "not measured");
+}
+
+MetricInfo harmonic_metric(int k) {
+    MetricInfo m;
+    m.name = "harmonic_" + std::to_string(k) + "x_rad";
+    m.unit = "rad";
+    m.description = std::to_string(k) + "x harmonic of the error (amplitude)";
+    m.lanes = "every lane with truth, orders up to scoring.max_harmonic (16; at most 64)";
+    m.uncertainty = "normal law of the fitted amplitude, effective samples = scored / correlation time";
+    m.value = [k](const json& e, std::string* why) -> Value {
+        const json& mj = metrics_of(e);
+        if (!mj.is_object()) return none(why, "no metrics (the estimator was not scored)");
+        for (const auto& h : mj.value("harmonics", json::array()))
+            if (h.value("order", 0) == k) return number(sub(h.value("amplitude", json()), "rad"), why, "not fitted");
+        const json ha = mj.value("harmonic_analysis", json::object());
+        const std::string note = ha.is_object() && ha.value("note", json()).is_string() ? ha["note"].get<std::string>() : "";
+        return none(why, note.empty() ? "order " + std::to_string(k) + "x is above the orders fitted (scoring.max_harmonic)" : note);
+    };
+    m.interval = [k](const json& e, double) -> Interval {
+        for (const auto& h : sub(uncertainty_of(e), "harmonics").is_array() ? sub(uncertainty_of(e), "harmonics") : json::array())
+            if (h.value("order", 0) == k) return pair_of(h.value("amplitude_rad", json()));
+        return std::nullopt;
+    };
+    return m;
+}
+
+std::vector<MetricInfo> build_catalog() {
+    const std::string every = "every lane with truth";
+    const std::string no_iv = "none: an extreme value";
+    const std::string count = "none: an exact count";
+    auto M = [](std::string name, std::string unit, std::string desc, std::string lanes, std::string unc, std::string column,
+                std::function<Value(const json&, std::string*)> value, std::function<Interval(const json&, double)> interval = nullptr) {
+        MetricInfo m;
+        m.name = std::move(name);
+        m.unit = std::move(unit);
+        m.description = std::move(desc);
+        m.lanes = std::move(lanes);
+        m.uncertainty = std::move(unc);
+        m.column = std::move(column);
+        m.value = std::move(value);
+        m.interval = std::move(interval);
+        return m;
+    };
+    std::vector<MetricInfo> v = {
+        M("rms_rad", "rad", "rms phase error (electrical)", every,
+          "delta method on the mean square error, effective samples = scored / correlation time (docs/model.md \"Evidence\")", "rms",
+          stat("rms", "rad"), stored("rms_rad")),
+        M("std_rad", "rad", "phase error standard deviation", every, "chi-square, effective samples = scored / correlation time", "",
+          stat("std", "rad"), stored("std_rad")),
+        M("mean_rad", "rad", "mean phase error", every, "normal law, effective samples = scored / correlation time", "mean",
+          stat("mean", "rad"), stored("mean_rad")),
+        M("max_abs_rad", "rad", "largest |error|", every, no_iv, "max |e|", stat("max_abs", "rad")),
+        M("max_dev_rad", "rad", "largest |error - mean|", every, no_iv, "", stat("max_dev", "rad")),
+        M("rms_percent_period", "%", "rms error in % of a signal period", every, "rms_rad's, scaled", "",
+          stat("rms", "percent_period"), rms_scaled),
+        M("rms_arcsec_mech", "arcsec", "rms error, mechanical arcseconds", every + " of an encoder with lines per revolution",
+          "rms_rad's, scaled", "", stat("rms", "arcsec_mech"), rms_scaled),
+        M("max_abs_arcsec_mech", "arcsec", "largest |error|, mechanical arcseconds", every + " of an encoder with lines per revolution", no_iv,
+          "", stat("max_abs", "arcsec_mech")),
+        M("slipped_samples", "samples", "samples off by more than pi (cycle slips; evidence)", every, count, "slipped",
+          field({"slipped_samples"}, "no scored samples")),
+        M("invalid_after_settle", "samples", "samples flagged invalid after the settle time", every, count, "",
+          field({"invalid_after_settle"}, "not counted")),
+        M("omega_error_std_rad_s", "rad/s", "rate error standard deviation", "lanes with a rate estimate, on signals with rate truth", "none",
+          "", [](const json& e, std::string* why) -> Value {
+              const json& m = metrics_of(e);
+              if (!m.is_object()) return none(why, "no metrics (the estimator was not scored)");
+              if (m.contains("omega_nonfinite_samples")) return none(why, "the rate estimate was not finite on some scored samples");
+              if (!m.contains("omega_error")) return none(why, "no rate truth or no rate estimate");
+              return number(sub(m["omega_error"], "std_rad_s"), why, "no rate estimate");
+          }),
+        M("lock_time_s", "s", "time until the error stays within 0.1 rad", every, "none: a first-passage time", "lock time",
+          field({"lock_time_s"}, "never locked (the error did not stay within 0.1 rad to the end)")),
+        M("efficiency", "", "bound variance / mean squared error (1: at the Cramer-Rao bound)",
+          "lanes whose signal has a model to bound (docs/model.md \"Bounds\")", "rms_rad's, through efficiency = bound / rms^2", "efficiency",
+          [](const json& e, std::string* why) -> Value {
+              const json& b = bounds_of(e);
+              if (!b.is_object()) return none(why, "no bound (nothing scored, or no signal model)");
+              if (b.value("efficiency_not_credible", json()).is_string()) return none(why, b["efficiency_not_credible"].get<std::string>());
+              if (b.value("efficiency", json()).is_number()) return b["efficiency"].get<double>();
+              return none(why, "no efficiency: " + b.value("efficiency_against", std::string("no bound")));
+          },
+          [](const json& e, double value) -> Interval {
+              const auto r = pair_of(sub(uncertainty_of(e), "rms_rad"));
+              const json rms = sub(sub(metrics_of(e), "rms"), "rad");
+              if (!r || !rms.is_number() || r->first <= 0) return std::nullopt;
+              const double x = rms.get<double>();
+              return std::make_pair(value * (x / r->second) * (x / r->second), value * (x / r->first) * (x / r->first));
+          }),
+        M("per_sample_crb_rad", "rad", "Cramer-Rao bound of one sample's phase (a bound, not an error)",
+          "lanes whose signal has a model to bound", "none: computed from the model", "per-sample CRB",
+          [](const json& e, std::string* why) { return number(sub(bounds_of(e), "per_sample_crb_rad"), why, "no bound (nothing scored, or no signal model)"); }),
+        M("pcrb_rad", "rad", "posterior Cramer-Rao bound of a tracking estimator (a bound, not an error)",
+          "lanes whose signal has a model to bound", "none: computed from the model", "PCRB",
+          [](const json& e, std::string* why) { return number(sub(bounds_of(e), "pcrb_rad"), why, "no bound (nothing scored, or no signal model)"); }),
+        M("scored_samples", "samples", "valid samples after the settle time (evidence)", "every lane", count, "scored samples",
+          field({"evidence", "scored_samples"}, "not counted")),
+        M("scored_cycles", "cycles", "electrical cycles of truth under the scored samples (evidence)", "every lane", "none: counted from truth",
+          "scored cycles", field({"evidence", "scored_cycles"}, "not counted")),
+        M("valid_fraction", "", "valid share of the samples after the settle time (evidence)", "every lane", "none: an exact ratio", "valid",
+          field({"evidence", "valid_fraction"}, "no samples after the settle time")),
+        M("convention_violations", "findings", "output conventions broken: wrapped theta, degrees (evidence; docs/model.md)", every, count, "",
+          field({"convention_violations"}, "not checked (no truth to compare the output with)")),
+        M("harmonic_power_fraction", "", "share of the error variance in the fitted harmonics", every, "none", "",
+          field({"harmonic_analysis", "power_fraction"}, "harmonics not fitted")),
+        M("broadband_rms_rad", "rad", "rms error left after the fitted harmonics", every,
+          "chi-square, effective samples = scored / correlation time", "", field({"harmonic_analysis", "broadband_rms_rad"}, "harmonics not fitted"),
+          stored("broadband_rms_rad")),
+        M("abz_illegal_transitions", "transitions", "DUT ABZ readout: A and B changed together (docs/abz.md)",
+          "the dut lane of a capture with a/b lines", count, "", [](const json& e, std::string* why) -> Value {
+              const json abz = sub(metrics_of(e), "abz");
+              if (!abz.is_object()) return none(why, "only a DUT read out by ABZ has it (estimator \"dut\" on a capture with a/b lines)");
+              return number(abz.value("illegal_transitions", json()), why, "not counted");
+          }),
+        M("abz_index_errors", "pulses", "DUT ABZ readout: index pulses where the count was off (docs/abz.md)",
+          "the dut lane of a capture with a/b lines", count, "", [](const json& e, std::string* why) -> Value {
+              const json abz = sub(metrics_of(e), "abz");
+              if (!abz.is_object()) return none(why, "only a DUT read out by ABZ has it (estimator \"dut\" on a capture with a/b lines)");
+              return number(abz.value("index_errors", json()), why, "not counted");
+          }),
+    };
+    // The bounds describe the signal, not the estimator: a limit on them would grade nothing.
+    for (auto& m : v) {
+        if (m.name == "per_sample_crb_rad" || m.name == "pcrb_rad") m.limitable = false;
+        if (m.name == "per_sample_crb_rad" || m.name == "pcrb_rad" || m.name == "efficiency") m.group = "bound";
+        if (m.name == "scored_samples" || m.name == "scored_cycles" || m.name == "valid_fraction" || m.name == "slipped_samples" ||
+            m.name == "convention_violations" || m.name == "invalid_after_settle")
+            m.group = "evidence";
+    }
+    for (int k = 1; k <= 16; ++k) v.push_back(harmonic_metric(k));
+    // The run's truth alignment (output and input instruments on their own clocks).
+    const std::string aligned = "the run, once (estimator \"run\"), when its device plays and records on its own clock (docs/alignment.md)";
+    auto R = [&](std::string name, std::string unit, std::string desc, const char* key) {
+        MetricInfo m;
+        m.name = std::move(name);
+        m.unit = std::move(unit);
+        m.description = std::move(desc);
+        m.run_level = true;
+        m.lanes = aligned;
+        m.uncertainty = "none: a fit";
+        m.value = [key](const json& a, std::string* why) { return alignment_value(a, key, why); };
+        return m;
+    };
+    v.push_back(R("alignment_delay_s", "s", "delay from the record's start to the output's first sample (alignment)", "delay_s"));
+    v.push_back(R("clock_offset_ppm", "ppm", "generator clock relative to the digitizer's (alignment)", "clock_offset_ppm"));
+    v.push_back(R("alignment_residual", "", "alignment fit residual rms / recorded signal rms", "residual_relative"));
+    v.push_back(R("alignment_residual_rms_v", "V", "alignment fit residual rms", "residual_rms_v"));
+    return v;
+}
+
+}  // namespace
+
+const std::vector<MetricInfo>& metric_catalog() {
+    static const std::vector<MetricInfo> m = build_catalog();
+    return m;
+}
+
+std::optional<MetricInfo> find_metric(const std::string& name) {
+    for (const auto& m : metric_catalog())
+        if (m.name == name) return m;
+    if (const int k = harmonic_order(name)) return harmonic_metric(k);
+    return std::nullopt;
+}
+
+std::vector<const MetricInfo*> summary_metrics() {
+    std::vector<const MetricInfo*> out;
+    for (const auto& m : metric_catalog())
+        if (!m.column.empty()) out.push_back(&m);
+    return out;
+}
+
+std::optional<double> metric_value(const std::string& name, const json& metrics, const json& bounds, std::string* why) {
+    const auto m = find_metric(name);
+    if (!m || m->run_level) return none(why, "unknown metric");
+    if (!metrics.is_object()) return none(why, "no metrics (the estimator was not scored)");
+    return m->value(json{{"metrics", metrics}, {"bounds", bounds}}, why);
+}
+
+std::optional<double> run_metric_value(const std::string& name, const json& alignment, std::string* why) {
+    const auto m = find_metric(name);
+    if (!m || !m->run_level) return none(why, "unknown metric");
+    return m->value(alignment, why);
+}
+
+std::optional<std::pair<double, double>> metric_interval(const std::string& name, const json& metrics, double value) {
+    const auto m = find_metric(name);
+    if (!m || !m->interval || !metrics.is_object()) return std::nullopt;
+    return m->interval(json{{"metrics", metrics}}, value);
+}
+
+std::vector<MetricCell> report_metrics(const json& report) {
+    std::vector<MetricCell> out;
+    const json ests = report.is_object() && report.value("estimators", json()).is_array() ? report["estimators"] : json::array();
+    const json alignment = report.is_object() ? report.value("alignment", json()) : json();
+    for (const auto& info : metric_catalog()) {
+        if (info.run_level) {
+            MetricCell c{&info, "run", info.value(alignment, nullptr), std::nullopt, ""};
+            if (!c.value) info.value(alignment, &c.why);
+            out.push_back(std::move(c));
+            continue;
+        }
+        for (const auto& e : ests) {
+            MetricCell c{&info, e.is_object() && e.value("label", json()).is_string() ? e["label"].get<std::string>() : std::string("?"), {}, {}, ""};
+            c.value = info.value(e, &c.why);
+            if (c.value && info.interval) c.interval_95 = info.interval(e, *c.value);
+            out.push_back(std::move(c));
+        }
+    }
+    return out;
+}
+
+namespace {
+json info_json(const MetricInfo& m) {
+    json j{{"name", m.name}, {"unit", m.unit}, {"description", m.description}, {"lanes", m.lanes},
+           {"scope", m.run_level ? "run" : "estimator"}, {"limitable", m.limitable}, {"uncertainty", m.uncertainty}, {"group", m.group}};
+    if (!m.column.empty()) j["column"] = m.column;
+    return j;
+}
+}  // namespace
+
+json report_metrics_json(const json& report) {
+    json lanes = json::array();
+    for (const auto& e : report.is_object() ? report.value("estimators", json::array()) : json::array())
+        lanes.push_back(e.is_object() && e.value("label", json()).is_string() ? e["label"].get<std::string>() : std::string("?"));
+    lanes.push_back("run");
+    json metrics = json::array();
+    const auto cells = report_metrics(report);
+    for (const auto& m : metric_catalog()) {
+        json j = info_json(m);
+        j["values"] = json::object();
+        for (const auto& c : cells) {
+            if (c.info != &m) continue;
+            json v{{"value", c.value ? json(*c.value) : json()}};
+            if (c.interval_95) v["interval_95"] = json::array({c.interval_95->first, c.interval_95->second});
+            if (!c.value) v["why"] = c.why;
+            j["values"][c.lane] = std::move(v);
+        }
+        metrics.push_back(std::move(j));
+    }
+    return {{"lanes", lanes}, {"metrics", metrics}};
+}
+
+json metric_table_json() {
+    json out = json::array();
+    for (const auto& m : metric_catalog()) out.push_back(info_json(m));
+    return out;
+}
+
+std::string metric_table_markdown() {
+    auto cell = [](const std::string& s) {
+        std::string o;
+        for (char c : s) o += c == '|' ? std::string("\\|") : std::string(1, c);
+        return o;
+    };
+    std::string s = "| metric | unit | meaning | lanes | limit | 95 % interval |\n| --- | --- | --- | --- | --- | --- |\n";
+    for (const auto& m : metric_catalog())
+        s += "| `" + m.name + "` | " + (m.unit.empty() ? "1" : cell(m.unit)) + " | " + cell(m.description) + " | " + cell(m.lanes) + " | " +
+             (m.limitable ? "yes" : "no") + " | " + cell(m.uncertainty) + " |\n";
+    s += "\n`harmonic_Nx_rad` is accepted for any order N from 1 to 64 (fitted up to `scoring.max_harmonic`).\n";
+    return s;
+}
+
+}  // namespace fringe
