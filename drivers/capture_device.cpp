@@ -1,6 +1,6 @@
-// capture: replays a capture file as the input stream (the output is ignored); its truth
-// columns, when present, become the run's truth, and its digital a/b/z columns, when present,
-// the DUT's position (ABZ readout, docs/abz.md).
+// capture: replays a capture file as an input-only source (a ReplayPort: it has no output to
+// write to); its truth columns, when present, become the run's truth, and its digital a/b/z
+// columns, when present, the DUT's position (ABZ readout, docs/abz.md).
 #include "abz.hpp"
 #include "capture_file.hpp"
 #include "device.hpp"
@@ -16,7 +16,7 @@ namespace fringe::dev {
 
 namespace {
 
-class CaptureSource final : public Device {
+class CaptureSource final : public Device, public ReplayPort {
 public:
     CaptureSource(std::string uri, const std::string& path, const CaptureOptions& opts, const nlohmann::json& s)
         : uri_(std::move(uri)), reader_(path, opts), channels_(opts.channels) {
@@ -30,15 +30,16 @@ public:
             if (abz_cfg_.interpolation > 0) abz_.emplace(abz_cfg_);  // 0: the lines are left unread
         }
     }
-    DeviceInfo info() const override {
+    ReplayPort* replay() override { return this; }
+
+protected:
+    DeviceInfo describe() const override {
         DeviceInfo i;
         i.driver = "capture";
         i.uri = uri_;
         i.description = "replay of " + reader_.path();
         const auto& m = reader_.meta();  // a capture's metadata is not trusted to have the right types
         i.board_id = m.contains("board_id") && m["board_id"].is_string() ? m["board_id"].get<std::string>() : "capture";
-        i.streaming = true;
-        i.needs_output = false;
         i.settings = {{"path", reader_.path()}, {"has_truth", reader_.columns().theta_true}};
         for (const auto& [col, ch] : channels_) i.settings[col] = ch;
         if (abz_) {
@@ -50,12 +51,13 @@ public:
         }
         return i;
     }
+
+public:
     void start(double fs) override {
         const double file_fs = reader_.sample_rate_hz();
         if (file_fs > 0 && std::fabs(file_fs - fs) > 1e-9 * fs)
             throw DeviceError(uri_, "capture is at " + std::to_string(file_fs) + " Hz, the run at " + std::to_string(fs) + " Hz");
     }
-    StreamResult write(std::span<const double> s, std::span<const double>) override { return {StreamStatus::Ok, s.size(), 0, 0, {}}; }
     StreamResult read(std::span<double> s, std::span<double> c, int) override {
         StreamResult r;
         r.first_index = index_;
@@ -93,7 +95,6 @@ public:
         return true;
     }
     nlohmann::json dut_readout() const override { return abz_ ? abz_->to_json() : nlohmann::json(); }
-    void stop() override {}
 
 private:
     std::string uri_;

@@ -41,9 +41,35 @@ const char* to_string(StreamStatus s) {
     return "?";
 }
 
+std::vector<std::string> DeviceInfo::ports() const {
+    std::vector<std::string> p;
+    if (streaming) p.push_back("stream");
+    if (step_mode) p.push_back("step");
+    if (can_play) p.push_back("play");
+    if (can_record) p.push_back("record");
+    if (replay) p.push_back("replay");
+    return p;
+}
+
+DeviceInfo Device::info() const {
+    DeviceInfo i = describe();
+    // The ports are asked, not the driver's word: a flag cannot claim what the device lacks.
+    auto& self = const_cast<Device&>(*this);
+    i.streaming = self.stream() != nullptr;
+    i.step_mode = self.step() != nullptr;
+    PlayPort* play = self.player();
+    i.can_play = play != nullptr;
+    i.max_play_samples = play ? play->memory_samples() : 0;
+    i.can_record = self.recorder() != nullptr;
+    i.replay = self.replay() != nullptr;
+    return i;
+}
+
 void to_json(nlohmann::json& j, const DeviceInfo& d) {
+    // "streaming": frames arrive as a stream, live (a StreamPort) or replayed (a ReplayPort),
+    // as reports before the ports said; "ports" names each.
     j = {{"driver", d.driver}, {"uri", d.uri}, {"description", d.description}, {"board_id", d.board_id},
-         {"streaming", d.streaming}, {"step_mode", d.step_mode}, {"dut_position", d.dut_position},
+         {"streaming", d.streaming || d.replay}, {"step_mode", d.step_mode}, {"dut_position", d.dut_position}, {"ports", d.ports()},
          {"latency_samples", d.latency_samples}, {"settings", d.settings}, {"converter", d.converter}};
     if (d.can_play || d.can_record) {
         j["can_play"] = d.can_play;

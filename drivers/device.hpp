@@ -1,9 +1,11 @@
-// The Device interface (README "Bench drivers"): one interface for the
-// simulated loopback, capture replay, Modbus boards and USB streaming boards, opened by URI
+// The Device interface (README "Bench drivers"): one interface for the simulated loopback,
+// capture replay, Modbus boards, USB streaming boards and SCPI instruments, opened by URI
 // (`loopback:?adc_bits=12&noise_v=1e-4`, `capture:/path/x.fcap`, `modbus+tcp://...`,
-// `usb:1209:ec01`). Settings describe themselves. Configuration and control throw
-// DeviceError naming the device and the native cause; the stream path returns a status with
-// exact counts and never throws per block. Sample loss is never silent.
+// `usb:1209:ec01`) and asked for what it can do one capability port at a time (stream, step,
+// play, record, replay; docs/architecture.md "Device capabilities"): a capability it lacks is
+// a null port. Settings describe themselves. Configuration and control throw DeviceError
+// naming the device and the native cause; the stream path returns a status with exact counts
+// and never throws per block. Sample loss is never silent.
 #pragma once
 
 #include "signal_gen/base/params.hpp"
@@ -90,21 +92,27 @@ struct DeviceInfo {
     std::string uri;
     std::string description;
     std::string board_id;     // DUT / board identification for the run history
-    bool streaming = false;   // output/input streams
-    bool step_mode = false;   // static pair, settle, read back
+    // The capability ports the device has (Device::info fills them from the ports; a driver
+    // never sets them): stream(), step(), player(), recorder(), replay() not null.
+    bool streaming = false;   // StreamPort: output and input streams
+    bool step_mode = false;   // StepPort: static pair, settle, read back
+    bool can_play = false;    // PlayPort: a generator playing a block from its memory
+    bool can_record = false;  // RecordPort: a digitizer recording a block
+    bool replay = false;      // ReplayPort: an input-only source (capture replay)
+    // The device reads out a DUT's own position (a step's StepResult::dut_theta_rad, or a
+    // replay's ABZ lines): declared by the driver, which delivers it through those ports.
     bool dut_position = false;
-    bool needs_output = true; // false: an input-only source (capture replay)
     int latency_samples = 0;  // known input delay relative to the output, samples
     nlohmann::json settings = nlohmann::json::object();  // resolved settings
     ConverterInfo converter;
-    // Instrument mode (issue 14): a waveform generator plays whole channels from its memory
-    // (play), a digitizer or scope records a block (record). Such devices run on their own
-    // clocks with an unknown delay between output and input: the run engine aligns truth from
-    // the signals (server/align.*) before scoring. can_play: output instrument; can_record:
-    // input instrument; own_clock: output and input are not sample-locked (the engine must
-    // estimate delay, clock ratio, gain and offset).
-    bool can_play = false, can_record = false, own_clock = false;
-    std::size_t max_play_samples = 0;  // generator memory per channel (0: unlimited)
+    // Instrument mode (issue 14): such devices run on their own clocks with an unknown delay
+    // between output and input: the run engine aligns truth from the signals
+    // (server/analysis/align.*) before scoring. own_clock: output and input are not
+    // sample-locked (the engine must estimate delay, clock ratio, gain and offset).
+    bool own_clock = false;
+    std::size_t max_play_samples = 0;  // generator memory per channel (PlayPort::memory_samples; 0: unlimited)
+    // The ports' names, in a fixed order ("stream", "step", "play", "record", "replay").
+    std::vector<std::string> ports() const;
 };
 void to_json(nlohmann::json& j, const DeviceInfo& d);
 void to_json(nlohmann::json& j, const ConverterInfo& c);
@@ -114,16 +122,16 @@ struct StepResult {
     std::optional<double> dut_theta_rad; // the DUT's own interpolated position, if it has one
 };
 
-class Device {
+// ---- Capability ports -------------------------------------------------------------------
+// A device is asked for each capability it may have (Device::stream(), step(), player(),
+// recorder(), replay()); one it does not have is a null port, never a method that does
+// nothing or an error at call time. The run engine chooses its frame source from the ports
+// that exist (server/engine/frame_source.cpp).
+
+// Output and input streams at one sample rate, sample-locked (loopback, USB boards).
+class StreamPort {
 public:
-    virtual ~Device() = default;
-    virtual DeviceInfo info() const = 0;
-
-    // The run's cancel flag (may be null): a device that waits (retries, reconnects, settles)
-    // checks it and throws Cancelled. Devices that never wait long ignore it.
-    virtual void set_cancel(const std::atomic<bool>* cancel) { (void)cancel; }
-
-    // Streaming (DAC out, ADC in) at one sample rate. Throws DeviceError if unsupported.
+    virtual ~StreamPort() = default;
     virtual void start(double sample_rate_hz) = 0;
     // Queue output frames (V). Non-blocking for simulated devices.
     virtual StreamResult write(std::span<const double> sin_v, std::span<const double> cos_v) = 0;
@@ -133,43 +141,73 @@ public:
     // Read up to sin_v.size() input frames (V).
     virtual StreamResult read(std::span<double> sin_v, std::span<double> cos_v, int timeout_ms) = 0;
     virtual void stop() = 0;
+};
 
-    // Sources that carry truth (capture replay) fill theta/omega for the frames of the last
-    // read; others return false.
-    virtual bool last_truth(std::span<double> theta_rad, std::span<double> omega_rad_s) {
-        (void)theta_rad; (void)omega_rad_s;
-        return false;
-    }
-    // A DUT read out alongside the stream (ABZ lines in a capture, DeviceInfo::dut_position)
-    // fills its position (rad, NaN where it has none) for the frames of the last read; what
-    // the readout counted (edges, illegal transitions, index checks) is dut_readout().
-    virtual bool last_dut(std::span<double> theta_rad) {
-        (void)theta_rad;
-        return false;
-    }
-    virtual nlohmann::json dut_readout() const { return nullptr; }
+// Step mode (Modbus boards, loopback): set a static sin/cos pair, wait settle_s (< 0: the
+// device's own), read back averaged over `average` readings (<= 0: the device's own).
+class StepPort {
+public:
+    virtual ~StepPort() = default;
+    virtual StepResult measure(double sin_v, double cos_v, double settle_s, int average) = 0;
+};
 
-    // Instrument mode (DeviceInfo::can_play / can_record). play: upload both channels (V) at
-    // sample_rate_hz and start the output; cyclic repeats the block until stop_output, else it
-    // plays once. record: acquire up to sin_v.size() input frames at (nominally)
-    // sample_rate_hz, starting no later than the output started, waiting up to timeout_s; the
-    // result's frames/status/message as for read(). Both throw DeviceError when unsupported
-    // or when the instrument reports an error (naming its native error text).
-    virtual void play(std::span<const double> sin_v, std::span<const double> cos_v, double sample_rate_hz, bool cyclic) {
-        (void)sin_v; (void)cos_v; (void)sample_rate_hz; (void)cyclic;
-        throw DeviceError(info().uri, "playing a waveform from memory is not supported by this device");
-    }
-    virtual StreamResult record(std::span<double> sin_v, std::span<double> cos_v, double sample_rate_hz, double timeout_s) {
-        (void)sin_v; (void)cos_v; (void)sample_rate_hz; (void)timeout_s;
-        throw DeviceError(info().uri, "recording a block is not supported by this device");
-    }
-    virtual void stop_output() {}
+// A waveform generator: upload both channels (V) at sample_rate_hz and start the output;
+// cyclic repeats the block until stop_output, else it plays once. Throws DeviceError when
+// the instrument reports an error (naming its native error text).
+class PlayPort {
+public:
+    virtual ~PlayPort() = default;
+    virtual void play(std::span<const double> sin_v, std::span<const double> cos_v, double sample_rate_hz, bool cyclic) = 0;
+    virtual void stop_output() = 0;
+    virtual std::size_t memory_samples() const = 0;  // per channel; 0: unlimited
+};
 
-    // Step mode: set a static sin/cos pair, wait settle_s, read back (averaged).
-    virtual StepResult step(double sin_v, double cos_v, double settle_s, int average) {
-        (void)sin_v; (void)cos_v; (void)settle_s; (void)average;
-        throw DeviceError(info().uri, "step mode is not supported by this device");
-    }
+// A digitizer or scope: acquire up to sin_v.size() input frames at (nominally)
+// sample_rate_hz, starting no later than the output started, waiting up to timeout_s; the
+// result's frames/status/message as for StreamPort::read.
+class RecordPort {
+public:
+    virtual ~RecordPort() = default;
+    virtual StreamResult record(std::span<double> sin_v, std::span<double> cos_v, double sample_rate_hz, double timeout_s) = 0;
+};
+
+// An input-only source (capture replay): frames with the truth they carry.
+class ReplayPort {
+public:
+    virtual ~ReplayPort() = default;
+    // Checks the source against the run's sample rate (throws DeviceError on a mismatch).
+    virtual void start(double sample_rate_hz) = 0;
+    // Up to sin_v.size() frames; 0 frames with status Ok is the source's end.
+    virtual StreamResult read(std::span<double> sin_v, std::span<double> cos_v, int timeout_ms) = 0;
+    // The truth of the frames of the last read; false when the source carries none.
+    virtual bool last_truth(std::span<double> theta_rad, std::span<double> omega_rad_s) = 0;
+    // The DUT's position (rad, NaN where it has none) for the frames of the last read, from a
+    // DUT read out alongside (ABZ lines in a capture, DeviceInfo::dut_position); false when
+    // the source has none. What the readout counted (edges, illegal transitions, index
+    // checks) is dut_readout(), null without one.
+    virtual bool last_dut(std::span<double> theta_rad) = 0;
+    virtual nlohmann::json dut_readout() const = 0;
+};
+
+class Device {
+public:
+    virtual ~Device() = default;
+    // What the driver describes (describe()), with the capability flags set from the ports.
+    DeviceInfo info() const;
+
+    // The run's cancel flag (may be null): a device that waits (retries, reconnects, settles)
+    // checks it and throws Cancelled. Devices that never wait long ignore it.
+    virtual void set_cancel(const std::atomic<bool>* cancel) { (void)cancel; }
+
+    // The capability ports; null where the device does not have the capability.
+    virtual StreamPort* stream() { return nullptr; }
+    virtual StepPort* step() { return nullptr; }
+    virtual PlayPort* player() { return nullptr; }
+    virtual RecordPort* recorder() { return nullptr; }
+    virtual ReplayPort* replay() { return nullptr; }
+
+protected:
+    virtual DeviceInfo describe() const = 0;
 
 private:
     friend std::unique_ptr<Device> open(const std::string& uri);

@@ -49,7 +49,9 @@ struct Biquad {
     }
 };
 
-class Loopback final : public Device {
+// Without own_clock a stream and a step port; with it a generator and a digitizer (play and
+// record ports) and nothing else.
+class Loopback final : public Device, public StreamPort, public StepPort, public PlayPort, public RecordPort {
 public:
     Loopback(std::string uri, const nlohmann::json& s) : uri_(std::move(uri)), s_(s) {
         const double range = s.at("range_v").get<double>();
@@ -93,21 +95,22 @@ public:
         if (adc_.ideal()) return v;
         return adc_.min_v + Quantizer::clamp_code(std::nearbyint((v - adc_.min_v) * adc_.inv_step()), adc_.max_code()) * adc_.step_v();
     }
-    DeviceInfo info() const override {
+    StreamPort* stream() override { return own_clock_ ? nullptr : this; }
+    StepPort* step() override { return own_clock_ ? nullptr : this; }
+    PlayPort* player() override { return own_clock_ ? this : nullptr; }
+    RecordPort* recorder() override { return own_clock_ ? this : nullptr; }
+
+    DeviceInfo describe() const override {
         DeviceInfo i;
         i.driver = "loopback";
         i.uri = uri_;
         i.description = "simulated DAC -> filters -> noise -> ADC";
         i.board_id = "loopback";
-        i.streaming = true;
-        i.step_mode = true;
         i.latency_samples = latency_;
         i.settings = s_;
         if (own_clock_) {
             i.description = "simulated generator and digitizer on separate clocks: delay, clock offset, gain, offset, noise, DAC and ADC";
-            i.streaming = i.step_mode = false;
-            i.can_play = i.can_record = i.own_clock = true;
-            i.max_play_samples = max_play_;
+            i.own_clock = true;
             i.latency_samples = 0;
         }
         i.converter.known = true;
@@ -146,7 +149,6 @@ public:
         return i;
     }
     void start(double fs) override {
-        if (own_clock_) throw DeviceError(uri_, "an own_clock loopback is a generator and a digitizer: it plays and records blocks, it does not stream");
         if (!(fs > 0)) throw DeviceError(uri_, "sample rate must be positive");
         fs_ = fs;
         for (int ch = 0; ch < 2; ++ch) {
@@ -225,9 +227,8 @@ public:
         return r;
     }
     void stop() override { running_ = false; }
-    StepResult step(double s, double c, double settle_s, int average) override {
+    StepResult measure(double s, double c, double settle_s, int average) override {
         // Static pair: the filters settle (run settle_s of samples), then average ADC reads.
-        if (own_clock_) throw DeviceError(uri_, "step mode is not simulated with own_clock=1");
         if (!running_) start(fs_ > 0 ? fs_ : 100e3);
         const auto settle = static_cast<std::size_t>(std::ceil(std::max(settle_s, 0.0) * fs_)) + static_cast<std::size_t>(latency_);
         const std::size_t n = settle + static_cast<std::size_t>(std::max(average, 1));
@@ -247,7 +248,6 @@ public:
     }
 
     void play(std::span<const double> s, std::span<const double> c, double fs, bool cyclic) override {
-        if (!own_clock_) Device::play(s, c, fs, cyclic);
         if (s.size() != c.size() || s.empty()) throw DeviceError(uri_, "play: sin and cos must have the same, non-zero length");
         if (!(fs > 0)) throw DeviceError(uri_, "play: sample rate must be positive");
         if (max_play_ > 0 && s.size() > max_play_)
@@ -260,7 +260,6 @@ public:
         cyclic_ = cyclic;
     }
     StreamResult record(std::span<double> s, std::span<double> c, double fs, double) override {
-        if (!own_clock_) return Device::record(s, c, fs, 0);
         if (played_[0].empty())
             throw DeviceError(uri_, "record: nothing was played on this loopback (its output and input are one instance: "
                                     "give the same URI as device.output and device.input)");
@@ -286,7 +285,9 @@ public:
         }
         return {StreamStatus::Ok, n, 0, 0, {}};
     }
+    // The emulated generator's memory holds the block; nothing runs on after a record.
     void stop_output() override {}
+    std::size_t memory_samples() const override { return max_play_; }
 
 private:
     // Band-limited value of the played codes at generator sample position u (0 V before the

@@ -49,7 +49,7 @@ bool exception_reply(int e) { return e >= EMBXILFUN && e <= EMBXGTAR; }
 // Steps the run engine reads per block (server/engine/frame_source.cpp): the block deadline's unit.
 constexpr int kBlockSteps = 16;
 
-class ModbusDevice final : public Device {
+class ModbusDevice final : public Device, public StepPort {
 public:
     ModbusDevice(const std::string& uri, const std::string& scheme, const std::string& path, const nlohmann::json& s)
         : uri_(uri), rtu_(scheme == "modbus+rtu") {
@@ -129,14 +129,15 @@ public:
         }
     }
 
-    DeviceInfo info() const override {
+    // Step mode only: a Modbus board has no streams, no generator memory and no digitizer.
+    StepPort* step() override { return this; }
+
+    DeviceInfo describe() const override {
         DeviceInfo i;
         i.driver = "modbus";
         i.uri = uri_;
         i.description = board_.description.empty() ? "Modbus board " + board_.name : board_.description;
         i.board_id = board_.name + "@" + endpoint_ + "#" + std::to_string(unit_);
-        i.streaming = false;
-        i.step_mode = true;
         i.dut_position = board_.has_dut_position();
         i.settings = {{"board", board_.name}, {"unit", unit_}, {"timeout_ms", timeout_ms_}, {"retries", retries_},
                       {"settle_s", settle_s_}, {"average", average_}, {"board_profile", board_.path}};
@@ -162,16 +163,7 @@ public:
         return i;
     }
 
-    void start(double) override {}
-    StreamResult write(std::span<const double>, std::span<const double>) override {
-        return {StreamStatus::Error, 0, 0, 0, "a Modbus board has no output stream: run it in step mode"};
-    }
-    StreamResult read(std::span<double>, std::span<double>, int) override {
-        return {StreamStatus::Error, 0, 0, 0, "a Modbus board has no input stream: run it in step mode"};
-    }
-    void stop() override {}
-
-    StepResult step(double sin_v, double cos_v, double settle_s, int average) override {
+    StepResult measure(double sin_v, double cos_v, double settle_s, int average) override {
         if (settle_s < 0) settle_s = settle_s_;
         if (average <= 0) average = average_;
         // The block deadline: a block of 16 steps may take what its requests would if every one

@@ -86,7 +86,9 @@ class ScpiInstrument;
 std::mutex g_armed_mu;
 std::vector<ScpiInstrument*> g_armed;
 
-class ScpiInstrument final : public Device {
+// A generator model has a play port, a digitizer model a record port, a Red Pitaya both;
+// none streams or steps.
+class ScpiInstrument final : public Device, public PlayPort, public RecordPort {
 public:
     ScpiInstrument(const std::string& uri, const std::string& scheme, const std::string& path, const nlohmann::json& s) : uri_(uri) {
         const Params p(s);
@@ -153,18 +155,16 @@ public:
         return s;
     }
 
-    DeviceInfo info() const override {
+    PlayPort* player() override { return model_->generator ? this : nullptr; }
+    RecordPort* recorder() override { return model_->digitizer ? this : nullptr; }
+
+    DeviceInfo describe() const override {
         DeviceInfo i;
         i.driver = "scpi";
         i.uri = uri_;
         i.description = model_->summary + " at " + endpoint_ + " (" + idn_ + ")";
         i.board_id = idn_;
-        i.streaming = i.step_mode = false;
-        i.needs_output = model_->generator;
-        i.can_play = model_->generator;
-        i.can_record = model_->digitizer;
         i.own_clock = true;
-        i.max_play_samples = model_->generator ? memory_ : 0;
         i.settings = {{"model", model_->name}, {"timeout_s", timeout_s_}, {"start", start_}, {"trigger", trigger_},
                       {"pretrigger_samples", pretrigger_}, {"memory_samples", memory_}, {"idn", idn_}};
         i.converter.known = false;
@@ -173,18 +173,8 @@ public:
         return i;
     }
 
-    void start(double) override { throw DeviceError(uri_, "a SCPI instrument plays and records blocks (instrument mode); it does not stream"); }
-    StreamResult write(std::span<const double>, std::span<const double>) override {
-        return {StreamStatus::Error, 0, 0, 0, "a SCPI instrument has no output stream: it plays a block from memory (play)"};
-    }
-    StreamResult read(std::span<double>, std::span<double>, int) override {
-        return {StreamStatus::Error, 0, 0, 0, "a SCPI instrument has no input stream: it records a block (record)"};
-    }
-    void stop() override { stop_output(); }
-
     // ---- generator ----
     void play(std::span<const double> s, std::span<const double> c, double fs, bool cyclic) override {
-        if (!model_->generator) Device::play(s, c, fs, cyclic);
         if (s.size() != c.size() || s.size() < 2) throw DeviceError(uri_, "play needs two channels of equal length (at least 2 samples)");
         if (memory_ && s.size() > memory_)
             throw DeviceError(uri_, std::to_string(s.size()) + " samples per channel exceed the generator's memory of " + std::to_string(memory_) +
@@ -232,9 +222,11 @@ public:
         }
     }
 
+    std::size_t memory_samples() const override { return memory_; }
+
     void stop_output() override {
         disarm();
-        if (!playing_ || !model_->generator) return;
+        if (!playing_) return;
         playing_ = false;
         switch (model_->family) {
             case Family::Keysight: io_->command("OUTP1 OFF"); io_->command("OUTP2 OFF"); break;
@@ -258,7 +250,6 @@ public:
 
     // ---- digitizer ----
     StreamResult record(std::span<double> s, std::span<double> c, double fs, double timeout_s) override {
-        if (!model_->digitizer) return Device::record(s, c, fs, timeout_s);
         if (s.size() != c.size() || s.empty()) throw DeviceError(uri_, "record needs two channel buffers of equal, non-zero length");
         try {
             return model_->family == Family::RedPitaya ? record_redpitaya(s, c, fs, timeout_s) : record_scope(s, c, fs, timeout_s);

@@ -27,7 +27,7 @@ using clk = std::chrono::steady_clock;
 
 std::string usb_err(int rc) { return std::string(libusb_error_name(rc)) + " (" + libusb_strerror(static_cast<libusb_error>(rc)) + ")"; }
 
-class UsbDevice final : public Device {
+class UsbDevice final : public Device, public StreamPort {
 public:
     UsbDevice(const std::string& uri, const std::string& path, const nlohmann::json& s) : uri_(uri) {
         const Params p(s);
@@ -102,16 +102,22 @@ public:
         if (ctx_) libusb_exit(ctx_);
     }
 
-    DeviceInfo info() const override {
+    // Streams only: no step mode, no generator memory, no block recording.
+    StreamPort* stream() override { return this; }
+
+    DeviceInfo describe() const override {
         DeviceInfo i;
         i.driver = "usb";
         i.uri = uri_;
         i.description = name_ + " (USB " + vidpid_ + ", " + std::to_string(info_.adc_bits) + "-bit ADC, " + std::to_string(info_.dac_bits) + "-bit DAC)";
         i.board_id = name_ + "#" + serial_;
-        i.streaming = true;
-        i.dut_position = (info_.flags & 1) != 0;
+        // A board whose IN frames carry DUT words (docs/usb-protocol.md) does not declare a DUT
+        // position: the stream port delivers the sin/cos pairs only, and a "dut" lane would
+        // have nothing to score. board_dut_words in settings says what the board sends.
+        i.dut_position = false;
         i.settings = {{"serial", serial_}, {"transfers", transfers_}, {"frame_samples", frame_samples_ ? frame_samples_ : frame_samples_setting_}, {"timeout_ms", timeout_ms_},
-                      {"adc_bits", info_.adc_bits}, {"dac_bits", info_.dac_bits}, {"range_v", range_v_}, {"max_rate_hz", info_.max_rate_hz}};
+                      {"adc_bits", info_.adc_bits}, {"dac_bits", info_.dac_bits}, {"range_v", range_v_}, {"max_rate_hz", info_.max_rate_hz},
+                      {"board_dut_words", (info_.flags & 1) != 0}};
         i.converter.known = true;
         i.converter.adc_bits = info_.adc_bits;
         i.converter.dac_bits = info_.dac_bits;

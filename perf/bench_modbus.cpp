@@ -68,7 +68,7 @@ int main(int argc, char** argv) {
         const auto t0 = clk::now();
         while (clk::now() - t0 < std::chrono::duration<double>(s)) {
             const double th = 0.01 * static_cast<double>(n);
-            dev->step(std::sin(th), std::cos(th), 0.0, 1);
+            dev->step()->measure(std::sin(th), std::cos(th), 0.0, 1);
             ++n;
         }
         return static_cast<double>(n) / std::chrono::duration<double>(clk::now() - t0).count();

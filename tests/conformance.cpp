@@ -1,8 +1,8 @@
 // Driver conformance (libiio's habit): the same tests against every driver that can run in
 // CI, selected by FRINGE_TEST_URI (tests/conformance.sh sets up each backend: loopback,
 // capture, modbus over TCP and over RTU against board-sim). Every device must describe
-// itself, reject unknown settings by name, refuse what it cannot do loudly (an error, not
-// silence), and carry a known signal through what it can do.
+// itself, reject unknown settings by name, have a null port for each capability it lacks
+// (never a port that does nothing), and carry a known signal through each port it has.
 #include "drivers/device.hpp"
 #include "signal_gen/base/config.hpp"
 #include "signal_gen/base/constants.hpp"
@@ -47,7 +47,7 @@ TEST_CASE("conformance: the device describes itself", "[conformance]") {
     CHECK_FALSE(i.driver.empty());
     CHECK(i.uri == uri());
     CHECK_FALSE(i.board_id.empty());
-    CHECK((i.streaming || i.step_mode || i.can_play || i.can_record));
+    CHECK_FALSE(i.ports().empty());
     CHECK(i.latency_samples >= 0);
     bool listed = false;
     for (const auto& drv : drivers()) listed |= uri().rfind(drv.scheme + ":", 0) == 0 && !drv.summary.empty();
@@ -58,76 +58,88 @@ TEST_CASE("conformance: unknown settings are errors naming the key", "[conforman
     CHECK_THROWS_WITH(open(with_setting(uri(), "no_such_setting=1")), Catch::Contains("device.no_such_setting"));
 }
 
-TEST_CASE("conformance: what the device cannot do fails loudly", "[conformance]") {
+TEST_CASE("conformance: the capabilities it reports are its ports", "[conformance]") {
     auto d = open(uri());
     const auto i = d->info();
-    if (!i.step_mode) CHECK_THROWS_AS(d->step(0.1, 0.2, 0.0, 1), DeviceError);
-    std::vector<double> a(64, 0.1), b(64, 0.2);
-    if (!i.can_play) CHECK_THROWS_AS(d->play(a, b, 1000.0, true), DeviceError);
-    if (!i.can_record) CHECK_THROWS_AS(d->record(a, b, 1000.0, 0.1), DeviceError);
-    if (!i.streaming) {
-        std::vector<double> s(8, 0.1), c(8, 0.2);
-        CHECK(d->write(s, c).status == StreamStatus::Error);
-        CHECK(d->read(s, c, 10).status == StreamStatus::Error);
-    }
+    CHECK(i.streaming == (d->stream() != nullptr));
+    CHECK(i.step_mode == (d->step() != nullptr));
+    CHECK(i.can_play == (d->player() != nullptr));
+    CHECK(i.can_record == (d->recorder() != nullptr));
+    CHECK(i.replay == (d->replay() != nullptr));
+    // A replay is an input-only source: nothing to write to, nothing to step.
+    if (d->replay()) CHECK((d->stream() == nullptr && d->step() == nullptr && d->player() == nullptr));
+    const nlohmann::json j = i;
+    CHECK(j.at("ports") == nlohmann::json(i.ports()));
 }
 
 TEST_CASE("conformance: a known signal goes through", "[conformance]") {
     INFO(uri());
     auto d = open(uri());
     const auto i = d->info();
-    if (i.streaming) {
+    if (StreamPort* st = d->stream()) {  // a loop: what was written comes back (after the declared latency)
         const std::size_t n = 4000;
         std::vector<double> s(n), c(n), rs(n), rc(n);
         for (std::size_t k = 0; k < n; ++k) {
             s[k] = 0.9 * std::sin(2 * kPi * static_cast<double>(k) / 200.0);
             c[k] = 0.9 * std::cos(2 * kPi * static_cast<double>(k) / 200.0);
         }
-        d->start(100000.0);
-        if (i.needs_output) {
-            REQUIRE(d->write(s, c).status == StreamStatus::Ok);
-            d->end_of_output();
-        }
+        st->start(100000.0);
+        REQUIRE(st->write(s, c).status == StreamStatus::Ok);
+        st->end_of_output();
         std::size_t got = 0;
-        bool truth = false;
-        std::vector<double> th(n), om(n);
         while (got < n) {
-            const auto r = d->read(std::span(rs).subspan(got), std::span(rc).subspan(got), 1000);
+            const auto r = st->read(std::span(rs).subspan(got), std::span(rc).subspan(got), 1000);
             REQUIRE(r.status == StreamStatus::Ok);
             REQUIRE(r.dropped == 0);
-            if (r.frames == 0) break;  // end of a capture
-            truth = d->last_truth(std::span(th).subspan(got, r.frames), std::span(om).subspan(got, r.frames));
+            REQUIRE(r.frames > 0);
             got += r.frames;
         }
-        d->stop();
-        REQUIRE(got > 0);
+        st->stop();
         double amp2 = 0;
         for (std::size_t k = 0; k < got; ++k) {
             REQUIRE(std::isfinite(rs[k]));
             REQUIRE(std::isfinite(rc[k]));
             amp2 += rs[k] * rs[k] + rc[k] * rc[k];
         }
-        const double amp = std::sqrt(amp2 / static_cast<double>(got));
-        CHECK(amp > 0.05);
-        if (i.needs_output) {  // a loop: what was written comes back (after the declared latency)
-            const std::size_t lat = static_cast<std::size_t>(i.latency_samples);
-            double emax = 0;
-            for (std::size_t k = lat + 50; k < got; ++k)
-                emax = std::max(emax, std::fabs(std::remainder(std::atan2(rs[k], rc[k]) - std::atan2(s[k - lat], c[k - lat]), 2 * kPi)));
-            CHECK(emax < 0.05);
-        } else {  // a source: it also carries truth, and the samples follow it
-            REQUIRE(truth);
-            double emax = 0;
-            for (std::size_t k = 0; k < got; ++k) emax = std::max(emax, std::fabs(std::remainder(std::atan2(rs[k], rc[k]) - th[k], 2 * kPi)));
-            CHECK(emax < 0.1);  // within what any encoder's harmonics allow
-        }
+        CHECK(std::sqrt(amp2 / static_cast<double>(got)) > 0.05);
+        const std::size_t lat = static_cast<std::size_t>(i.latency_samples);
+        double emax = 0;
+        for (std::size_t k = lat + 50; k < got; ++k)
+            emax = std::max(emax, std::fabs(std::remainder(std::atan2(rs[k], rc[k]) - std::atan2(s[k - lat], c[k - lat]), 2 * kPi)));
+        CHECK(emax < 0.05);
     }
-    if (i.step_mode) {
+    if (ReplayPort* rp = d->replay()) {  // a source: it carries truth, and the samples follow it
+        const std::size_t n = 4000;
+        std::vector<double> rs(n), rc(n), th(n), om(n);
+        rp->start(100000.0);
+        std::size_t got = 0;
+        bool truth = false;
+        while (got < n) {
+            const auto r = rp->read(std::span(rs).subspan(got), std::span(rc).subspan(got), 1000);
+            REQUIRE(r.status == StreamStatus::Ok);
+            REQUIRE(r.dropped == 0);
+            if (r.frames == 0) break;  // end of the capture
+            truth = rp->last_truth(std::span(th).subspan(got, r.frames), std::span(om).subspan(got, r.frames));
+            got += r.frames;
+        }
+        REQUIRE(got > 0);
+        REQUIRE(truth);
+        double amp2 = 0, emax = 0;
+        for (std::size_t k = 0; k < got; ++k) {
+            REQUIRE(std::isfinite(rs[k]));
+            REQUIRE(std::isfinite(rc[k]));
+            amp2 += rs[k] * rs[k] + rc[k] * rc[k];
+            emax = std::max(emax, std::fabs(std::remainder(std::atan2(rs[k], rc[k]) - th[k], 2 * kPi)));
+        }
+        CHECK(std::sqrt(amp2 / static_cast<double>(got)) > 0.05);
+        CHECK(emax < 0.1);  // within what any encoder's harmonics allow
+    }
+    if (StepPort* sp = d->step()) {
         // A circle of static pairs: the readback's angle (or the DUT's position) follows within 1e-3 rad.
         double emax = 0;
         for (int k = 0; k < 32; ++k) {
             const double th = 2 * kPi * k / 32.0;
-            const auto r = d->step(0.8 * std::sin(th), 0.8 * std::cos(th), 0.002, 1);  // 2 ms: simulated filters settle
+            const auto r = sp->measure(0.8 * std::sin(th), 0.8 * std::cos(th), 0.002, 1);  // 2 ms: simulated filters settle
             const double got = r.dut_theta_rad ? *r.dut_theta_rad : std::atan2(r.sin_v, r.cos_v);
             emax = std::max(emax, std::fabs(std::remainder(got - th, 2 * kPi)));
             CHECK(std::hypot(r.sin_v, r.cos_v) == Approx(0.8).margin(0.01));
@@ -190,11 +202,13 @@ TEST_CASE("conformance: an instrument pair delivers the played signal delayed an
     const std::size_t P = static_cast<std::size_t>(di.settings.at("pretrigger_samples").get<long long>());
     std::vector<double> s, c;
     test_signal(s, c);
-    p.gen->play(s, c, kFs, true);
+    REQUIRE(p.gen->player());
+    REQUIRE(p.dig->recorder());
+    p.gen->player()->play(s, c, kFs, true);
     const std::size_t M = 4000;
     std::vector<double> rs(M), rc(M);
-    const auto r = p.dig->record(rs, rc, kFs, 10.0);
-    p.gen->stop_output();
+    const auto r = p.dig->recorder()->record(rs, rc, kFs, 10.0);
+    p.gen->player()->stop_output();
     INFO(r.message);
     REQUIRE(r.status == StreamStatus::Ok);
     REQUIRE(r.frames == M);
@@ -225,7 +239,7 @@ TEST_CASE("conformance: an instrument's own error (error queue) is named in the 
     s[1] = 0.2;
     c[1] = -0.2;
     try {
-        g->play(s, c, kFs, true);
+        g->player()->play(s, c, kFs, true);
         FAIL("an upload beyond the instrument's memory was accepted");
     } catch (const DeviceError& e) {
         INFO(e.what());
@@ -236,8 +250,8 @@ TEST_CASE("conformance: an instrument's own error (error queue) is named in the 
     // The error queue was drained: the next command works.
     std::vector<double> s2, c2;
     test_signal(s2, c2);
-    CHECK_NOTHROW(g->play(s2, c2, kFs, true));
-    g->stop_output();
+    CHECK_NOTHROW(g->player()->play(s2, c2, kFs, true));
+    g->player()->stop_output();
 }
 
 TEST_CASE("conformance: a silent instrument is a timeout naming the command", "[conformance]") {
@@ -251,7 +265,7 @@ TEST_CASE("conformance: a silent instrument is a timeout naming the command", "[
     test_signal(s, c);
     const auto t0 = std::chrono::steady_clock::now();
     try {
-        g->play(s, c, kFs, true);
+        g->player()->play(s, c, kFs, true);
         FAIL("play on a silent instrument returned");
     } catch (const DeviceError& e) {
         INFO(e.what());
@@ -270,12 +284,12 @@ TEST_CASE("conformance: an instrument gone mid-run is a clear error", "[conforma
     auto g = open(with_setting(gone, "timeout_s=2"));
     std::vector<double> s, c;
     test_signal(s, c);
-    g->play(s, c, kFs, true);
+    g->player()->play(s, c, kFs, true);
     REQUIRE(::kill(static_cast<pid_t>(std::stol(env("FRINGE_TEST_GONE_PID"))), SIGKILL) == 0);
     std::this_thread::sleep_for(std::chrono::milliseconds(200));
     const auto t0 = std::chrono::steady_clock::now();
     try {
-        g->play(s, c, kFs, true);
+        g->player()->play(s, c, kFs, true);
         FAIL("play on a killed instrument returned");
     } catch (const DeviceError& e) {
         INFO(e.what());

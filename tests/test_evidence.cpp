@@ -213,7 +213,7 @@ TEST_CASE("bounds: the device's quantisation and noise are in the bound", "[evid
     CHECK(b1["efficiency"].get<double>() < 1.25);
     // the loopback's anti-alias filter narrows its analog noise: sum of h^2 of the filter
     auto d = dev::open("loopback:?noise_v=1e-3&aa_cutoff_hz=10000&aa_order=1&dac_bits=0&adc_bits=0");
-    d->start(100000);
+    d->stream()->start(100000);
     const double k = std::tan(kPi * 10000 / 100000.0), a = (1 - k) / (1 + k);
     // 1st-order bilinear low-pass: h[0] = b, h[n] = b(1+a) a^(n-1)... sum h^2 = b^2 (1 + (1+a)^2/(1-a^2))
     const double bb = k / (1 + k), gain2 = bb * bb * (1 + (1 + a) * (1 + a) / (1 - a * a));

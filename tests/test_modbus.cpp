@@ -140,13 +140,17 @@ TEST_CASE("modbus: the driver against board-sim over TCP", "[modbus][socket]") {
         CHECK_FALSE(info.dut_position);
         const double lsb = 2.5 / 65536;
         for (double th = 0; th < 2 * kPi; th += 0.7) {
-            const auto r = dev->step(std::sin(th), std::cos(th), 0.0, 1);
+            const auto r = dev->step()->measure(std::sin(th), std::cos(th), 0.0, 1);
             // DAC register (1.25/32768 V) then a 16-bit ADC over +-1.25 V: within 1 LSB each
             CHECK(std::fabs(r.sin_v - std::sin(th)) <= 1.01 * lsb);
             CHECK(std::fabs(r.cos_v - std::cos(th)) <= 1.01 * lsb);
             CHECK_FALSE(r.dut_theta_rad);
         }
-        CHECK(dev->write(std::vector<double>{1.0}, std::vector<double>{1.0}).status == StreamStatus::Error);
+        // Step mode only: no stream port to write to, no generator, no digitizer, no replay.
+        CHECK(dev->stream() == nullptr);
+        CHECK(dev->player() == nullptr);
+        CHECK(dev->recorder() == nullptr);
+        CHECK(dev->replay() == nullptr);
     }
     SECTION("averaging reduces the ADC noise by sqrt(N)") {
         BoardSimOptions o;
@@ -158,7 +162,7 @@ TEST_CASE("modbus: the driver against board-sim over TCP", "[modbus][socket]") {
             double s2 = 0;
             const int n = 200;
             for (int i = 0; i < n; ++i) {
-                const double d = dev->step(0.3, -0.2, 0.0, avg).sin_v - 0.3;
+                const double d = dev->step()->measure(0.3, -0.2, 0.0, avg).sin_v - 0.3;
                 s2 += d * d;
             }
             return std::sqrt(s2 / n);
@@ -178,7 +182,7 @@ TEST_CASE("modbus: the driver against board-sim over TCP", "[modbus][socket]") {
         double last = 0;
         for (int k = 0; k <= 128; ++k) {
             const double th = 2 * kPi * k / 64.0;
-            const auto r = dev->step(std::sin(th), std::cos(th), 0.0, 1);
+            const auto r = dev->step()->measure(std::sin(th), std::cos(th), 0.0, 1);
             REQUIRE(r.dut_theta_rad);
             // f32 drive registers and a 1/65536-period fraction: within 2*pi/65536
             CHECK(std::fabs(*r.dut_theta_rad - th) < 2 * kPi / 65536 * 1.01);
@@ -196,7 +200,7 @@ TEST_CASE("modbus: the driver against board-sim over TCP", "[modbus][socket]") {
         double emax = 0;
         for (int k = 0; k < 64; ++k) {
             const double th = 2 * kPi * k / 64.0;
-            const auto r = dev->step(std::sin(th), std::cos(th), 0.0, 1);
+            const auto r = dev->step()->measure(std::sin(th), std::cos(th), 0.0, 1);
             emax = std::max(emax, std::fabs(std::remainder(*r.dut_theta_rad - th, 2 * kPi)));
         }
         CHECK(emax == Approx(0.01).epsilon(0.02));
@@ -207,8 +211,8 @@ TEST_CASE("modbus: the driver against board-sim over TCP", "[modbus][socket]") {
         SimThread sim(o);
         auto dev = open(sim.uri("board=generic-aio&settle_s=0&retries=5"));
         // request 1 write, 2 read, 3 write -> exception
-        CHECK_NOTHROW(dev->step(0.1, 0.2, 0.0, 1));
-        CHECK_THROWS_WITH(dev->step(0.1, 0.2, 0.0, 1),
+        CHECK_NOTHROW(dev->step()->measure(0.1, 0.2, 0.0, 1));
+        CHECK_THROWS_WITH(dev->step()->measure(0.1, 0.2, 0.0, 1),
                           Catch::Contains("board generic-aio") && Catch::Contains("write sin_out,cos_out @0") &&
                               Catch::Contains("Slave device or server failure"));
     }
@@ -218,7 +222,7 @@ TEST_CASE("modbus: the driver against board-sim over TCP", "[modbus][socket]") {
         SimThread sim(o);
         auto dev = open(sim.uri("board=generic-aio&settle_s=0&timeout_ms=20&retries=1"));
         const auto t0 = std::chrono::steady_clock::now();
-        CHECK_THROWS_WITH(dev->step(0.1, 0.2, 0.0, 1), Catch::Contains("timed out") && Catch::Contains("after 2 attempts"));
+        CHECK_THROWS_WITH(dev->step()->measure(0.1, 0.2, 0.0, 1), Catch::Contains("timed out") && Catch::Contains("after 2 attempts"));
         CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(2));
     }
     SECTION("a board that goes away mid-run is a device error naming it") {
@@ -229,7 +233,7 @@ TEST_CASE("modbus: the driver against board-sim over TCP", "[modbus][socket]") {
         int ok = 0;
         try {
             for (int i = 0; i < 100; ++i) {
-                dev->step(0.1, 0.2, 0.0, 1);
+                dev->step()->measure(0.1, 0.2, 0.0, 1);
                 ++ok;
             }
             FAIL("no error after the board dropped");
@@ -338,12 +342,12 @@ TEST_CASE("modbus: LabJack T7 profile against board-sim (checks, offset to mid-s
         CHECK(c.dac_range_v == Approx(2.5));
         CHECK(c.note.find("sin_out 12 bits over 0..5 V") != std::string::npos);
         for (double th = 0; th < 2 * kPi; th += 0.7) {
-            const auto r = dev->step(1.1 * std::sin(th), 1.1 * std::cos(th), 0.0, 1);
+            const auto r = dev->step()->measure(1.1 * std::sin(th), 1.1 * std::cos(th), 0.0, 1);
             CHECK(r.sin_v == Approx(1.1 * std::sin(th)).margin(1e-6));  // f32 registers at 2.5 V +- 1.1 V
             CHECK(r.cos_v == Approx(1.1 * std::cos(th)).margin(1e-6));
         }
         // 2.6 V of signal needs 5.1 V from a 0..5 V DAC: an error, not a clipped step.
-        CHECK_THROWS_WITH(dev->step(2.6, 0.0, 0.0, 1), Catch::Contains("sin_out = 2.6 V needs 5.1") && Catch::Contains("outside its range 0..5"));
+        CHECK_THROWS_WITH(dev->step()->measure(2.6, 0.0, 0.0, 1), Catch::Contains("sin_out = 2.6 V needs 5.1") && Catch::Contains("outside its range 0..5"));
     }
     SECTION("the wrong word order fails at open, naming the check and the swap") {
         auto j = json::parse(std::ifstream(boards_dir() + "/labjack-t7.json"));
@@ -394,7 +398,7 @@ TEST_CASE("modbus faults: a reply 50 ms past the timeout is discarded and the re
     for (int k = 0; k < 6; ++k) {
         const double s = 0.1 * k - 0.2, c = 0.3 - 0.05 * k;
         StepResult r;
-        REQUIRE_NOTHROW(r = dev->step(s, c, 0.0, 1));
+        REQUIRE_NOTHROW(r = dev->step()->measure(s, c, 0.0, 1));
         // the late reply (to an abandoned request) is never taken for a later one's answer
         CHECK(r.sin_v == Approx(s).margin(1e-4));
         CHECK(r.cos_v == Approx(c).margin(1e-4));
@@ -407,7 +411,7 @@ TEST_CASE("modbus faults: a reply trickled a byte every 400 ms ends within (retr
     SimThread sim(o);
     auto dev = open(sim.uri("board=generic-aio&settle_s=0&timeout_ms=300&retries=1"));
     const auto t0 = std::chrono::steady_clock::now();
-    CHECK_THROWS_WITH(dev->step(0.1, 0.2, 0.0, 1), Catch::Contains("write sin_out,cos_out @0") && Catch::Contains("timed out") && Catch::Contains("after 2 attempts"));
+    CHECK_THROWS_WITH(dev->step()->measure(0.1, 0.2, 0.0, 1), Catch::Contains("write sin_out,cos_out @0") && Catch::Contains("timed out") && Catch::Contains("after 2 attempts"));
     const double took = since_s(t0);
     CHECK(took < 0.6 + 0.3);  // 2 x 300 ms, and the reconnect
     CHECK(took > 0.5);
@@ -420,13 +424,13 @@ TEST_CASE("modbus faults: a cancel is seen while a frozen board is retried", "[m
     auto dev = open(sim.uri("board=generic-aio&settle_s=0&timeout_ms=300&retries=20"));
     std::atomic<bool> cancel{false};
     dev->set_cancel(&cancel);
-    CHECK_NOTHROW(dev->step(0.1, 0.2, 0.0, 1));
+    CHECK_NOTHROW(dev->step()->measure(0.1, 0.2, 0.0, 1));
     std::thread t([&] {
         std::this_thread::sleep_for(std::chrono::milliseconds(500));
         cancel = true;
     });
     const auto t0 = std::chrono::steady_clock::now();
-    CHECK_THROWS_AS(dev->step(0.1, 0.2, 0.0, 1), Cancelled);
+    CHECK_THROWS_AS(dev->step()->measure(0.1, 0.2, 0.0, 1), Cancelled);
     const double took = since_s(t0);
     t.join();
     CHECK(took < 0.5 + 0.3 + 0.1);  // within one attempt's timeout of the cancel (21 x 300 ms without it)
@@ -444,7 +448,7 @@ TEST_CASE("modbus faults: a board restarted on its port is reconnected with back
         const double s = 0.1 * k + 0.05, c = -0.2;
         StepResult r;
         const auto t0 = std::chrono::steady_clock::now();
-        REQUIRE_NOTHROW(r = dev->step(s, c, 0.0, 1));
+        REQUIRE_NOTHROW(r = dev->step()->measure(s, c, 0.0, 1));
         // the restarted board lost its drive registers: a reading of them would be 0
         CHECK(r.sin_v == Approx(s).margin(1e-4));
         CHECK(r.cos_v == Approx(c).margin(1e-4));
@@ -461,7 +465,7 @@ TEST_CASE("modbus faults: a NaN after good readings names the reading and the re
     auto dev = open(sim.uri("board=labjack-t7&settle_s=0"));
     int ok = 0;
     try {
-        for (int k = 0; k < 100; ++k, ++ok) dev->step(0.5, 0.5, 0.0, 1);
+        for (int k = 0; k < 100; ++k, ++ok) dev->step()->measure(0.5, 0.5, 0.0, 1);
         FAIL("no error");
     } catch (const DeviceError& e) {
         const std::string m = e.what();
@@ -512,7 +516,7 @@ TEST_CASE("modbus faults: a step that fails keeps every step measured before it 
         { auto d = open(a.uri("board=dut-interpolator&settle_s=0")); }
         {
             auto d = open(b.uri("board=dut-interpolator&settle_s=0"));
-            for (int k = 0; k < 10; ++k) d->step(0.1, 0.2, 0.0, 1);
+            for (int k = 0; k < 10; ++k) d->step()->measure(0.1, 0.2, 0.0, 1);
         }
         at_open = a.finish();
         per_step = (b.finish() - at_open) / 10;

@@ -45,10 +45,10 @@ TEST_CASE("loopback: transparent when ideal, exact latency, quantised on the ADC
     auto s = sine(1000, 1000, fs, 1.0), c = sine(1000, 1000, fs, 1.0, kPi / 2);
     {
         auto d = dev::open("loopback:?dac_bits=0&adc_bits=0&latency_samples=7");
-        d->start(fs);
-        d->write(s, c);
+        d->stream()->start(fs);
+        d->stream()->write(s, c);
         std::vector<double> rs(1007), rc(1007);
-        const auto r = d->read(rs, rc, 0);
+        const auto r = d->stream()->read(rs, rc, 0);
         REQUIRE(r.status == dev::StreamStatus::Ok);
         REQUIRE(r.frames == 1007);
         for (int k = 0; k < 7; ++k) CHECK(rs[k] == 0.0);
@@ -57,10 +57,10 @@ TEST_CASE("loopback: transparent when ideal, exact latency, quantised on the ADC
     }
     {
         auto d = dev::open("loopback:?dac_bits=0&adc_bits=10&range_v=1.25&noise_lsb=0");
-        d->start(fs);
-        d->write(s, c);
+        d->stream()->start(fs);
+        d->stream()->write(s, c);
         std::vector<double> rs(1000), rc(1000);
-        d->read(rs, rc, 0);
+        d->stream()->read(rs, rc, 0);
         const double q = 2.5 / 1024;
         for (std::size_t k = 0; k < 1000; ++k) {
             const double code = (rs[k] + 1.25) / q;
@@ -72,26 +72,26 @@ TEST_CASE("loopback: transparent when ideal, exact latency, quantised on the ADC
 
 TEST_CASE("loopback: a slower DAC holds each code until its next update", "[device][loopback]") {
     auto d = dev::open("loopback:?dac_bits=0&adc_bits=0&dac_rate_hz=25000");
-    d->start(1e5);
+    d->stream()->start(1e5);
     auto s = sine(400, 1000, 1e5, 1.0), c = sine(400, 1000, 1e5, 1.0, kPi / 2);
-    d->write(s, c);
+    d->stream()->write(s, c);
     std::vector<double> rs(400), rc(400);
-    REQUIRE(d->read(rs, rc, 0).frames == 400);
+    REQUIRE(d->stream()->read(rs, rc, 0).frames == 400);
     for (std::size_t k = 0; k < 400; ++k) REQUIRE(rs[k] == s[4 * (k / 4)]);
     auto bad = dev::open("loopback:?dac_rate_hz=2e5");
-    CHECK_THROWS_WITH(bad->start(1e5), Catch::Contains("dac_rate_hz"));
+    CHECK_THROWS_WITH(bad->stream()->start(1e5), Catch::Contains("dac_rate_hz"));
 }
 
 TEST_CASE("loopback: anti-alias filter phase and gain match the analog Butterworth response", "[device][loopback]") {
     const double fs = 1e5, fc = 5000, f = 1000;
     const int order = GENERATE(1, 2);
     auto d = dev::open("loopback:?dac_bits=0&adc_bits=0&aa_cutoff_hz=5000&aa_order=" + std::to_string(order));
-    d->start(fs);
+    d->stream()->start(fs);
     const std::size_t n = 20000;
     auto s = sine(n, f, fs, 1.0), c = sine(n, f, fs, 1.0, kPi / 2);
-    d->write(s, c);
+    d->stream()->write(s, c);
     std::vector<double> rs(n), rc(n);
-    d->read(rs, rc, 0);
+    d->stream()->read(rs, rc, 0);
     // Fit a*sin + b*cos over the settled second half.
     double ss = 0, sc = 0, cc = 0, ys = 0, yc = 0;
     for (std::size_t i = n / 2; i < n; ++i) {
@@ -110,21 +110,21 @@ TEST_CASE("loopback: anti-alias filter phase and gain match the analog Butterwor
 
 TEST_CASE("loopback: injected faults are reported with exact counts", "[device][loopback][faults]") {
     auto d = dev::open("loopback:?drop_after=1000&drop_count=37&stall_after=3000");
-    d->start(1e5);
+    d->stream()->start(1e5);
     std::vector<double> z(4000, 0.0), rs(4000), rc(4000);
-    d->write(z, z);
-    auto r = d->read(std::span(rs).first(1000), std::span(rc).first(1000), 0);
+    d->stream()->write(z, z);
+    auto r = d->stream()->read(std::span(rs).first(1000), std::span(rc).first(1000), 0);
     CHECK(r.status == dev::StreamStatus::Ok);
     CHECK(r.frames == 1000);
-    r = d->read(std::span(rs).first(500), std::span(rc).first(500), 0);
+    r = d->stream()->read(std::span(rs).first(500), std::span(rc).first(500), 0);
     CHECK(r.status == dev::StreamStatus::Overflow);
     CHECK(r.dropped == 37);
     CHECK(r.first_index == 1037);
-    r = d->read(rs, rc, 0);  // up to the stall point (3000 delivered)
+    r = d->stream()->read(rs, rc, 0);  // up to the stall point (3000 delivered)
     CHECK(r.status == dev::StreamStatus::Ok);
     CHECK(r.frames == 2000);
     CHECK(r.first_index == 1037);
-    r = d->read(rs, rc, 0);
+    r = d->stream()->read(rs, rc, 0);
     CHECK(r.status == dev::StreamStatus::Timeout);
     CHECK_THROWS_WITH(dev::open("loopback:?adc_bitz=3"), Catch::Contains("device.adc_bitz") && Catch::Contains("unknown"));
     CHECK_THROWS_WITH(dev::open("loopback:?adc_bits=99"), Catch::Contains("device.adc_bits"));

@@ -35,7 +35,7 @@ struct Stream {
 
 // Writes everything, one block ahead of what it reads back (a real-time board must never run
 // dry); returns the first non-Ok status (or Ok with all frames).
-StreamResult loop(Device& d, const Stream& in, std::vector<double>& rs, std::vector<double>& rc, std::size_t block = 8192) {
+StreamResult loop(StreamPort& d, const Stream& in, std::vector<double>& rs, std::vector<double>& rc, std::size_t block = 8192) {
     rs.assign(in.s.size(), 0);
     rc.assign(in.s.size(), 0);
     std::size_t got = 0, put = 0;
@@ -62,22 +62,25 @@ TEST_CASE("usb: the emulated board identifies itself and selects by serial", "[u
     const auto i = d->info();
     CHECK(i.driver == "usb");
     CHECK(i.streaming);
+    // The ports docs/architecture.md lists for usb ("Device capabilities"): streams only.
+    CHECK(i.ports() == std::vector<std::string>{"stream"});
+    CHECK((d->step() == nullptr && d->player() == nullptr && d->recorder() == nullptr && d->replay() == nullptr));
     CHECK(i.board_id == "fringe-usb-sim#B0042");
     CHECK(open("usb:1209:ec01?serial=B0042")->info().board_id == "fringe-usb-sim#B0042");
     CHECK_THROWS_WITH(open("usb:1209:ec01?serial=NOPE"), Catch::Contains("no fringe USB board 1209:ec01 with serial NOPE"));
     CHECK_THROWS_WITH(open("usb:dead:beef"), Catch::Contains("no fringe USB board dead:beef"));
     CHECK_THROWS_WITH(open("usb:xyz"), Catch::Contains("usb:VID:PID"));
-    CHECK_THROWS_AS(d->start(50e6), DeviceError);  // beyond max_rate_hz
+    CHECK_THROWS_AS(d->stream()->start(50e6), DeviceError);  // beyond max_rate_hz
 }
 
 TEST_CASE("usb: a streamed loopback returns what was written, in order", "[usb]") {
     UsbEmulator emu(parse_usb_emulator_options("adc_bits=16"));
     auto d = open("usb:1209:ec01?transfers=16");
-    d->start(200000.0);
+    d->stream()->start(200000.0);
     Stream in(60000);
     std::vector<double> rs, rc;
-    const auto r = loop(*d, in, rs, rc);
-    d->stop();
+    const auto r = loop(*d->stream(), in, rs, rc);
+    d->stream()->stop();
     REQUIRE(r.status == StreamStatus::Ok);
     double emax = 0;
     for (std::size_t k = 0; k < in.s.size(); ++k) emax = std::max({emax, std::fabs(rs[k] - in.s[k]), std::fabs(rc[k] - in.c[k])});
@@ -90,20 +93,20 @@ TEST_CASE("usb: a streamed loopback returns what was written, in order", "[usb]"
 TEST_CASE("usb: a paced board waits for a host that pauses, and loses nothing", "[usb]") {
     UsbEmulator emu(parse_usb_emulator_options("clock=paced"));
     auto d = open("usb:1209:ec01?frame_samples=500&transfers=2");
-    d->start(100000.0);
+    d->stream()->start(100000.0);
     Stream in(8000);
-    REQUIRE(d->write(in.s, in.c).status == StreamStatus::Ok);
-    d->end_of_output();
+    REQUIRE(d->stream()->write(in.s, in.c).status == StreamStatus::Ok);
+    d->stream()->end_of_output();
     // On the real-time clock this pause loses frames (the test above); paced, the board waits.
     std::this_thread::sleep_for(std::chrono::milliseconds(300));
     std::vector<double> rs(8000), rc(8000);
     std::size_t got = 0;
     while (got < 8000) {
-        const auto r = d->read(std::span(rs).subspan(got), std::span(rc).subspan(got), 1000);
+        const auto r = d->stream()->read(std::span(rs).subspan(got), std::span(rc).subspan(got), 1000);
         REQUIRE(r.status == StreamStatus::Ok);
         got += r.frames;
     }
-    d->stop();
+    d->stream()->stop();
     CHECK(rs[7999] == Approx(in.s[7999]).margin(1.25 / 32768));
     const auto st = emu.status();
     CHECK(st.in_dropped == 0);
@@ -120,11 +123,11 @@ TEST_CASE("usb: the emulator's clock is named, and a wrong name is refused", "[u
 TEST_CASE("usb: frames the board drops are counted exactly", "[usb]") {
     UsbEmulator emu(parse_usb_emulator_options("drop_at=5,drop_count=3"));
     auto d = open("usb:1209:ec01?frame_samples=1000");
-    d->start(200000.0);
+    d->stream()->start(200000.0);
     Stream in(40000);
     std::vector<double> rs, rc;
-    const auto r = loop(*d, in, rs, rc);
-    d->stop();
+    const auto r = loop(*d->stream(), in, rs, rc);
+    d->stream()->stop();
     REQUIRE(r.status == StreamStatus::Overflow);
     CHECK(r.dropped == 3000);   // 3 frames of 1000 sample pairs
     CHECK(r.first_index == 5000);
@@ -134,18 +137,18 @@ TEST_CASE("usb: frames the board drops are counted exactly", "[usb]") {
 TEST_CASE("usb: a host that does not keep up loses frames, and knows how many", "[usb]") {
     UsbEmulator emu(parse_usb_emulator_options("clock=realtime"));
     auto d = open("usb:1209:ec01?frame_samples=500&transfers=2");
-    d->start(100000.0);
+    d->stream()->start(100000.0);
     Stream in(8000);  // 16 frames: the board's FIFO holds them all
-    REQUIRE(d->write(in.s, in.c).status == StreamStatus::Ok);
+    REQUIRE(d->stream()->write(in.s, in.c).status == StreamStatus::Ok);
     // ~60 frames due, 2 transfers waiting (longer when the board's clock is slowed down)
     std::this_thread::sleep_for(std::chrono::duration<double>(0.3 / UsbEmulatorOptions::default_time_scale()));
     std::vector<double> rs(100000), rc(100000);
     StreamResult r;
     for (int i = 0; i < 50; ++i) {
-        r = d->read(rs, rc, 200);
+        r = d->stream()->read(rs, rc, 200);
         if (r.status != StreamStatus::Ok) break;
     }
-    d->stop();
+    d->stream()->stop();
     CHECK(r.status == StreamStatus::Overflow);
     CHECK(r.dropped > 0);
     CHECK(r.dropped % 500 == 0);
@@ -155,18 +158,18 @@ TEST_CASE("usb: a host that does not keep up loses frames, and knows how many", 
 TEST_CASE("usb: running out of DAC samples is an underflow", "[usb]") {
     UsbEmulator emu(parse_usb_emulator_options("clock=realtime"));
     auto d = open("usb:1209:ec01?frame_samples=1000");
-    d->start(100000.0);
+    d->stream()->start(100000.0);
     Stream in(2000);
-    REQUIRE(d->write(in.s, in.c).status == StreamStatus::Ok);  // two whole frames, then nothing
+    REQUIRE(d->stream()->write(in.s, in.c).status == StreamStatus::Ok);  // two whole frames, then nothing
     std::vector<double> rs(5000), rc(5000);
     StreamResult r;
     std::size_t got = 0;
     for (int i = 0; i < 10; ++i) {
-        r = d->read(rs, rc, 500);
+        r = d->stream()->read(rs, rc, 500);
         if (r.status != StreamStatus::Ok) break;
         got += r.frames;
     }
-    d->stop();
+    d->stream()->stop();
     CHECK(got == 2000);  // what was written came back first
     CHECK(r.status == StreamStatus::Underflow);
     CHECK(emu.status().underflows >= 1);
@@ -177,22 +180,22 @@ TEST_CASE("usb: stall, silence and unplug are errors, unplug within 1 s", "[usb]
     SECTION("stall") {
         UsbEmulator emu(parse_usb_emulator_options("stall_after=4"));
         auto d = open("usb:1209:ec01?frame_samples=1000");
-        d->start(100000.0);
-        const auto r = loop(*d, Stream(20000), rs, rc);
+        d->stream()->start(100000.0);
+        const auto r = loop(*d->stream(), Stream(20000), rs, rc);
         CHECK(r.status == StreamStatus::Error);
         CHECK(r.message == "stall on IN endpoint 0x81");
     }
     SECTION("the board goes silent") {
         UsbEmulator emu(parse_usb_emulator_options("silent_after=3"));
         auto d = open("usb:1209:ec01?frame_samples=1000&timeout_ms=200");
-        d->start(100000.0);
-        const auto r = loop(*d, Stream(20000), rs, rc);
+        d->stream()->start(100000.0);
+        const auto r = loop(*d->stream(), Stream(20000), rs, rc);
         CHECK((r.status == StreamStatus::Timeout));
     }
     SECTION("unplugged mid-stream") {
         UsbEmulator emu(parse_usb_emulator_options(""));
         auto d = open("usb:1209:ec01?frame_samples=1000");
-        d->start(100000.0);
+        d->stream()->start(100000.0);
         Stream in(1000000);
         std::atomic<clk::rep> unplugged_at{0};
         std::thread pull([&] {
@@ -200,7 +203,7 @@ TEST_CASE("usb: stall, silence and unplug are errors, unplug within 1 s", "[usb]
             emu.unplug();
             unplugged_at = clk::now().time_since_epoch().count();
         });
-        const auto r = loop(*d, in, rs, rc, 4000);
+        const auto r = loop(*d->stream(), in, rs, rc, 4000);
         const auto t_err = clk::now();
         pull.join();
         CHECK(r.status == StreamStatus::Error);

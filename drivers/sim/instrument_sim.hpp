@@ -10,6 +10,9 @@
 // *RST, *CLS, definite and indefinite blocks. Faults: go silent, drop the connections, die,
 // freeze or cut a reply short at a named command (mid-acquisition), delay every reply, and
 // hostile text (an *IDN? of any length or content, error-queue text with escape sequences).
+// The parsing, transport and link are one core (instrument_sim_core.hpp, instrument_sim.cpp);
+// each dialect is a file of its own: instrument_sim_keysight.cpp, _rigol, _siglent,
+// _redpitaya (generator and acquisition), _scope.
 #pragma once
 
 #include <atomic>

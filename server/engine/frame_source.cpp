@@ -35,7 +35,7 @@ void teardown(const char* what, F&& f) noexcept {
 
 class StepSource final : public FrameSource {
 public:
-    StepSource(const Scenario& sc, dev::Device& d, bool dut)
+    StepSource(const Scenario& sc, dev::StepPort& d, bool dut)
         : sc_(sc), dev_(d), gen_(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed, sc.t0_s), dut_(dut) {}
     SourceStatus next(std::size_t max, Frames& out) override {
         // Static steps are slow (a settle each): small blocks keep progress and cancel prompt.
@@ -48,7 +48,7 @@ public:
             // A step that fails ends the block there: the steps measured before it are delivered
             // (scored, recorded) with the error; a cancel delivers them too and the run ends as aborted.
             try {
-                r = dev_.step(b_.sin_v[i], b_.cos_v[i], -1.0, 0);  // the device's settle and averaging
+                r = dev_.measure(b_.sin_v[i], b_.cos_v[i], -1.0, 0);  // the device's settle and averaging
             } catch (const dev::Cancelled&) {
                 out.resize(i, dut_);
                 k_ += i;
@@ -72,7 +72,7 @@ public:
 
 private:
     const Scenario& sc_;
-    dev::Device& dev_;
+    dev::StepPort& dev_;
     Generator gen_;
     Block b_;
     std::uint64_t k_ = 0;
@@ -81,7 +81,7 @@ private:
 
 class StreamSource final : public FrameSource {
 public:
-    StreamSource(const Scenario& sc, dev::Device& d, const dev::DeviceInfo& info, std::size_t block)
+    StreamSource(const Scenario& sc, dev::StreamPort& d, const dev::DeviceInfo& info, std::size_t block)
         : sc_(sc), dev_(d), gen_(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed, sc.t0_s), block_(block), total_(sc.samples()) {
         // The first latency_samples input frames predate the signal and are not scored.
         for (int k = 0; k < info.latency_samples; ++k) pending_.push_back({sc.t0_s + k / sc.sample_rate_hz, 0, 0, false});
@@ -147,7 +147,7 @@ private:
         k_in_ += out.size();
     }
     const Scenario& sc_;
-    dev::Device& dev_;
+    dev::StreamPort& dev_;
     Generator gen_;
     Block b_;
     std::size_t block_;
@@ -158,16 +158,8 @@ private:
 
 class ReplaySource final : public FrameSource {
 public:
-    ReplaySource(const Scenario& sc, dev::Device& d, bool dut) : sc_(sc), dev_(d), total_(sc.samples()), dut_(dut) {
+    ReplaySource(const Scenario& sc, dev::ReplayPort& d, bool dut) : sc_(sc), dev_(d), total_(sc.samples()), dut_(dut) {
         dev_.start(sc.sample_rate_hz);
-        started_ = true;
-    }
-    ~ReplaySource() override { teardown("stopping the device's input", [&] { stop(); }); }
-    void stop() override {
-        if (started_) {
-            started_ = false;
-            dev_.stop();
-        }
     }
     SourceStatus next(std::size_t max, Frames& out) override {
         const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(max, total_ - k_));
@@ -204,10 +196,9 @@ public:
 
 private:
     const Scenario& sc_;
-    dev::Device& dev_;
+    dev::ReplayPort& dev_;
     std::uint64_t total_, k_ = 0;
     std::vector<double> th_, om_;
-    bool started_ = false;
     bool dut_;
 };
 
@@ -216,8 +207,8 @@ private:
 // frames from the output's first sample on, each with the truth at the generator time it shows.
 class InstrumentSource final : public FrameSource {
 public:
-    InstrumentSource(const Scenario& sc, dev::Device& out, dev::Device& in, const dev::DeviceInfo& oi)
-        : sc_(sc), out_(out), in_(in), max_play_(oi.max_play_samples) {}
+    InstrumentSource(const Scenario& sc, dev::PlayPort& out, dev::RecordPort& in)
+        : sc_(sc), out_(out), in_(in), max_play_(out.memory_samples()) {}
     ~InstrumentSource() override { teardown("stopping the generator's output", [&] { stop(); }); }
     void stop() override {
         if (playing_) {
@@ -381,8 +372,8 @@ private:
     }
 
     const Scenario& sc_;
-    dev::Device& out_;
-    dev::Device& in_;
+    dev::PlayPort& out_;
+    dev::RecordPort& in_;
     std::size_t max_play_;
     bool prepared_ = false, playing_ = false;
     std::vector<double> ps_, pc_, rs_, rc_;
@@ -535,11 +526,22 @@ void Frames::resize(std::size_t n, bool dut) {
 
 std::unique_ptr<FrameSource> make_frame_source(const Scenario& sc, dev::Device& device, const dev::DeviceInfo& info,
                                                std::size_t block) {
+    // The source follows from the ports the device has, in this order: a generator and a
+    // digitizer in one (instrument mode), step mode without streams (a device with both, the
+    // loopback, streams), streams, a replay. A step-only device is never asked to stream.
     std::unique_ptr<FrameSource> s;
-    if (info.can_play && info.can_record) s = std::make_unique<InstrumentSource>(sc, device, device, info);
-    else if (!info.streaming && info.step_mode) s = std::make_unique<StepSource>(sc, device, info.dut_position);
-    else if (!info.needs_output) return std::make_unique<ReplaySource>(sc, device, info.dut_position);
-    else s = std::make_unique<StreamSource>(sc, device, info, block);
+    dev::PlayPort* play = device.player();
+    dev::RecordPort* record = device.recorder();
+    dev::StreamPort* stream = device.stream();
+    dev::StepPort* step = device.step();
+    if (play && record) s = std::make_unique<InstrumentSource>(sc, *play, *record);
+    else if (step && !stream) s = std::make_unique<StepSource>(sc, *step, info.dut_position);
+    else if (stream) s = std::make_unique<StreamSource>(sc, *stream, info, block);
+    else if (dev::ReplayPort* replay = device.replay()) return std::make_unique<ReplaySource>(sc, *replay, info.dut_position);
+    else if (play || record)
+        throw std::runtime_error("device: " + info.uri + (play ? " is a generator without a digitizer: give device.output and device.input (instrument mode)"
+                                                               : " is a digitizer without a generator: give device.output and device.input (instrument mode)"));
+    else throw std::runtime_error("device: " + info.uri + " has no port to run through (no stream, step, play/record or replay)");
     if (bench_hardware(info)) s = std::make_unique<BenchChecks>(std::move(s), info, sc.samples());
     return s;
 }
@@ -548,10 +550,13 @@ std::unique_ptr<FrameSource> make_frame_source(const Scenario& sc, dev::Device& 
 
 namespace fringe {
 
-std::unique_ptr<FrameSource> make_instrument_source(const Scenario& sc, dev::Device& output, dev::Device& input,
-                                                    const dev::DeviceInfo& output_info) {
-    std::unique_ptr<FrameSource> s = std::make_unique<InstrumentSource>(sc, output, input, output_info);
+std::unique_ptr<FrameSource> make_instrument_source(const Scenario& sc, dev::Device& output, dev::Device& input) {
+    dev::PlayPort* play = output.player();
+    dev::RecordPort* record = input.recorder();
     const dev::DeviceInfo in = input.info();
+    if (!play) throw std::runtime_error("device.output: " + output.info().uri + " cannot play a waveform from memory (not a generator; a loopback needs own_clock=1)");
+    if (!record) throw std::runtime_error("device.input: " + in.uri + " cannot record a block (not a digitizer; a loopback needs own_clock=1)");
+    std::unique_ptr<FrameSource> s = std::make_unique<InstrumentSource>(sc, *play, *record);
     if (bench_hardware(in)) s = std::make_unique<BenchChecks>(std::move(s), in, sc.samples());
     return s;
 }

@@ -1,13 +1,15 @@
 // Where a run's input frames come from, each with its truth (docs/architecture.md): the seam
 // between the run engine and the kinds of device. A source writes what the device needs
 // (generated signals), reads what it returns, and pairs every input frame with the truth of
-// the sample it shows.
-//   StepSource    step mode (Modbus boards): one static pair per frame, settle, read back
-//   StreamSource  output and input streams (loopback, USB): write ahead, read, align truth
-//                 for the device's declared latency
-//   ReplaySource  input-only (capture replay): frames and truth from the file
-//   InstrumentSource  a generator plays the whole signal from memory, a digitizer on its own
-//                 clock records it; truth is aligned from the signals (server/align.*)
+// the sample it shows. Each source drives one kind of capability port (drivers/device.hpp),
+// and the source is chosen from the ports the device has:
+//   StepSource    a StepPort (Modbus boards): one static pair per frame, settle, read back
+//   StreamSource  a StreamPort (loopback, USB): write ahead, read, align truth for the
+//                 device's declared latency
+//   ReplaySource  a ReplayPort (capture replay): frames and truth from the file
+//   InstrumentSource  a PlayPort plays the whole signal from a generator's memory, a
+//                 RecordPort on its own clock records it; truth is aligned from the signals
+//                 (server/analysis/align.*)
 #pragma once
 
 #include "drivers/device.hpp"
@@ -46,10 +48,13 @@ public:
     virtual nlohmann::json alignment() const { return nullptr; }
 };
 
+// One device: play+record ports (one instrument), else step without streams, else streams,
+// else a replay. Throws std::runtime_error for a device with none of these (or only half of
+// a generator/digitizer pair), naming it.
 std::unique_ptr<FrameSource> make_frame_source(const Scenario& sc, dev::Device& device, const dev::DeviceInfo& info,
                                                std::size_t block);
-// A generator (output, can_play) and a digitizer (input, can_record); they may be one device.
-std::unique_ptr<FrameSource> make_instrument_source(const Scenario& sc, dev::Device& output, dev::Device& input,
-                                                    const dev::DeviceInfo& output_info);
+// A generator (output: its PlayPort) and a digitizer (input: its RecordPort); they may be one
+// device. Throws std::runtime_error naming the field whose device lacks its port.
+std::unique_ptr<FrameSource> make_instrument_source(const Scenario& sc, dev::Device& output, dev::Device& input);
 
 }  // namespace fringe

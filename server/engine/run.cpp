@@ -373,10 +373,6 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             if (sc.instruments->input != sc.instruments->output) input_device = open_named("device.input", sc.instruments->input);
             out_info = device->info();
             in_info = input_device ? input_device->info() : out_info;
-            if (!out_info.can_play)
-                throw std::runtime_error("device.output: " + out_info.uri + " cannot play a waveform from memory (not a generator; a loopback needs own_clock=1)");
-            if (!in_info.can_record)
-                throw std::runtime_error("device.input: " + in_info.uri + " cannot record a block (not a digitizer; a loopback needs own_clock=1)");
             dinfo = combined_info(sc, out_info, in_info);
         } else {
             device = dev::open(sc.device);
@@ -401,7 +397,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             // Angle folds from the settle time on, so a lock transient does not swamp them.
             traces.emplace(total, o.trace_points, labels, sc.t0_s + sc.settle_s);
         }
-        auto source = sc.instruments ? make_instrument_source(sc, *device, input_device ? *input_device : *device, out_info)
+        auto source = sc.instruments ? make_instrument_source(sc, *device, input_device ? *input_device : *device)
                                      : make_frame_source(sc, *device, dinfo, o.block);
         if (!sc.instruments) dinfo = device->info();  // started: converter figures at the run's rate
         report["device"] = dinfo;
@@ -476,7 +472,8 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
         }
         if (source_failure) std::rethrow_exception(source_failure);
         source->stop();
-        if (dinfo.dut_position) dut_readout = device->dut_readout();
+        if (dinfo.dut_position)
+            if (dev::ReplayPort* replay = device->replay()) dut_readout = replay->dut_readout();  // what an ABZ readout counted
         if (status == RunStatus::Done)
             for (auto& lane : lanes)
                 if (lane->e) lane->e->finish();
