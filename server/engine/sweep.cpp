@@ -115,12 +115,13 @@ Sweep load_sweep(const std::string& path) {
     }
     r.finish();
     if (s.rows.empty()) throw ConfigError("rows", "a sweep needs rows or a grid");
-    // Validate every row's scenario now, so a typo fails before hours of running.
+    // Plan every row now, so a typo fails before hours of running (the plans are not kept: a
+    // row runs later, in this process or another shard's, and is planned again then).
     for (std::size_t i = 0; i < s.rows.size(); ++i) {
         json sc = s.base;
         try {
             for (const auto& [k, v] : s.rows[i].set.items()) set_by_path(sc, k, v);
-            validate_run(scenario_from_json(sc, s.base_dir));
+            plan_run(scenario_from_json(sc, s.base_dir));
         } catch (const ConfigError& e) {
             throw e.prefixed("rows[" + std::to_string(i) + "] (" + s.rows[i].label + ")");
         }
@@ -168,8 +169,8 @@ std::vector<SweepResult> run_sweep(const Sweep& s, int jobs, const std::function
             try {
                 json sc = s.base;
                 for (const auto& [k, v] : s.rows[i].set.items()) set_by_path(sc, k, v);
-                const Scenario scenario = scenario_from_json(sc, s.base_dir);
-                const json rep = execute ? execute(i, scenario) : execute_run(scenario);
+                RunPlan plan = plan_run(scenario_from_json(sc, s.base_dir));
+                const json rep = execute ? execute(i, std::move(plan)) : execute_run(std::move(plan));
                 res = sweep_result(s, s.rows[i], rep);
             } catch (const std::exception& e) {
                 res.status = "error";

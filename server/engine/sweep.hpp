@@ -4,6 +4,8 @@
 // (CSV and Markdown), optionally beside reference figures (the paper's, MODEL.md's).
 #pragma once
 
+#include "server/engine/plan.hpp"
+
 #include <nlohmann/json.hpp>
 
 #include <cstddef>
@@ -13,8 +15,6 @@
 #include <vector>
 
 namespace fringe {
-
-struct Scenario;
 
 struct SweepColumn {
     std::string estimator;  // label
@@ -49,9 +49,10 @@ struct SweepResult {
     double wall_s = 0;
 };
 
-// Runs one row's scenario and returns its report (default: execute_run). fringe sweep --store
-// gives each run its deterministic id and provenance and stores it.
-using SweepExecute = std::function<nlohmann::json(std::size_t row, const Scenario& sc)>;
+// Runs one row's plan (plan_run of its scenario) and returns its report (default:
+// execute_run). fringe sweep --store gives each run its deterministic id and provenance and
+// stores it.
+using SweepExecute = std::function<nlohmann::json(std::size_t row, RunPlan plan)>;
 // rows: which rows, in this order (null: all); the results come back in that order.
 std::vector<SweepResult> run_sweep(const Sweep& s, int jobs, const std::function<void(std::size_t done, std::size_t total)>& progress = {},
                                    const std::vector<std::size_t>* rows = nullptr, const SweepExecute& execute = {});

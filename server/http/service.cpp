@@ -379,15 +379,15 @@ std::optional<HttpResponse> Service::run_scenario(const json& body, Scenario& sc
 HttpResponse Service::create_run(const HttpRequest& req) {
     Scenario sc;
     if (auto refused = run_scenario(parse_body(req.body), sc)) return *refused;
+    std::optional<RunPlan> plan;
     try {
-        check_device_uris(sc);
-        validate_run(sc);
+        plan.emplace(plan_run(std::move(sc)));  // the run queue keeps it: the worker runs these estimators
     } catch (const ConfigError& e) {
         throw e.prefixed("scenario");
     }
     std::string id;
     try {
-        id = runs_->submit(std::move(sc));
+        id = runs_->submit(std::move(*plan));
     } catch (const QueueFull& e) {
         auto r = json_error(429, "queue_full", e.what());
         r.headers.emplace_back("Retry-After", "10");
@@ -401,19 +401,18 @@ HttpResponse Service::create_run(const HttpRequest& req) {
 HttpResponse Service::preflight_run(const HttpRequest& req) const {
     Scenario sc;
     if (auto refused = run_scenario(parse_body(req.body), sc)) return *refused;
-    std::vector<Finding> warnings;
+    std::optional<RunPlan> plan;
     try {
-        check_device_uris(sc);
-        warnings = validate_run(sc);
+        plan.emplace(plan_run(sc));
     } catch (const ConfigError& e) {
         throw e.prefixed("scenario");
     }
     json w = json::array();
-    for (auto f : warnings) {
+    for (auto f : plan->warnings) {
         f.field = "scenario." + f.field;  // the same path a POST runs error names
         w.push_back(f);
     }
-    const double spc = min_samples_per_cycle(sc);
+    const double spc = plan->samples_per_cycle;
     return json_ok({{"ok", true}, {"warnings", w}, {"samples", sc.samples()}, {"samples_per_cycle", std::isfinite(spc) ? json(spc) : json(nullptr)}});
 }
 
