@@ -116,12 +116,14 @@ TEST_CASE("plan: a sweep row and a capture evaluation construct their estimator 
         std::ofstream(path) << sweep.dump();
         CountedAtan2::constructed = 0;
         const Sweep s = load_sweep(path);
-        CHECK(CountedAtan2::constructed == 3);  // each row planned once to check it
-        CountedAtan2::constructed = 0;
-        const auto res = run_sweep(s, 2);
+        CHECK(CountedAtan2::constructed == 3);  // each row planned once, to check it
+        auto res = run_sweep(s, 2);
         REQUIRE(res.size() == 3);
         for (const auto& row : res) CHECK(row.status == "done");
-        CHECK(CountedAtan2::constructed == 3);  // one per row's run
+        CHECK(CountedAtan2::constructed == 3);  // the rows' runs executed those plans
+        res = run_sweep(s, 1);  // run again: planned again, once per row
+        for (const auto& row : res) CHECK(row.status == "done");
+        CHECK(CountedAtan2::constructed == 6);
     }
     SECTION("a capture") {
         // A capture with truth, recorded from a loopback run of plain atan2.

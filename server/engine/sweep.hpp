@@ -10,6 +10,7 @@
 
 #include <cstddef>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -35,6 +36,10 @@ struct Sweep {
     std::vector<SweepRow> rows;
     std::vector<std::string> reference_names;  // in column order
     int jobs = 0;  // 0: all cores
+    // Each row's plan, made when load_sweep checked the row, for the row's first run to execute
+    // (so its estimators are built once); taken by that run, after which a row is planned again.
+    // Shared by copies of the sweep.
+    std::shared_ptr<std::vector<std::unique_ptr<RunPlan>>> plans;
 };
 
 Sweep load_sweep(const std::string& path);
