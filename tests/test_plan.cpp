@@ -100,6 +100,22 @@ TEST_CASE("plan: each estimator is constructed once per run", "[plan][run]") {
         CHECK_THROWS_WITH(plan_run(bad), Catch::Contains("limits[0].estimator"));
         CHECK(CountedAtan2::constructed == 2);
     }
+    SECTION("a run beyond a service's budget builds nothing") {
+        CountedAtan2::constructed = 0;
+        RunBudget one;
+        one.max_estimators = 1;
+        try {
+            plan_run(sc, one);
+            FAIL("planned beyond the budget");
+        } catch (const RunTooLarge& e) {
+            CHECK(e.code() == "too_many_estimators");
+            CHECK(e.field() == "estimators");
+        }
+        RunBudget few;
+        few.max_samples = 100;
+        CHECK_THROWS_AS(plan_run(sc, few), RunTooLarge);
+        CHECK(CountedAtan2::constructed == 0);
+    }
 }
 
 TEST_CASE("plan: a sweep row and a capture evaluation construct their estimator once", "[plan][run][sweep]") {

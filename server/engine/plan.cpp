@@ -4,6 +4,8 @@
 #include "server/engine/limits.hpp"
 #include "signal_gen/base/config.hpp"
 
+#include <cstdio>
+
 namespace fringe {
 
 namespace {
@@ -107,9 +109,27 @@ dev::UriParts check_device_uris(const Scenario& sc) {
     return input;
 }
 
+void check_budget(const Scenario& sc, const RunBudget& b) {
+    // In double: duration_s * sample_rate_hz may not fit an integer at all.
+    const double samples = sc.duration_s * sc.sample_rate_hz;
+    if (!(samples <= b.max_samples)) {
+        char msg[256];
+        std::snprintf(msg, sizeof msg, "duration_s %g s at sample_rate_hz %g Hz is %.4g samples; this service runs at most %.4g per run",
+                      sc.duration_s, sc.sample_rate_hz, samples, b.max_samples);
+        throw RunTooLarge("too_many_samples", "duration_s", msg);
+    }
+    if (sc.estimators.size() > b.max_estimators)
+        throw RunTooLarge("too_many_estimators", "estimators", "the scenario has " + std::to_string(sc.estimators.size()) +
+                                                                   " estimators; this service runs at most " + std::to_string(b.max_estimators) + " per run");
+    if (sc.limits.size() > b.max_limits)
+        throw RunTooLarge("too_many_limits", "limits", "the scenario has " + std::to_string(sc.limits.size()) + " limits; this service takes at most " +
+                                                           std::to_string(b.max_limits) + " per run");
+}
+
 }  // namespace
 
-RunPlan plan_run(Scenario sc) {
+RunPlan plan_run(Scenario sc, const RunBudget& budget) {
+    check_budget(sc, budget);
     RunPlan p;
     p.scenario = std::move(sc);
     build_estimators(p);

@@ -10,6 +10,8 @@
 #include "server/engine/preflight.hpp"
 #include "server/engine/scenario.hpp"
 
+#include <cstddef>
+#include <limits>
 #include <memory>
 #include <vector>
 
@@ -29,11 +31,30 @@ struct RunPlan {
     double samples_per_cycle = 0;
 };
 
+// How large a run a service takes (fringe serve --max-samples, --max-estimators,
+// --max-limits); unbounded by default.
+struct RunBudget {
+    double max_samples = kInf;
+    std::size_t max_estimators = std::numeric_limits<std::size_t>::max();
+    std::size_t max_limits = std::numeric_limits<std::size_t>::max();
+};
+
+// A run beyond its budget (HTTP 413). code: too_many_samples, too_many_estimators or
+// too_many_limits; field: duration_s, estimators or limits.
+class RunTooLarge : public ConfigError {
+public:
+    RunTooLarge(std::string code, std::string field, const std::string& message) : ConfigError(std::move(field), message), code_(std::move(code)) {}
+    const std::string& code() const { return code_; }
+
+private:
+    std::string code_;
+};
+
 // Checks a parsed scenario (scenario_from_json reads its keys and ranges) for running, in
-// this order: estimators exist and accept their parameters (each is built here), limits name
+// this order: its size against the budget (RunTooLarge, before anything is built), estimators exist and accept their parameters (each is built here), limits name
 // known metrics and estimators and can be measured, the device URIs' form and settings
 // (nothing is opened), then the preflight's physics. Throws ConfigError naming the scenario
 // key of the first error; returns the plan with the preflight's warnings.
-RunPlan plan_run(Scenario sc);
+RunPlan plan_run(Scenario sc, const RunBudget& budget = {});
 
 }  // namespace fringe

@@ -108,6 +108,7 @@ RunManager::CancelResult RunManager::cancel(const std::string& id) {
         // Never started: it ends here, with a report saying so.
         for (auto q = queue_.begin(); q != queue_.end(); ++q)
             if (*q == job) { queue_.erase(q); break; }
+        job->plan.reset();  // its estimators are not needed any more
         job->snap.status = "aborted";
         job->snap.verdict = "ABORTED";
         job->snap.error = "cancelled while queued";
