@@ -11,6 +11,10 @@
 
 namespace fringe::est {
 
+// The EKFs' outlier gate: a sample whose normalised innovation squared (2 degrees of freedom)
+// exceeds this may be an outlier (ekf.cpp, ekf_auto.cpp).
+constexpr double kOutlierNis = 1e4;
+
 // atan2 without libm: octant reduction to t = min/max in [0, 1], then to |u| <= tan(pi/8)
 // via atan(t) = pi/4 + atan((t-1)/(t+1)), then the alternating Taylor series to u^37, whose
 // truncation error is below |u|^39/39 < 3e-17. Branch-free, so GCC vectorises it over a

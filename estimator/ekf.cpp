@@ -1,5 +1,7 @@
 #include "ekf.hpp"
 
+#include "common.hpp"
+
 #include "signal_gen/fastmath.hpp"
 #include "signal_gen/optics.hpp"
 
@@ -142,8 +144,6 @@ struct Ekf::Impl {
 };
 
 namespace {
-
-constexpr double kOutlierNis = 1e4;  // normalised innovation squared beyond which a sample may be an outlier
 
 // Diagnostics only (not per sample): dynamic size, so the eigen solver is compiled once
 // rather than for every state size.

@@ -71,7 +71,6 @@ constexpr double kLearnMinHz = 2.0;           // no learning below this electric
 constexpr double kUPullS = 5.0;               // time constant of u's pull to 0 (s)
 constexpr double kVPullS = 0.2;               // time constant of v's pull to 0 (s)
 constexpr double kURidge = 3e-4;              // ridge on h1: as if u had this rms
-constexpr double kOutlierNis = 1e4;           // a sample whose normalised innovation (2 dof) exceeds this is an outlier
 constexpr int kOutlierRun = 32;               // this many in a row: the signal changed, acquire afresh
 constexpr double kOutlierRadius2 = 4.0;        // before the shape is learnt: a residual beyond 2 fundamental amplitudes is an outlier
 constexpr double kHuberNis = 25.0;             // a sample's share in R is capped at this normalised innovation: a

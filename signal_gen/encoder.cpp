@@ -1,4 +1,5 @@
 #include "encoder.hpp"
+#include "keys.hpp"
 
 #include "signal_gen/base/config.hpp"
 #include "fastmath.hpp"
@@ -13,11 +14,55 @@ namespace fringe {
 
 using nlohmann::json;
 
+const KeyTable& encoder_keys() {
+    static const EncoderProfile d;
+    static const KeyTable t({
+        key_string("name", d.name, "the profile's name (reports, history)", false),
+        key_string("description", "", "free text", false),
+        key_choice("model", "diffraction", {"diffraction", "ideal"}, "diffraction: the paper's closed form; ideal: quadrature sinusoids"),
+        key_integer("lines_per_rev", "lines", d.lines_per_rev, 1, 1 << 24, "grating lines per revolution"),
+        key_number("vmax_v", "V", d.vmax_v, 1e-6, 1e3, "amplitude (ideal) or source/detector scale (diffraction)"),
+        key_number("radius_cm", "cm", d.radius_cm, 1e-3, 1e3, "nominal track radius"),
+        key_number("optics.aperture_w_rad", "rad", d.aperture_w_rad, 1e-6, kTwoPi, "detector aperture in electrical rad (model diffraction only)", false),
+        key_number("optics.kappa_ref", "", d.kappa_ref, 1e-3, 50.0, "kappa at gap_ref_cm and the track radius (model diffraction only)", false),
+        key_number("optics.gap_ref_cm", "cm", d.gap_ref_cm, 1e-6, 1e3, "the gap kappa_ref is given at (model diffraction only)", false),
+        key_number("geometry.gap_d1_cm", "cm", nullptr, 1e-6, 1e3, "gap at phi + gap_phase = 0 (default: optics.gap_ref_cm)", false),
+        key_number("geometry.gap_d2_cm", "cm", nullptr, 1e-6, 1e3, "gap half a turn later (default: gap_d1_cm)", false),
+        key_number("geometry.gap_phase_rad", "rad", 0.0, -1e3, 1e3, "phase of the gap's run-out", false),
+        key_number("geometry.e1_cm", "cm", 0.0, 0.0, kInf, "disc eccentricity (at most radius_cm / 2)", false),
+        key_number("geometry.e1_phase_rad", "rad", 0.0, -1e3, 1e3, "phase of the disc eccentricity", false),
+        key_number("geometry.e2_cm", "cm", 0.0, 0.0, kInf, "mounting eccentricity, recorded, not in the signals (at most radius_cm / 2)", false),
+        key_number("geometry.e2_phase_rad", "rad", 0.0, -1e3, 1e3, "phase of the mounting eccentricity", false),
+        key_integer("harmonics[].order", "", nullptr, 2, 64, "a waveform harmonic's order (model ideal only; an array of {order, amplitude_rel, phase_rad})", false),
+        key_number("harmonics[].amplitude_rel", "", nullptr, -1.0, 1.0, "its amplitude relative to the fundamental", false),
+        key_number("harmonics[].phase_rad", "rad", 0.0, -1e3, 1e3, "its phase", false),
+        key_number("noise.sigma_add_v", "V", 0.0, 0.0, 100.0, "additive white noise per channel, rms"),
+        key_number("noise.sigma_gain", "", 0.0, 0.0, 0.5, "common multiplicative white noise, relative rms"),
+        key_number("noise.drift_amplitude", "", 0.0, 0.0, 0.9, "slow common gain drift, relative amplitude", false),
+        key_number("noise.drift_freq_hz", "Hz", 0.0, 0.0, 1e9, "frequency of the gain drift", false),
+        key_number("noise.drift_phase_rad", "rad", 0.0, -1e3, 1e3, "phase of the gain drift", false),
+        key_number("lissajous.gain_mismatch", "", 0.0, -1.0, 1.0, "gain mismatch eps: gains 1 + eps/2 (sin), 1 - eps/2 (cos)"),
+        key_number("lissajous.offset_sin_v", "V", 0.0, -100.0, 100.0, "offset of the sin channel"),
+        key_number("lissajous.offset_cos_v", "V", 0.0, -100.0, 100.0, "offset of the cos channel"),
+        key_number("lissajous.quadrature_error_rad", "rad", 0.0, -1.5, 1.5, "quadrature error: cos channel at theta + delta"),
+        key_number("front_end.reference_v", "V", nullptr, -1e3, 1e3, "the front end's reference the signals swing around (default: vmax_v * aperture_w_rad / 2 for diffraction, 0 for ideal)", false),
+        key_integer("adc.bits", "bit", 0, 0, 32, "the encoder's own converter (0: none; the device digitises)"),
+        key_number("adc.min_v", "V", -1.25, -1e3, 1e3, "the encoder converter's lower rail"),
+        key_number("adc.max_v", "V", 1.25, -1e3, 1e3, "the encoder converter's upper rail (above adc.min_v)"),
+        key_boolean("index.enabled", true, "a reference mark: one pulse per revolution (when index is given)", false),
+        key_number("index.position_rad", "rad", 0.0, -1e3, 1e3, "shaft angle where the pulse starts", false),
+        key_number("index.width_elec_rad", "rad", d.index.width_elec_rad, 1e-6, 1e6, "pulse width in electrical rad", false),
+        key_number("index.high_v", "V", 1.0, -1e3, 1e3, "the pulse's level", false),
+    });
+    return t;
+}
+
 Quantizer quantizer_from_json(JsonReader& r) {
+    const KeyTable& k = encoder_keys();
     Quantizer q;
-    q.bits = static_cast<int>(r.integer("bits", 0, 0, 32));
-    q.min_v = r.number("min_v", -1.25, -1e3, 1e3);
-    q.max_v = r.number("max_v", 1.25, -1e3, 1e3);
+    q.bits = static_cast<int>(k.integer(r, "adc.bits"));
+    q.min_v = k.number(r, "adc.min_v");
+    q.max_v = k.number(r, "adc.max_v");
     if (q.max_v <= q.min_v) throw ConfigError(r.path_of("max_v"), "must be greater than min_v");
     r.finish();
     return q;
@@ -46,33 +91,34 @@ double EncoderProfile::fundamental_amplitude_v() const {
 }
 
 EncoderProfile encoder_from_json(const json& j, const std::string& path) {
+    const KeyTable& k = encoder_keys();
     JsonReader r(j, path);
     EncoderProfile e;
-    e.name = r.string("name", e.name);
-    if (r.has("description")) r.string("description");
-    std::string model = r.choice("model", "diffraction", {"diffraction", "ideal"});
+    e.name = k.string(r, "name");
+    if (r.has("description")) k.string(r, "description");
+    std::string model = k.choice(r, "model");
     e.model = model == "ideal" ? ModelKind::Ideal : ModelKind::Diffraction;
-    e.lines_per_rev = static_cast<int>(r.integer("lines_per_rev", e.lines_per_rev, 1, 1 << 24));
-    e.radius_cm = r.number("radius_cm", e.radius_cm, 1e-3, 1e3);
-    e.vmax_v = r.number("vmax_v", e.vmax_v, 1e-6, 1e3);
+    e.lines_per_rev = static_cast<int>(k.integer(r, "lines_per_rev"));
+    e.radius_cm = k.number(r, "radius_cm");
+    e.vmax_v = k.number(r, "vmax_v");
 
     if (r.has("optics")) {
         JsonReader o = r.object("optics");
         if (e.model == ModelKind::Ideal) throw ConfigError(r.path_of("optics"), "only for model 'diffraction'");
-        e.aperture_w_rad = o.number("aperture_w_rad", e.aperture_w_rad, 1e-6, kTwoPi);
-        e.kappa_ref = o.number("kappa_ref", e.kappa_ref, 1e-3, 50.0);
-        e.gap_ref_cm = o.number("gap_ref_cm", e.gap_ref_cm, 1e-6, 1e3);
+        e.aperture_w_rad = k.number(o, "optics.aperture_w_rad");
+        e.kappa_ref = k.number(o, "optics.kappa_ref");
+        e.gap_ref_cm = k.number(o, "optics.gap_ref_cm");
         o.finish();
     }
     if (r.has("geometry")) {
         JsonReader g = r.object("geometry");
-        e.gap_d1_cm = g.number("gap_d1_cm", e.gap_ref_cm, 1e-6, 1e3);
-        e.gap_d2_cm = g.number("gap_d2_cm", e.gap_d1_cm, 1e-6, 1e3);
-        e.gap_phase_rad = g.number("gap_phase_rad", 0.0, -1e3, 1e3);
-        e.e1_cm = g.number("e1_cm", 0.0, 0.0, e.radius_cm / 2);
-        e.e1_phase_rad = g.number("e1_phase_rad", 0.0, -1e3, 1e3);
-        e.e2_cm = g.number("e2_cm", 0.0, 0.0, e.radius_cm / 2);
-        e.e2_phase_rad = g.number("e2_phase_rad", 0.0, -1e3, 1e3);
+        e.gap_d1_cm = k.number(g, "geometry.gap_d1_cm", e.gap_ref_cm);
+        e.gap_d2_cm = k.number(g, "geometry.gap_d2_cm", e.gap_d1_cm);
+        e.gap_phase_rad = k.number(g, "geometry.gap_phase_rad");
+        e.e1_cm = k.number_in(g, "geometry.e1_cm", 0.0, 0.0, e.radius_cm / 2);
+        e.e1_phase_rad = k.number(g, "geometry.e1_phase_rad");
+        e.e2_cm = k.number_in(g, "geometry.e2_cm", 0.0, 0.0, e.radius_cm / 2);
+        e.e2_phase_rad = k.number(g, "geometry.e2_phase_rad");
         g.finish();
     } else {
         e.gap_d1_cm = e.gap_d2_cm = e.gap_ref_cm;
@@ -84,33 +130,33 @@ EncoderProfile encoder_from_json(const json& j, const std::string& path) {
         for (std::size_t i = 0; i < h.size(); ++i) {
             JsonReader hr(h[i], r.path_of("harmonics") + "[" + std::to_string(i) + "]");
             Harmonic hm;
-            hm.order = static_cast<int>(hr.integer("order", 2, 64));
-            hm.amplitude_rel = hr.number("amplitude_rel", -1.0, 1.0);
-            hm.phase_rad = hr.number("phase_rad", 0.0, -1e3, 1e3);
+            hm.order = static_cast<int>(k.integer(hr, "harmonics[].order"));
+            hm.amplitude_rel = k.number(hr, "harmonics[].amplitude_rel");
+            hm.phase_rad = k.number(hr, "harmonics[].phase_rad");
             hr.finish();
             e.harmonics.push_back(hm);
         }
     }
     if (r.has("lissajous")) {
         JsonReader l = r.object("lissajous");
-        e.lissajous.gain_mismatch = l.number("gain_mismatch", 0.0, -1.0, 1.0);
-        e.lissajous.offset_sin_v = l.number("offset_sin_v", 0.0, -100.0, 100.0);
-        e.lissajous.offset_cos_v = l.number("offset_cos_v", 0.0, -100.0, 100.0);
-        e.lissajous.quadrature_error_rad = l.number("quadrature_error_rad", 0.0, -1.5, 1.5);
+        e.lissajous.gain_mismatch = k.number(l, "lissajous.gain_mismatch");
+        e.lissajous.offset_sin_v = k.number(l, "lissajous.offset_sin_v");
+        e.lissajous.offset_cos_v = k.number(l, "lissajous.offset_cos_v");
+        e.lissajous.quadrature_error_rad = k.number(l, "lissajous.quadrature_error_rad");
         l.finish();
     }
     if (r.has("noise")) {
         JsonReader n = r.object("noise");
-        e.noise.sigma_add_v = n.number("sigma_add_v", 0.0, 0.0, 100.0);
-        e.noise.sigma_gain = n.number("sigma_gain", 0.0, 0.0, 0.5);
-        e.noise.drift_amplitude = n.number("drift_amplitude", 0.0, 0.0, 0.9);
-        e.noise.drift_freq_hz = n.number("drift_freq_hz", 0.0, 0.0, 1e9);
-        e.noise.drift_phase_rad = n.number("drift_phase_rad", 0.0, -1e3, 1e3);
+        e.noise.sigma_add_v = k.number(n, "noise.sigma_add_v");
+        e.noise.sigma_gain = k.number(n, "noise.sigma_gain");
+        e.noise.drift_amplitude = k.number(n, "noise.drift_amplitude");
+        e.noise.drift_freq_hz = k.number(n, "noise.drift_freq_hz");
+        e.noise.drift_phase_rad = k.number(n, "noise.drift_phase_rad");
         n.finish();
     }
     if (r.has("front_end")) {
         JsonReader f = r.object("front_end");
-        e.front_end_reference_v = f.optional_number("reference_v", -1e3, 1e3);
+        e.front_end_reference_v = k.optional_number(f, "front_end.reference_v");
         f.finish();
     }
     if (r.has("adc")) {
@@ -119,10 +165,10 @@ EncoderProfile encoder_from_json(const json& j, const std::string& path) {
     }
     if (r.has("index")) {
         JsonReader x = r.object("index");
-        e.index.enabled = x.boolean("enabled", true);
-        e.index.position_rad = x.number("position_rad", 0.0, -1e3, 1e3);
-        e.index.width_elec_rad = x.number("width_elec_rad", e.index.width_elec_rad, 1e-6, 1e6);
-        e.index.high_v = x.number("high_v", 1.0, -1e3, 1e3);
+        e.index.enabled = k.boolean(x, "index.enabled");
+        e.index.position_rad = k.number(x, "index.position_rad");
+        e.index.width_elec_rad = k.number(x, "index.width_elec_rad");
+        e.index.high_v = k.number(x, "index.high_v");
         x.finish();
     }
     r.finish();

@@ -1,4 +1,5 @@
 #include "motion.hpp"
+#include "keys.hpp"
 
 #include "signal_gen/base/config.hpp"
 #include "fastmath.hpp"
@@ -149,65 +150,86 @@ void read_table(MotionProfile& m, const std::string& file, const std::string& fi
 }
 }  // namespace
 
+const std::vector<MotionKindKeys>& motion_kinds() {
+    constexpr double kMaxV = 1e6, kMaxA = 1e9;  // shaft speed (rad/s) and acceleration (rad/s^2)
+    auto phi0 = [] { return key_number("phi0_rad", "rad", 0.0, -1e6, 1e6, "shaft angle at t = 0"); };
+    auto velocity = [&](json def, const char* what) { return key_number("velocity_rad_s", "rad/s", std::move(def), -kMaxV, kMaxV, what); };
+    static const std::vector<MotionKindKeys> kinds = {
+        {"constant", "constant speed",
+         KeyTable({velocity(nullptr, "shaft speed (or electrical_freq_hz)"),
+                   key_number("electrical_freq_hz", "Hz", nullptr, -1e9, 1e9, "signal frequency instead of velocity_rad_s"), phi0()})},
+        {"ramp", "constant acceleration",
+         KeyTable({velocity(0.0, "initial shaft speed"), key_number("accel_rad_s2", "rad/s^2", nullptr, -kMaxA, kMaxA, "acceleration"), phi0()})},
+        {"trapezoid", "rest, accelerate, cruise, decelerate, rest",
+         KeyTable({velocity(nullptr, "cruise speed"), key_number("accel_rad_s2", "rad/s^2", nullptr, 1e-9, kMaxA, "acceleration"),
+                   key_number("start_s", "s", 0.0, 0.0, 1e6, "rest before the move"), key_number("cruise_s", "s", 0.0, 0.0, 1e6, "time at cruise speed"),
+                   phi0()})},
+        {"sine", "oscillation (with reversals) on an optional drift",
+         KeyTable({key_number("amplitude_rad", "rad", nullptr, 0.0, 1e6, "oscillation amplitude (shaft)"),
+                   key_number("freq_hz", "Hz", nullptr, 0.0, 1e6, "oscillation frequency"), key_number("phase_rad", "rad", 0.0, -1e3, 1e3, "phase"),
+                   velocity(0.0, "drift speed"), phi0()})},
+        {"steps", "quasi-static steps",
+         KeyTable({key_number("step_rad", "rad", nullptr, -1e3, 1e3, "step (shaft)"), key_number("dwell_s", "s", nullptr, 1e-9, 1e6, "time per step"), phi0()})},
+        {"table", "shaft angle from a CSV file t_s,phi_rad (linear between rows)",
+         KeyTable({key_string("file", nullptr, "the CSV file, relative to the scenario's folder", false), phi0()}), false},
+    };
+    return kinds;
+}
+
 MotionProfile motion_from_json(const json& j, const std::string& base_dir, int lines_per_rev,
                                const std::string& path) {
     JsonReader r(j, path);
     MotionProfile m;
-    const std::string kind = r.choice("kind", "constant", {"constant", "ramp", "trapezoid", "sine", "steps", "table"});
+    std::vector<std::string> names;
+    for (const auto& k : motion_kinds()) names.push_back(k.kind);
+    const std::string kind = r.choice("kind", "constant", names);
+    const KeyTable& keys = std::find_if(motion_kinds().begin(), motion_kinds().end(), [&](const MotionKindKeys& k) { return k.kind == kind; })->keys;
     // A key this kind does not take is named first, with the keys it does take: a speed given as
     // "speed_rpm" was reported as velocity_rad_s missing, which does not say what was wrong.
-    {
-        static const std::map<std::string, std::vector<std::string>> keys = {
-            {"constant", {"kind", "phi0_rad", "velocity_rad_s", "electrical_freq_hz"}},
-            {"ramp", {"kind", "phi0_rad", "velocity_rad_s", "accel_rad_s2"}},
-            {"trapezoid", {"kind", "phi0_rad", "velocity_rad_s", "accel_rad_s2", "start_s", "cruise_s"}},
-            {"sine", {"kind", "phi0_rad", "amplitude_rad", "freq_hz", "phase_rad", "velocity_rad_s"}},
-            {"steps", {"kind", "phi0_rad", "step_rad", "dwell_s"}},
-            {"table", {"kind", "phi0_rad", "file"}}};
-        const auto& known = keys.at(kind);
-        for (auto it = j.begin(); it != j.end(); ++it) {
-            if (std::find(known.begin(), known.end(), it.key()) != known.end()) continue;
-            std::string list;
-            for (const auto& k : known) list += (list.empty() ? "" : ", ") + k;
-            std::string hint;
-            if (it.key().find("rpm") != std::string::npos)
-                hint = "; speeds are in rad/s (velocity_rad_s = rpm x 2 pi / 60: 600 rpm is 62.83 rad/s)";
-            throw ConfigError(r.path_of(it.key()), "unknown key for a " + kind + " motion (its keys: " + list + ")" + hint);
-        }
+    for (auto it = j.begin(); it != j.end(); ++it) {
+        if (it.key() == "kind") continue;
+        bool known = false;
+        for (const auto& k : keys.keys()) known |= k.param.name == it.key();
+        if (known) continue;
+        std::string list = "kind";
+        for (const auto& k : keys.keys()) list += ", " + k.param.name;
+        std::string hint;
+        if (it.key().find("rpm") != std::string::npos)
+            hint = "; speeds are in rad/s (velocity_rad_s = rpm x 2 pi / 60: 600 rpm is 62.83 rad/s)";
+        throw ConfigError(r.path_of(it.key()), "unknown key for a " + kind + " motion (its keys: " + list + ")" + hint);
     }
-    m.phi0_rad = r.number("phi0_rad", 0.0, -1e6, 1e6);
-    constexpr double kMaxV = 1e6, kMaxA = 1e9;
+    m.phi0_rad = keys.number(r, "phi0_rad");
     if (kind == "constant") {
         m.kind = MotionKind::Constant;
         if (r.has("electrical_freq_hz")) {
             if (r.has("velocity_rad_s")) throw ConfigError(r.path_of("electrical_freq_hz"), "give velocity_rad_s or electrical_freq_hz, not both");
-            m.velocity_rad_s = kTwoPi * r.number("electrical_freq_hz", -1e9, 1e9) / lines_per_rev;
+            m.velocity_rad_s = kTwoPi * keys.number(r, "electrical_freq_hz") / lines_per_rev;
         } else {
-            m.velocity_rad_s = r.number("velocity_rad_s", -kMaxV, kMaxV);
+            m.velocity_rad_s = keys.number(r, "velocity_rad_s");
         }
     } else if (kind == "ramp") {
         m.kind = MotionKind::Ramp;
-        m.velocity_rad_s = r.number("velocity_rad_s", 0.0, -kMaxV, kMaxV);
-        m.accel_rad_s2 = r.number("accel_rad_s2", -kMaxA, kMaxA);
+        m.velocity_rad_s = keys.number(r, "velocity_rad_s");
+        m.accel_rad_s2 = keys.number(r, "accel_rad_s2");
     } else if (kind == "trapezoid") {
         m.kind = MotionKind::Trapezoid;
-        m.velocity_rad_s = r.number("velocity_rad_s", -kMaxV, kMaxV);
-        m.accel_rad_s2 = r.number("accel_rad_s2", 1e-9, kMaxA);
-        m.start_s = r.number("start_s", 0.0, 0.0, 1e6);
-        m.cruise_s = r.number("cruise_s", 0.0, 0.0, 1e6);
+        m.velocity_rad_s = keys.number(r, "velocity_rad_s");
+        m.accel_rad_s2 = keys.number(r, "accel_rad_s2");
+        m.start_s = keys.number(r, "start_s");
+        m.cruise_s = keys.number(r, "cruise_s");
     } else if (kind == "sine") {
         m.kind = MotionKind::Sine;
-        m.amplitude_rad = r.number("amplitude_rad", 0.0, 1e6);
-        m.freq_hz = r.number("freq_hz", 0.0, 1e6);
-        m.phase_rad = r.number("phase_rad", 0.0, -1e3, 1e3);
-        m.velocity_rad_s = r.number("velocity_rad_s", 0.0, -kMaxV, kMaxV);
+        m.amplitude_rad = keys.number(r, "amplitude_rad");
+        m.freq_hz = keys.number(r, "freq_hz");
+        m.phase_rad = keys.number(r, "phase_rad");
+        m.velocity_rad_s = keys.number(r, "velocity_rad_s");
     } else if (kind == "steps") {
         m.kind = MotionKind::Steps;
-        m.step_rad = r.number("step_rad", -1e3, 1e3);
-        m.dwell_s = r.number("dwell_s", 1e-9, 1e6);
+        m.step_rad = keys.number(r, "step_rad");
+        m.dwell_s = keys.number(r, "dwell_s");
     } else {
         m.kind = MotionKind::Table;
-        m.table_file = r.string("file");
+        m.table_file = keys.string(r, "file");
         std::filesystem::path p(m.table_file);
         if (p.is_relative() && !base_dir.empty()) p = std::filesystem::path(base_dir) / p;
         read_table(m, p.string(), r.path_of("file"));

@@ -344,19 +344,19 @@ TEST_CASE("scenario: device as output and input instruments, errors name the fie
     CHECK(sc.device.empty());
     CHECK(json(sc)["device"]["output"] == j["device"]["output"]);
     CHECK(scenario_from_json(json(sc), base).instruments->input == sc.instruments->input);  // round trip
-    CHECK_NOTHROW(validate_run(sc));
+    CHECK_NOTHROW(plan_run(sc));
     json bad = j;
     bad["device"]["input"] = "loopback:?adc_bitz=3";
-    CHECK_THROWS_WITH(validate_run(scenario_from_json(bad, base)), Catch::Contains("device.input.adc_bitz"));
+    CHECK_THROWS_WITH(plan_run(scenario_from_json(bad, base)), Catch::Contains("device.input.adc_bitz"));
     try {
-        validate_run(scenario_from_json(bad, base));
+        plan_run(scenario_from_json(bad, base));
     } catch (const ConfigError& e) {
         CHECK(e.field() == "device.input.adc_bitz");
     }
     bad = j;
     bad["device"]["input"] = "warp:";
     try {
-        validate_run(scenario_from_json(bad, base));
+        plan_run(scenario_from_json(bad, base));
         FAIL("no error");
     } catch (const ConfigError& e) {
         CHECK(e.field() == "device.input");
@@ -374,18 +374,18 @@ TEST_CASE("scenario: device as output and input instruments, errors name the fie
     bad = j;
     bad["device"]["dut"] = "modbus+tcp://127.0.0.1:1502";
     try {
-        validate_run(scenario_from_json(bad, base));
+        plan_run(scenario_from_json(bad, base));
         FAIL("no error");
     } catch (const ConfigError& e) {
         CHECK(e.field() == "device.dut");
         CHECK_THAT(e.message(), Catch::Contains("not supported yet"));
     }
     bad["device"]["dut"] = "modbus+tcp://127.0.0.1:1502?bogus=1";
-    CHECK_THROWS_WITH(validate_run(scenario_from_json(bad, base)), Catch::Contains("device.dut.bogus"));
+    CHECK_THROWS_WITH(plan_run(scenario_from_json(bad, base)), Catch::Contains("device.dut.bogus"));
     // Run-level metrics are measured once: an estimator label on them is refused.
     Scenario s2 = sc;
     s2.limits = {{"atan2", "clock_offset_ppm", 1.0, std::nullopt, 0.0}};
-    CHECK_THROWS_WITH(validate_run(s2), Catch::Contains("limits[0].estimator") && Catch::Contains("once for the run"));
+    CHECK_THROWS_WITH(plan_run(s2), Catch::Contains("limits[0].estimator") && Catch::Contains("once for the run"));
     CHECK(find_metric("alignment_delay_s")->run_level);
 }
 

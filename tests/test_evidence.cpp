@@ -59,7 +59,7 @@ std::string external(const std::string& mode) {
 
 TEST_CASE("evidence: a run whose settle time eats the run is refused before it starts", "[evidence]") {
     Scenario sc = ideal_run(0.1, 0.1);
-    CHECK_THROWS_WITH(validate_run(sc), Catch::Contains("settle_s") && Catch::Contains("nothing would be scored"));
+    CHECK_THROWS_WITH(plan_run(sc), Catch::Contains("settle_s") && Catch::Contains("nothing would be scored"));
     CHECK_THROWS_AS(execute_run(sc), ConfigError);
 }
 
@@ -117,12 +117,12 @@ TEST_CASE("preflight: undersampled scenarios are errors, marginal ones warnings"
     j["encoder"]["lines_per_rev"] = 2048;
     Scenario sc = scenario_from_json(j, src("fixtures/scenarios"));
     CHECK(min_samples_per_cycle(sc) == Approx(200000.0 / (2048 * 50.0)).epsilon(1e-6));
-    CHECK_THROWS_WITH(validate_run(sc), Catch::Contains("sample_rate_hz") && Catch::Contains("undersampled") && Catch::Contains("1.95"));
+    CHECK_THROWS_WITH(plan_run(sc), Catch::Contains("sample_rate_hz") && Catch::Contains("undersampled") && Catch::Contains("1.95"));
     // 3.9 samples per cycle: runs, with a warning in the report
     sc.sample_rate_hz = 400000;
     sc.duration_s = 0.01;
     sc.settle_s = 0.001;
-    const auto w = validate_run(sc);
+    const auto w = plan_run(sc).warnings;
     REQUIRE_FALSE(w.empty());
     CHECK(w[0].code == "few_samples_per_cycle");
     const json r = execute_run(sc);
@@ -137,7 +137,7 @@ TEST_CASE("preflight: steps are judged by their phase jumps, not by a zero rate"
     // steps fall between samples, so the largest phase jump is 2 steps, 32 samples per cycle.
     CHECK(min_samples_per_cycle(sc) == Approx(32).epsilon(1e-6));
     sc.motion.step_rad *= 40;  // 1.6 steps per period: aliased
-    CHECK_THROWS_WITH(validate_run(sc), Catch::Contains("undersampled"));
+    CHECK_THROWS_WITH(plan_run(sc), Catch::Contains("undersampled"));
 }
 
 TEST_CASE("preflight: double quantisation, clipping and model mismatch are warned", "[evidence][preflight]") {
@@ -145,7 +145,7 @@ TEST_CASE("preflight: double quantisation, clipping and model mismatch are warne
     sc.encoder.adc.bits = 16;
     sc.device = "loopback:?range_v=0.5";
     std::set<std::string> codes;
-    for (const auto& f : validate_run(sc)) codes.insert(f.code);
+    for (const auto& f : plan_run(sc).warnings) codes.insert(f.code);
     CHECK(codes.count("double_quantisation"));
     CHECK(codes.count("clipping"));
     CHECK(codes.count("model_mismatch"));  // ekf-ideal under an rms limit on a diffraction encoder
@@ -156,7 +156,7 @@ TEST_CASE("preflight: ekf-auto scored before it learnt the shape is warned", "[e
     sc.estimators.push_back({"ekf-auto", "auto", json::object(), std::nullopt});
     auto codes = [&] {
         std::set<std::string> c;
-        for (const auto& f : validate_run(sc)) c.insert(f.code);
+        for (const auto& f : plan_run(sc).warnings) c.insert(f.code);
         return c;
     };
     sc.settle_s = 0.1;  // ~11 cycles
@@ -176,7 +176,7 @@ TEST_CASE("preflight: ekf-auto scored before it learnt the shape is warned", "[e
     sc.settle_s = 2.0;
     sc.duration_s = 6.0;
     std::string msg;
-    for (const auto& f : validate_run(sc))
+    for (const auto& f : plan_run(sc).warnings)
         if (f.code == "scores_learning") msg = f.message;
     CHECK_THAT(msg, Catch::Contains("covers 25.5 electrical cycles"));
     sc.settle_s = 4.0;  // 50.9 cycles
@@ -459,9 +459,9 @@ TEST_CASE("external: an efficiency limit needs a declared model", "[evidence][ex
     Scenario sc = ideal_run(0.3, 0.1);
     sc.estimators[0] = {"external", "fw", {{"command", external("h8 0")}}, std::nullopt};
     sc.limits = {{"fw", "efficiency", std::nullopt, 0.5, 0.0}};
-    CHECK_THROWS_WITH(validate_run(sc), Catch::Contains("limits[0].metric") && Catch::Contains("params.model"));
+    CHECK_THROWS_WITH(plan_run(sc), Catch::Contains("limits[0].metric") && Catch::Contains("params.model"));
     sc.estimators[0].params["model"] = "tracker-cv";
-    CHECK_THROWS_WITH(validate_run(sc), Catch::Contains("estimators[0].params.natural_freq_hz"));
+    CHECK_THROWS_WITH(plan_run(sc), Catch::Contains("estimators[0].params.natural_freq_hz"));
 }
 
 TEST_CASE("replay: a capture without rate truth has no rate metrics", "[evidence][capture]") {

@@ -230,12 +230,12 @@ TEST_CASE("run: capture replay scores against the file's truth", "[run][capture]
 TEST_CASE("run: scenario validation names the bad key", "[run][config]") {
     Scenario sc = short_run();
     sc.estimators[1].params = {{"natural_freq_hz", -1}};
-    CHECK_THROWS_WITH(validate_run(sc), Catch::Contains("estimators[1].params.natural_freq_hz"));
+    CHECK_THROWS_WITH(plan_run(sc), Catch::Contains("estimators[1].params.natural_freq_hz"));
     sc = short_run();
     sc.limits = {{"ekf-diffraction", "rms_radians", 1.0, std::nullopt, 0.0}};
-    CHECK_THROWS_WITH(validate_run(sc), Catch::Contains("limits[0].metric") && Catch::Contains("rms_rad"));
+    CHECK_THROWS_WITH(plan_run(sc), Catch::Contains("limits[0].metric") && Catch::Contains("rms_rad"));
     sc.limits = {{"ekf-magic", "rms_rad", 1.0, std::nullopt, 0.0}};
-    CHECK_THROWS_WITH(validate_run(sc), Catch::Contains("limits[0].estimator"));
+    CHECK_THROWS_WITH(plan_run(sc), Catch::Contains("limits[0].estimator"));
     json j = load_json_file(fixture("fig10c-loopback.json"));
     j["limits"][0]["maximum"] = 3;
     CHECK_THROWS_WITH(scenario_from_json(j, std::string(FRINGE_SOURCE_DIR) + "/fixtures/scenarios"), Catch::Contains("limits[0].maximum"));

@@ -25,6 +25,10 @@ function setDeep(o, path, v) {
 const nice = (v) => (typeof v === 'number' && Number.isFinite(v) ? String(+v.toPrecision(8)) : v);
 
 // One input for a self-described parameter (name, unit, type, default, min, max, options).
+// The schema's keys the editor offers as fields; the others ("editor": false: model-specific,
+// structured or rarely set) are kept as the fixture gives them.
+const offered = (list) => list.filter((p) => p.editor !== false);
+
 function paramInput(p, value, field, name = field) {
   let input;
   if (p.type === 'boolean') {
@@ -106,13 +110,13 @@ export async function newRun(view, cleanup) {
   const fillEncoder = (enc) => {
     encSel.value = typeof enc === 'string' ? (enc.match(/([^/]+)\.json$/) || [])[1] || '' : '';
     const obj = enc && typeof enc === 'object' ? enc : {};
-    encGrid.replaceChildren(...S.encoder.map((p) => paramInput(p, getDeep(obj, p.name), `scenario.encoder.${p.name}`, `encoder.${p.name}`)));
+    encGrid.replaceChildren(...offered(S.encoder).map((p) => paramInput(p, getDeep(obj, p.name), `scenario.encoder.${p.name}`, `encoder.${p.name}`)));
     encGrid.hidden = encSel.value !== '';
   };
   encSel.addEventListener('change', () => { encGrid.hidden = encSel.value !== ''; });
 
   // Motion: kind, speed unit, the kind's parameters.
-  const kinds = S.motion;
+  const kinds = offered(S.motion);
   const kindSel = h('select', { name: 'motion.kind', id: 'motion-kind', 'data-field': 'scenario.motion.kind' },
     kinds.map((k) => h('option', { value: k.kind }, `${k.kind}: ${k.summary}`)));
   const speedUnit = h('select', { name: 'speed_unit', id: 'speed-unit' });
@@ -181,7 +185,7 @@ export async function newRun(view, cleanup) {
 
   // Sampling: sample rate, duration, settle time, seed, t0 (the schema's scenario keys).
   const sampGrid = h('div', { class: 'params open', id: 'sampling-params' });
-  const fillSampling = (sc) => sampGrid.replaceChildren(...S.scenario.map((p) => paramInput(p, sc[p.name], `scenario.${p.name}`, p.name)));
+  const fillSampling = (sc) => sampGrid.replaceChildren(...offered(S.scenario).map((p) => paramInput(p, sc[p.name], `scenario.${p.name}`, p.name)));
 
   // Device: driver, path, the driver's settings; capture files by picker or drop.
   const driverSel = h('select', { name: 'driver', id: 'driver', 'data-field': 'scenario.device' }, cat.drivers.map((d) => h('option', { value: d.scheme }, d.scheme)));

@@ -85,7 +85,9 @@ int run_run(const RunCliOptions& o) {
     }
     if (!o.dut.empty()) sc.dut = o.dut;
     if (!o.dut_part.empty()) sc.dut_part = o.dut_part;
-    validate_run(sc);  // preflight errors stop here (exit 2); warnings come back in the report
+    // Checked once, here: errors stop the run (exit 2); the preflight's warnings come back in the
+    // report. With --server the service makes its own plan from the scenario sent.
+    RunPlan plan = plan_run(sc);
     if (!o.server.empty()) return run_run_remote(o, sc);
     // The run's row names this process's instance, whose lock we hold until the report is
     // stored: a service on the same folder sees the run alive, and interrupted once we are gone.
@@ -120,8 +122,8 @@ int run_run(const RunCliOptions& o) {
     if (progress.active()) ro.progress = [&](std::uint64_t done, std::uint64_t total) { progress.update(done, total); };
     json r;
     try {
-        r = execute_run(sc, ro);
-    } catch (const std::exception& e) {  // the history must not keep it "running"
+        r = execute_run(std::move(plan), ro);
+    } catch (const std::exception& e) {  // out of memory, say: the history must not keep it "running"
         r = unstarted_report(sc, ro.run_id, iso_now(), "error", "ERROR", e.what(), ro.provenance);
     }
     progress.clear();

@@ -94,7 +94,8 @@ std::vector<SweepResult> run_rows_stored(const SweepOptions& o, const Sweep& s, 
     std::mutex store_mu;
     Progress progress("sweep", "runs", o.quiet);
     const auto res = run_sweep(s, o.jobs > 0 ? o.jobs : s.jobs, [&](std::size_t done, std::size_t total) { progress.update(done, total); }, &rows,
-                               [&](std::size_t k, const Scenario& sc) {
+                               [&](std::size_t k, RunPlan plan) {
+                                   const Scenario& sc = plan.scenario;
                                    RunOptions ro;
                                    ro.run_id = sweep_run_id(s, k);
                                    ro.provenance = make_provenance(pd, sc);
@@ -103,7 +104,7 @@ std::vector<SweepResult> run_rows_stored(const SweepOptions& o, const Sweep& s, 
                                        std::lock_guard<std::mutex> l(store_mu);
                                        store.begin(ro.run_id, iso_now(), sc.name, sc.dut, "running", ro.provenance);
                                    }
-                                   json rep = execute_run(sc, ro);
+                                   json rep = execute_run(std::move(plan), ro);
                                    std::lock_guard<std::mutex> l(store_mu);
                                    // Ctrl-C: the row is not done; left without a report, a rerun takes it over.
                                    if (rep.value("status", "") == "aborted" && cancel_flag().load()) store.mark_interrupted(ro.run_id);

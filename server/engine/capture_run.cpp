@@ -74,7 +74,7 @@ CapturePlan plan_capture_run(const CaptureRunOptions& o) {
 
     CapturePlan p;
     p.has_truth = truth;
-    Scenario& sc = p.scenario;
+    Scenario sc;
     sc.name = "estimate " + std::filesystem::path(o.capture_path).filename().string();
     sc.description = o.estimator + " on the capture " + o.capture_path;
     // The truth's units and bounds: the capture's own encoder, else the profile given; the
@@ -123,6 +123,7 @@ CapturePlan plan_capture_run(const CaptureRunOptions& o) {
     if (!truth_enc)
         p.facts["no_encoder"] = "neither an encoder profile nor the capture's metadata gives one: the estimator is told none, the errors have "
                                 "no arcsec (they need lines_per_rev) and no bounds (they need the signal model)";
+    p.run = plan_run(std::move(sc));
     return p;
 }
 
@@ -142,7 +143,7 @@ json run_capture(const CaptureRunOptions& o) {
     };
     double estimator_s = 0;
     ro.estimator_s = &estimator_s;
-    json r = execute_run(p.scenario, ro);
+    json r = execute_run(std::move(p.run), ro);
     if (out) out->close();
     json facts = p.facts;
     facts["estimates"] = {{"samples", samples}, {"valid_samples", valid},

@@ -6,6 +6,7 @@
 
 #include "drivers/abz.hpp"
 #include "drivers/capture_file.hpp"
+#include "server/engine/plan.hpp"
 #include "server/engine/scenario.hpp"
 #include "signal_gen/encoder.hpp"
 
@@ -34,21 +35,23 @@ struct CaptureRunOptions {
     std::optional<AbzConfig> abz;
 };
 
-// The scenario a capture is run as, and what reading the capture once found (report "capture").
+// The run a capture is: its plan (plan_run of the scenario built from the capture), and what
+// reading the capture once found (report "capture").
 struct CapturePlan {
-    Scenario scenario;
+    RunPlan run;
     nlohmann::json facts;
     bool has_truth = false;
 };
 
-// Reads the capture once (its length, rate, first time stamp, and the truth's travel) and
-// builds the scenario: device capture:PATH, the one estimator, settle_s, no user limits.
-// Throws ConfigError / CaptureError (CaptureTooLarge) on bad input, before anything is written.
+// Reads the capture once (its length, rate, first time stamp, and the truth's travel), builds
+// the scenario (device capture:PATH, the one estimator, settle_s, no user limits) and plans it
+// (plan_run: the estimator is built and checked here). Throws ConfigError / CaptureError
+// (CaptureTooLarge) on bad input, before anything is written.
 CapturePlan plan_capture_run(const CaptureRunOptions& o);
 
 // plan_capture_run, then execute_run. The report's status is "error" (with "error") when the
 // run failed part way (the estimates file is complete up to there); throws what
-// plan_capture_run and validate_run throw, and CaptureError when the estimates cannot be written.
+// plan_capture_run throws, and CaptureError when the estimates cannot be written.
 nlohmann::json run_capture(const CaptureRunOptions& o);
 
 }  // namespace fringe

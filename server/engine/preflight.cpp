@@ -67,7 +67,7 @@ double min_samples_per_cycle(const Scenario& sc) {
     return max_step_rad > 0 ? kTwoPi / max_step_rad : kInf;
 }
 
-std::vector<Finding> preflight(const Scenario& sc) {
+std::vector<Finding> preflight(const Scenario& sc, double spc, const dev::UriParts& input) {
     std::vector<Finding> w;
     if (sc.settle_s >= sc.duration_s) {
         // A capture holds what it holds: its run says that nothing was scored (the evidence
@@ -78,7 +78,6 @@ std::vector<Finding> preflight(const Scenario& sc) {
         w.push_back({false, "settle_covers_capture", "settle_s",
                      "the settle time (" + fmt(sc.settle_s) + " s) is not shorter than the capture (" + fmt(sc.duration_s) + " s): nothing will be scored"});
     }
-    const double spc = min_samples_per_cycle(sc);
     if (spc < 2.0) {
         // Enough digits that a rate just below the limit does not print as the limit itself.
         auto fine = [](double v) {
@@ -143,23 +142,18 @@ std::vector<Finding> preflight(const Scenario& sc) {
         }
     }
     // The device's converter, as far as the URI says (loopback).
-    try {
-        const auto parts = dev::check_uri(sc.instruments ? sc.instruments->input : sc.device);
-        if (parts.scheme == "loopback") {
-            const int adc_bits = parts.settings.value("adc_bits", 16);
-            const double range_v = parts.settings.value("range_v", 1.25);
-            if (adc_bits > 0 && !sc.encoder.adc.ideal())
-                w.push_back({false, "double_quantisation", "encoder.adc.bits",
-                             "the encoder profile has its own " + std::to_string(sc.encoder.adc.bits) + "-bit ADC and the device digitises again at " +
-                                 std::to_string(adc_bits) + " bits: the signal is quantised twice (use a profile with adc.bits = 0 for runs)"});
-            const double peak = peak_signal_v(sc.encoder) + 4 * sc.encoder.noise.sigma_add_v;
-            if (peak >= range_v)
-                w.push_back({false, "clipping", "device",
-                             "the signal reaches " + fmt(peak) + " V (peak plus 4 sigma of noise) but the converters span +-" + fmt(range_v) +
-                                 " V: it clips"});
-        }
-    } catch (const ConfigError&) {
-        // the URI itself is checked elsewhere, with its own message
+    if (input.scheme == "loopback") {
+        const int adc_bits = input.settings.value("adc_bits", 16);
+        const double range_v = input.settings.value("range_v", 1.25);
+        if (adc_bits > 0 && !sc.encoder.adc.ideal())
+            w.push_back({false, "double_quantisation", "encoder.adc.bits",
+                         "the encoder profile has its own " + std::to_string(sc.encoder.adc.bits) + "-bit ADC and the device digitises again at " +
+                             std::to_string(adc_bits) + " bits: the signal is quantised twice (use a profile with adc.bits = 0 for runs)"});
+        const double peak = peak_signal_v(sc.encoder) + 4 * sc.encoder.noise.sigma_add_v;
+        if (peak >= range_v)
+            w.push_back({false, "clipping", "device",
+                         "the signal reaches " + fmt(peak) + " V (peak plus 4 sigma of noise) but the converters span +-" + fmt(range_v) +
+                             " V: it clips"});
     }
     if (!sc.encoder.adc.ideal()) {
         const double peak = peak_signal_v(sc.encoder);

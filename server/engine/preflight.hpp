@@ -12,7 +12,10 @@
 
 namespace fringe {
 
-namespace dev { struct DeviceInfo; }
+namespace dev {
+struct DeviceInfo;
+struct UriParts;
+}  // namespace dev
 
 struct Finding {
     bool error = false;
@@ -26,10 +29,13 @@ void to_json(nlohmann::json& j, const Finding& f);
 // smallest number of samples any cycle of the run gets). +inf for a motion that never moves.
 double min_samples_per_cycle(const Scenario& sc);
 
-// Checks that need only the scenario (and the device URI's settings). Throws ConfigError for
+// Checks that need only the scenario (the physics: sampling, settle time, learning, model
+// mismatch, quantisation, clipping) and the input device URI's settings, from plan_run
+// (plan.hpp), which passes min_samples_per_cycle and the checked URI. Throws ConfigError for
 // the first error; returns the warnings.
-std::vector<Finding> preflight(const Scenario& sc);
-// Checks that need the opened device's description (a board profile's converter, ...).
+std::vector<Finding> preflight(const Scenario& sc, double samples_per_cycle, const dev::UriParts& input);
+// Checks that need the opened device's description (a board profile's converter, ...), from
+// execute_run once the device is open.
 std::vector<Finding> preflight_device(const Scenario& sc, const dev::DeviceInfo& d);
 
 }  // namespace fringe

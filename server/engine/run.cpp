@@ -43,105 +43,6 @@ std::string iso_now() {
 
 std::string new_run_id() { return new_uuid7(); }
 
-namespace {
-
-est::EstimatorConfig estimator_config(const Scenario& sc, const EstimatorSpec& spec) {
-    est::EstimatorConfig cfg;
-    cfg.sample_rate_hz = sc.sample_rate_hz;
-    cfg.encoder = spec.encoder ? spec.encoder : sc.encoder_known ? std::optional(sc.encoder) : std::nullopt;
-    cfg.params = spec.params;
-    return cfg;
-}
-
-// Can this estimator be given an efficiency? (A tracker must declare its prior.)
-std::string why_no_efficiency(const EstimatorSpec& spec, const est::Estimator* built) {
-    if (est::traits_of(spec.name).child_process || !built) {
-        const std::string model = spec.params.is_object() ? spec.params.value("model", std::string("unknown")) : "unknown";
-        return model == "unknown" ? "the " + spec.name + " estimator declares no model: set params.model (memoryless, tracker-cv or tracker-ca) "
-                                    "and, for a tracker, params.natural_freq_hz (docs/external-estimator.md)"
-                                  : "";
-    }
-    if (built->bound_class() == est::BoundClass::Tracker && !built->prior()) return spec.label + " (" + spec.name + ") declares no tracking prior";
-    return "";
-}
-
-}  // namespace
-
-std::vector<Finding> validate_run(const Scenario& sc, std::vector<std::unique_ptr<est::Estimator>>* built_out) {
-    if (sc.estimators.empty()) throw ConfigError("estimators", "a run needs at least one estimator under test");
-    // Each estimator is built once here (its parameters checked by its reset) and kept for the
-    // run; a child process is not started before the run.
-    std::vector<std::unique_ptr<est::Estimator>> built(sc.estimators.size());
-    for (std::size_t i = 0; i < sc.estimators.size(); ++i) {
-        const auto& spec = sc.estimators[i];
-        try {
-            const auto& info = est::find(spec.name);
-            const Params p = resolve_params(info.params, spec.params);  // cheap checks first; external is not started here
-            if (!info.traits.child_process) built[i] = est::make(spec.name, estimator_config(sc, spec));
-            else if (p.string("model").rfind("tracker", 0) == 0 && !(p.number("natural_freq_hz") > 0))
-                throw ConfigError("params.natural_freq_hz", "a tracker's declared prior needs its natural frequency (> 0 Hz)");
-        } catch (const ConfigError& e) {
-            // An unknown estimator is the scenario's "name" key (est::find names the CLI's --estimator).
-            if (e.field() == "estimator") throw ConfigError("estimators[" + std::to_string(i) + "].name", e.message());
-            throw e.prefixed("estimators[" + std::to_string(i) + "]");
-        }
-    }
-    for (std::size_t i = 0; i < sc.limits.size(); ++i) {
-        const auto& l = sc.limits[i];
-        const std::string path = "limits[" + std::to_string(i) + "]";
-        if (!find_metric(l.metric)) {
-            std::string known;
-            for (const auto& m : metric_catalog())
-                if (m.limitable) known += (known.empty() ? "" : ", ") + m.name;
-            throw ConfigError(path + ".metric", "unknown metric '" + l.metric + "' (known: " + known + ", and harmonic_Nx_rad up to 64x)");
-        }
-        if (!find_metric(l.metric)->limitable)
-            throw ConfigError(path + ".metric", "'" + l.metric + "' is a bound of the signal, not a figure of the estimator: a limit on it grades nothing");
-        if (find_metric(l.metric)->run_level) {
-            if (l.estimator != "*" && l.estimator != "run")
-                throw ConfigError(path + ".estimator", "'" + l.metric + "' is measured once for the run (alignment): leave estimator out or give \"run\"");
-        } else if (l.estimator != "*") {
-            bool found = false;
-            for (const auto& e : sc.estimators) found |= e.label == l.estimator;
-            found |= l.estimator == "dut";  // a DUT board's own position (step mode)
-            if (!found) throw ConfigError(path + ".estimator", "no estimator labelled '" + l.estimator + "' in this scenario");
-        }
-        // A limit that can never be measured is refused now, not failed later.
-        if (l.metric == "efficiency") {
-            if (l.estimator == "dut") throw ConfigError(path + ".estimator", "a DUT's own position has no efficiency (it declares no model)");
-            for (std::size_t k = 0; k < sc.estimators.size(); ++k) {
-                const auto& e = sc.estimators[k];
-                if (l.estimator != "*" && l.estimator != e.label) continue;
-                if (const std::string why = why_no_efficiency(e, built[k].get()); !why.empty())
-                    throw ConfigError(path + ".metric", "efficiency cannot be computed for '" + e.label + "': " + why);
-            }
-        }
-    }
-    // The device URIs' form and settings (the devices themselves are opened when the run starts).
-    check_device_uris(sc);
-    auto findings = preflight(sc);
-    if (built_out) *built_out = std::move(built);
-    return findings;
-}
-
-void check_device_uris(const Scenario& sc) {
-    for (const auto& [field, uri] : sc.device_uris()) {
-        dev::UriParts parts;
-        try {
-            parts = dev::check_uri(uri);
-        } catch (const ConfigError& e) {
-            // check_uri names "device" or "device.<setting>": the same under this URI's field.
-            const std::string f = e.field();
-            throw ConfigError(f.rfind("device", 0) == 0 ? field + f.substr(6) : field, e.message());
-        }
-        if (parts.scheme == "loopback" && !parts.path.empty())
-            throw ConfigError(field, "loopback takes no path (got '" + parts.path + "'); use loopback:?key=value");
-    }
-    if (sc.instruments && !sc.instruments->dut.empty())
-        throw ConfigError("device.dut", "a separate DUT readout device is not supported yet (the URI is valid; runs with output and input instruments "
-                                        "score the estimators under test)");
-}
-
 json unstarted_report(const Scenario& sc, const std::string& id, const std::string& started_at, const std::string& status,
                       const std::string& verdict, const std::string& error, const json& provenance) {
     json r = json{{"schema", "fringe.report"}, {"schema_version", 3}, {"fringe_version", FRINGE_VERSION}, {"id", id},
@@ -328,9 +229,11 @@ dev::DeviceInfo combined_info(const Scenario& sc, const dev::DeviceInfo& out, co
 
 }  // namespace
 
-json execute_run(const Scenario& sc, const RunOptions& o) {
-    std::vector<std::unique_ptr<est::Estimator>> built;
-    json warnings = validate_run(sc, &built);
+json execute_run(const Scenario& sc, const RunOptions& o) { return execute_run(plan_run(sc), o); }
+
+json execute_run(RunPlan plan, const RunOptions& o) {
+    const Scenario& sc = plan.scenario;
+    json warnings = plan.warnings;
     json report;
     report["schema"] = "fringe.report";
     report["schema_version"] = 3;
@@ -385,7 +288,8 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
         for (std::size_t i = 0; i < sc.estimators.size(); ++i) {
             const auto& spec = sc.estimators[i];
             auto lane = std::make_unique<Lane>(&spec, lane_ctx);
-            lane->e = built[i] ? std::move(built[i]) : est::make(spec.name, estimator_config(sc, spec));
+            // built by plan_run; a child process starts here
+            lane->e = plan.estimators[i] ? std::move(plan.estimators[i]) : est::make(spec.name, plan.configs[i]);
             if (lanes.empty()) lane->tap = o.estimates;
             lanes.push_back(std::move(lane));
         }

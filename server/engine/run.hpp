@@ -5,6 +5,7 @@
 #pragma once
 
 #include "server/engine/limits.hpp"
+#include "server/engine/plan.hpp"
 #include "server/engine/preflight.hpp"
 #include "server/engine/scenario.hpp"
 
@@ -17,10 +18,6 @@
 #include <string>
 
 namespace fringe {
-
-namespace est {
-class Estimator;
-}
 
 struct RunOptions {
     std::size_t block = 65536;
@@ -45,19 +42,12 @@ struct RunOptions {
     double* estimator_s = nullptr;
 };
 
-// Validates a scenario for running (estimators exist and accept their parameters, limits
-// name known metrics and estimators, preflight finds no error). Throws ConfigError naming the
-// key; returns the preflight warnings.
-// With built_out, the estimators it built (one per scenario estimator, null for a child
-// process, which starts with the run) are handed back for the run to use.
-std::vector<Finding> validate_run(const Scenario& sc, std::vector<std::unique_ptr<est::Estimator>>* built_out = nullptr);
-// The form and settings of every device URI the scenario names (without opening anything);
-// errors name "device", "device.output", "device.input" or "device.dut".
-void check_device_uris(const Scenario& sc);
-
-// Never throws once the scenario is valid: device faults, sample loss, estimator failure,
-// cancellation and any unexpected exception end the run with status "error" or "aborted" and
-// a report of what was processed until then. Throws ConfigError from validate_run only.
+// Executes a run plan (plan.hpp: the scenario checked once, its estimators built). Never
+// throws: device faults, sample loss, estimator failure, cancellation and any unexpected
+// exception end the run with status "error" or "aborted" and a report of what was processed
+// until then.
+nlohmann::json execute_run(RunPlan plan, const RunOptions& o = {});
+// plan_run, then the plan: throws plan_run's ConfigError.
 nlohmann::json execute_run(const Scenario& sc, const RunOptions& o = {});
 
 // The report of a run that ended before it produced a sample (cancelled while queued, or the

@@ -1,4 +1,5 @@
 #include "server/engine/scenario.hpp"
+#include "server/engine/scenario_keys.hpp"
 
 #include "signal_gen/base/config.hpp"
 #include "signal_gen/base/json_bounded.hpp"
@@ -83,11 +84,44 @@ json resolve_json_ref(const json& j, const std::string& base_dir, std::string* f
 
 EncoderProfile load_encoder(const std::string& path) { return encoder_from_json(load_json_file(path), "encoder"); }
 
+const KeyTable& scenario_keys() {
+    static const Scenario d;
+    static const KeyTable t({
+        key_string("name", d.name, "the scenario's name (reports, history)", false),
+        key_string("description", "", "free text", false),
+        key_number("sample_rate_hz", "Hz", d.sample_rate_hz, 1.0, 1e10, "samples per second of the stream"),
+        key_number("duration_s", "s", nullptr, 1e-9, 1e7, "length of the run (required)"),
+        key_number("settle_s", "s", d.settle_s, 0.0, 1e7, "seconds at the start excluded from scoring"),
+        key_integer("seed", "", d.seed, 0, 9007199254740992.0, "noise seed"),
+        key_number("t0_s", "s", d.t0_s, -1e9, 1e9, "time of sample 0"),
+        key_string("dut", "", "DUT serial for the history (default: the device's board id)", false),
+        key_string("dut_part", "", "DUT part number (provenance)", false),
+        key_integer("scoring.max_harmonic", "", d.scoring.max_harmonic, 1, 64, "error harmonics fitted: 1x to this", false),
+        key_integer("scoring.min_scored_samples", "", d.scoring.min_scored_samples, 1, 9007199254740992.0, "evidence: at least this many scored samples", false),
+        key_number("scoring.min_scored_cycles", "", d.scoring.min_scored_cycles, 0.0, 1e12, "evidence: electrical cycles of truth under the scored samples", false),
+        key_number("scoring.min_valid_fraction", "", d.scoring.min_valid_fraction, 0.0, 1.0, "evidence: valid share of the samples after the settle time", false),
+        key_integer("scoring.max_slipped_samples", "", d.scoring.max_slipped_samples, 0, 9007199254740992.0, "evidence: scored samples off by more than pi at most", false),
+    });
+    return t;
+}
+
+const KeyTable& limit_keys() {
+    static const KeyTable t({
+        key_string("estimator", "*", "the estimator's label, \"*\" for every one, \"run\" for a run-level metric", false),
+        key_string("metric", nullptr, "a metric's name (\"metrics\")", false),
+        key_number("max", "", nullptr, -kInf, kInf, "FAIL above (the metric's unit)"),
+        key_number("min", "", nullptr, -kInf, kInf, "FAIL below (the metric's unit)"),
+        key_number("marginal_fraction", "", 0.0, 0.0, 1.0, "MARGINAL within this fraction of |limit| on the passing side"),
+    });
+    return t;
+}
+
 Scenario scenario_from_json(const json& j, const std::string& base_dir) {
     JsonReader r(j, "");
     Scenario s;
-    s.name = bounded(r.string("name", s.name), "name", kMaxNameChars);
-    s.description = bounded(r.string("description", ""), "description", kMaxDescriptionChars);
+    const KeyTable& k = scenario_keys();
+    s.name = bounded(k.string(r, "name"), "name", kMaxNameChars);
+    s.description = bounded(k.string(r, "description"), "description", kMaxDescriptionChars);
     const json& enc = r.raw("encoder");
     if (!enc.is_string() && !enc.is_object()) throw ConfigError("encoder", "expected a profile object or a file name");
     std::string file;
@@ -97,10 +131,10 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
         if (file.empty()) throw;
         throw ConfigError(e.field().empty() ? "encoder" : e.field(), std::string(e.what()) + " (in " + file + ")");
     }
-    s.sample_rate_hz = r.number("sample_rate_hz", s.sample_rate_hz, 1.0, 1e10);
-    s.duration_s = r.number("duration_s", 1e-9, 1e7);
-    s.t0_s = r.number("t0_s", 0.0, -1e9, 1e9);
-    s.seed = static_cast<std::uint64_t>(r.integer("seed", 1, 0, (1LL << 53)));
+    s.sample_rate_hz = k.number(r, "sample_rate_hz");
+    s.duration_s = k.number(r, "duration_s");
+    s.t0_s = k.number(r, "t0_s");
+    s.seed = static_cast<std::uint64_t>(k.integer(r, "seed"));
     s.motion = motion_from_json(r.raw("motion"), base_dir, s.encoder.lines_per_rev, "motion");
     if (s.samples() < 1) throw ConfigError("duration_s", "gives no samples at this sample rate");
     if (r.has("device") && r.raw("device").is_object()) {
@@ -117,16 +151,16 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
     } else {
         s.device = r.string("device", s.device);
     }
-    s.settle_s = r.number("settle_s", s.settle_s, 0.0, 1e7);
-    s.dut = bounded(r.string("dut", ""), "dut", kMaxNameChars);
-    s.dut_part = bounded(r.string("dut_part", ""), "dut_part", kMaxNameChars);
+    s.settle_s = k.number(r, "settle_s");
+    s.dut = bounded(k.string(r, "dut"), "dut", kMaxNameChars);
+    s.dut_part = bounded(k.string(r, "dut_part"), "dut_part", kMaxNameChars);
     if (r.has("scoring")) {
         JsonReader sr = r.object("scoring");
-        s.scoring.max_harmonic = static_cast<int>(sr.integer("max_harmonic", s.scoring.max_harmonic, 1, 64));
-        s.scoring.min_scored_samples = static_cast<std::uint64_t>(sr.integer("min_scored_samples", 1000, 1, 1LL << 53));
-        s.scoring.min_scored_cycles = sr.number("min_scored_cycles", s.scoring.min_scored_cycles, 0.0, 1e12);
-        s.scoring.min_valid_fraction = sr.number("min_valid_fraction", s.scoring.min_valid_fraction, 0.0, 1.0);
-        s.scoring.max_slipped_samples = static_cast<std::uint64_t>(sr.integer("max_slipped_samples", 0, 0, 1LL << 53));
+        s.scoring.max_harmonic = static_cast<int>(k.integer(sr, "scoring.max_harmonic"));
+        s.scoring.min_scored_samples = static_cast<std::uint64_t>(k.integer(sr, "scoring.min_scored_samples"));
+        s.scoring.min_scored_cycles = k.number(sr, "scoring.min_scored_cycles");
+        s.scoring.min_valid_fraction = k.number(sr, "scoring.min_valid_fraction");
+        s.scoring.max_slipped_samples = static_cast<std::uint64_t>(k.integer(sr, "scoring.max_slipped_samples"));
         sr.finish();
     }
     if (r.has("estimators")) {
@@ -153,11 +187,12 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
             const std::string path = "limits[" + std::to_string(i) + "]";
             JsonReader lr(arr[i], path);
             Limit l;
-            l.estimator = lr.string("estimator", "*");
-            l.metric = lr.string("metric");
-            l.max = lr.optional_number("max", -kInf, kInf);
-            l.min = lr.optional_number("min", -kInf, kInf);
-            l.marginal_fraction = lr.number("marginal_fraction", 0.0, 0.0, 1.0);
+            const KeyTable& lk = limit_keys();
+            l.estimator = lk.string(lr, "estimator");
+            l.metric = lk.string(lr, "metric");
+            l.max = lk.optional_number(lr, "max");
+            l.min = lk.optional_number(lr, "min");
+            l.marginal_fraction = lk.number(lr, "marginal_fraction");
             lr.finish();
             if (!l.max && !l.min) throw ConfigError(path, "needs max or min");
             s.limits.push_back(std::move(l));

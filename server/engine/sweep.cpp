@@ -115,12 +115,14 @@ Sweep load_sweep(const std::string& path) {
     }
     r.finish();
     if (s.rows.empty()) throw ConfigError("rows", "a sweep needs rows or a grid");
-    // Validate every row's scenario now, so a typo fails before hours of running.
+    // Plan every row now, so a typo fails before hours of running; the plans are kept for the
+    // rows' runs.
+    s.plans = std::make_shared<std::vector<std::unique_ptr<RunPlan>>>();
     for (std::size_t i = 0; i < s.rows.size(); ++i) {
         json sc = s.base;
         try {
             for (const auto& [k, v] : s.rows[i].set.items()) set_by_path(sc, k, v);
-            validate_run(scenario_from_json(sc, s.base_dir));
+            s.plans->push_back(std::make_unique<RunPlan>(plan_run(scenario_from_json(sc, s.base_dir))));
         } catch (const ConfigError& e) {
             throw e.prefixed("rows[" + std::to_string(i) + "] (" + s.rows[i].label + ")");
         }
@@ -172,10 +174,15 @@ std::vector<SweepResult> run_sweep(const Sweep& s, int jobs, const std::function
             res.row = s.rows[i];
             const auto t0 = std::chrono::steady_clock::now();
             try {
-                json sc = s.base;
-                for (const auto& [k, v] : s.rows[i].set.items()) set_by_path(sc, k, v);
-                const Scenario scenario = scenario_from_json(sc, s.base_dir);
-                const json rep = execute ? execute(i, scenario) : execute_run(scenario);
+                // The plan load_sweep made for this row, else a new one.
+                std::unique_ptr<RunPlan> kept = s.plans && i < s.plans->size() ? std::move((*s.plans)[i]) : nullptr;
+                if (!kept) {
+                    json sc = s.base;
+                    for (const auto& [k, v] : s.rows[i].set.items()) set_by_path(sc, k, v);
+                    kept = std::make_unique<RunPlan>(plan_run(scenario_from_json(sc, s.base_dir)));
+                }
+                RunPlan plan = std::move(*kept);
+                const json rep = execute ? execute(i, std::move(plan)) : execute_run(std::move(plan));
                 res = sweep_result(s, s.rows[i], rep);
             } catch (const std::exception& e) {
                 res.status = "error";

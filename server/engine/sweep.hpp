@@ -4,17 +4,18 @@
 // (CSV and Markdown), optionally beside reference figures (the paper's, MODEL.md's).
 #pragma once
 
+#include "server/engine/plan.hpp"
+
 #include <nlohmann/json.hpp>
 
 #include <cstddef>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
 namespace fringe {
-
-struct Scenario;
 
 struct SweepColumn {
     std::string estimator;  // label
@@ -35,6 +36,10 @@ struct Sweep {
     std::vector<SweepRow> rows;
     std::vector<std::string> reference_names;  // in column order
     int jobs = 0;  // 0: all cores
+    // Each row's plan, made when load_sweep checked the row, for the row's first run to execute
+    // (so its estimators are built once); taken by that run, after which a row is planned again.
+    // Shared by copies of the sweep.
+    std::shared_ptr<std::vector<std::unique_ptr<RunPlan>>> plans;
 };
 
 Sweep load_sweep(const std::string& path);
@@ -49,9 +54,10 @@ struct SweepResult {
     double wall_s = 0;
 };
 
-// Runs one row's scenario and returns its report (default: execute_run). fringe sweep --store
-// gives each run its deterministic id and provenance and stores it.
-using SweepExecute = std::function<nlohmann::json(std::size_t row, const Scenario& sc)>;
+// Runs one row's plan (plan_run of its scenario) and returns its report (default:
+// execute_run). fringe sweep --store gives each run its deterministic id and provenance and
+// stores it.
+using SweepExecute = std::function<nlohmann::json(std::size_t row, RunPlan plan)>;
 // rows: which rows, in this order (null: all); the results come back in that order.
 std::vector<SweepResult> run_sweep(const Sweep& s, int jobs, const std::function<void(std::size_t done, std::size_t total)>& progress = {},
                                    const std::vector<std::size_t>* rows = nullptr, const SweepExecute& execute = {});

@@ -50,7 +50,8 @@ RunManager::RunManager(RunStore& store, std::mutex& store_mu, unsigned workers) 
 
 RunManager::~RunManager() { shutdown(); }
 
-std::string RunManager::submit(Scenario sc) {
+std::string RunManager::submit(RunPlan plan) {
+    const Scenario& sc = plan.scenario;
     {
         std::lock_guard<std::mutex> l(mu_);
         if (stopping_) throw std::runtime_error("the service is shutting down");
@@ -80,7 +81,8 @@ std::string RunManager::submit(Scenario sc) {
         if (const std::string k = device_key(uri); !k.empty() && std::find(job->keys.begin(), job->keys.end(), k) == job->keys.end()) job->keys.push_back(k);
     job->provenance = make_provenance(provenance, sc);
     if (job->snap.dut.empty()) job->snap.dut = job->provenance["dut"]["serial"].get<std::string>();
-    job->sc = std::move(sc);
+    job->sc = sc;
+    job->plan.emplace(std::move(plan));
     {
         std::lock_guard<std::mutex> sl(store_mu_);
         store_.begin(job->snap.id, job->snap.created_at, job->snap.scenario, job->snap.dut, "queued", job->provenance);
@@ -106,6 +108,7 @@ RunManager::CancelResult RunManager::cancel(const std::string& id) {
         // Never started: it ends here, with a report saying so.
         for (auto q = queue_.begin(); q != queue_.end(); ++q)
             if (*q == job) { queue_.erase(q); break; }
+        job->plan.reset();  // its estimators are not needed any more
         job->snap.status = "aborted";
         job->snap.verdict = "ABORTED";
         job->snap.error = "cancelled while queued";
@@ -196,7 +199,9 @@ void RunManager::worker() {
         };
         json report;
         try {
-            report = execute_run(job->sc, ro);
+            RunPlan plan = std::move(*job->plan);
+            job->plan.reset();
+            report = execute_run(std::move(plan), ro);
         } catch (const std::exception& e) {  // validation passed at submit; anything here is a bug or the environment
             report = unstarted_report(job->sc, job->snap.id, job->snap.created_at, "error", "ERROR", e.what(), job->provenance);
         } catch (...) {  // a worker never dies with a run
@@ -247,6 +252,7 @@ void RunManager::worker() {
             ++job->snap.seq;
         job->snap.updated_unix_ms = unix_ms();
             job->sc = Scenario{};  // the report has it now
+            job->plan.reset();
             finished_order_.push_back(job->snap.id);
             while (finished_order_.size() > kKeepFinished) {
                 jobs_.erase(finished_order_.front());

@@ -5,6 +5,7 @@
 // is written there in one transaction when it ends. Live progress is kept in memory.
 #pragma once
 
+#include "server/engine/plan.hpp"
 #include "server/engine/provenance.hpp"
 #include "server/engine/scenario.hpp"
 #include "server/store/store.hpp"
@@ -53,9 +54,9 @@ public:
     RunManager(const RunManager&) = delete;
     RunManager& operator=(const RunManager&) = delete;
 
-    // Queues a validated scenario; returns its id. Throws QueueFull when max_queued runs are
+    // Queues a run plan (plan_run: the scenario checked, its estimators built); returns its id. Throws QueueFull when max_queued runs are
     // already waiting (nothing stored), std::runtime_error after shutdown.
-    std::string submit(Scenario sc);
+    std::string submit(RunPlan plan);
     // Asks a queued or running run to stop (it ends ABORTED). False if unknown or finished.
     enum class CancelResult { Cancelled, Unknown, Finished };
     CancelResult cancel(const std::string& id);
@@ -82,7 +83,8 @@ public:
 private:
     struct Job {
         RunSnapshot snap;
-        Scenario sc;
+        Scenario sc;  // the plan's, for the snapshots and a report of a run that never started
+        std::optional<RunPlan> plan;  // until a worker runs it
         std::vector<std::string> keys;  // its devices' keys (output and input instruments: both)
         std::atomic<bool> cancel{false};
         bool interrupted = false;  // cancelled by shutdown

@@ -373,21 +373,30 @@ std::optional<HttpResponse> Service::run_scenario(const json& body, Scenario& sc
             throw ConfigError("seed", "expected an integer from 0 to 2^53 (9007199254740992)");
         sc.seed = body["seed"].get<std::uint64_t>();
     }
-    return check_run_size(sc, body.contains("fixture") ? "fixture" : "scenario");
+    return std::nullopt;
 }
 
-HttpResponse Service::create_run(const HttpRequest& req) {
-    Scenario sc;
-    if (auto refused = run_scenario(parse_body(req.body), sc)) return *refused;
+std::optional<HttpResponse> Service::plan_scenario(const json& body, Scenario sc, std::optional<RunPlan>& plan) const {
     try {
-        check_device_uris(sc);
-        validate_run(sc);
+        plan.emplace(plan_run(std::move(sc), RunBudget{cfg_.max_samples, cfg_.max_estimators, cfg_.max_limits}));
+    } catch (const RunTooLarge& e) {
+        const char* flag = e.code() == "too_many_samples" ? "--max-samples" : e.code() == "too_many_estimators" ? "--max-estimators" : "--max-limits";
+        return json_error(413, e.code(), e.message() + " (" + flag + ")", body.contains("fixture") ? "fixture" : "scenario." + e.field());
     } catch (const ConfigError& e) {
         throw e.prefixed("scenario");
     }
+    return std::nullopt;
+}
+
+HttpResponse Service::create_run(const HttpRequest& req) {
+    const json body = parse_body(req.body);
+    Scenario sc;
+    if (auto refused = run_scenario(body, sc)) return *refused;
+    std::optional<RunPlan> plan;  // the run queue keeps it: the worker runs these estimators
+    if (auto refused = plan_scenario(body, std::move(sc), plan)) return *refused;
     std::string id;
     try {
-        id = runs_->submit(std::move(sc));
+        id = runs_->submit(std::move(*plan));
     } catch (const QueueFull& e) {
         auto r = json_error(429, "queue_full", e.what());
         r.headers.emplace_back("Retry-After", "10");
@@ -399,41 +408,18 @@ HttpResponse Service::create_run(const HttpRequest& req) {
 }
 
 HttpResponse Service::preflight_run(const HttpRequest& req) const {
+    const json body = parse_body(req.body);
     Scenario sc;
-    if (auto refused = run_scenario(parse_body(req.body), sc)) return *refused;
-    std::vector<Finding> warnings;
-    try {
-        check_device_uris(sc);
-        warnings = validate_run(sc);
-    } catch (const ConfigError& e) {
-        throw e.prefixed("scenario");
-    }
+    if (auto refused = run_scenario(body, sc)) return *refused;
+    std::optional<RunPlan> plan;
+    if (auto refused = plan_scenario(body, sc, plan)) return *refused;
     json w = json::array();
-    for (auto f : warnings) {
+    for (auto f : plan->warnings) {
         f.field = "scenario." + f.field;  // the same path a POST runs error names
         w.push_back(f);
     }
-    const double spc = min_samples_per_cycle(sc);
+    const double spc = plan->samples_per_cycle;
     return json_ok({{"ok", true}, {"warnings", w}, {"samples", sc.samples()}, {"samples_per_cycle", std::isfinite(spc) ? json(spc) : json(nullptr)}});
-}
-
-std::optional<HttpResponse> Service::check_run_size(const Scenario& sc, const std::string& field) const {
-    const bool fixture = field == "fixture";
-    // In double: duration_s * sample_rate_hz may not fit an integer at all.
-    const double samples = sc.duration_s * sc.sample_rate_hz;
-    if (!(samples <= cfg_.max_samples)) {
-        char msg[256];
-        std::snprintf(msg, sizeof msg, "duration_s %g s at sample_rate_hz %g Hz is %.4g samples; this service runs at most %.4g per run (--max-samples)",
-                      sc.duration_s, sc.sample_rate_hz, samples, cfg_.max_samples);
-        return json_error(413, "too_many_samples", msg, fixture ? field : field + ".duration_s");
-    }
-    if (sc.estimators.size() > cfg_.max_estimators)
-        return json_error(413, "too_many_estimators", "the scenario has " + std::to_string(sc.estimators.size()) + " estimators; this service runs at most " +
-                                                          std::to_string(cfg_.max_estimators) + " per run (--max-estimators)", fixture ? field : field + ".estimators");
-    if (sc.limits.size() > cfg_.max_limits)
-        return json_error(413, "too_many_limits", "the scenario has " + std::to_string(sc.limits.size()) + " limits; this service takes at most " +
-                                                      std::to_string(cfg_.max_limits) + " per run (--max-limits)", fixture ? field : field + ".limits");
-    return std::nullopt;
 }
 
 HttpResponse Service::list_runs(const std::map<std::string, std::string>& query) {

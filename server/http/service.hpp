@@ -123,13 +123,15 @@ private:
     std::string public_text(std::string s) const;
     HttpResponse route(const HttpRequest& req, const std::string& path, const std::map<std::string, std::string>& query);
     HttpResponse create_run(const HttpRequest& req);
-    // The scenario a POST runs (or preflight) body describes, sandboxed and checked as a run
-    // is; a refusal that is not a ConfigError comes back as the response to send.
+    // The scenario a POST runs (or preflight) body describes, sandboxed and read (plan_scenario
+    // checks it); a refusal that is not a ConfigError comes back as the response to send.
     std::optional<HttpResponse> run_scenario(const nlohmann::json& body, Scenario& sc) const;
     // POST preflight: the checks and warnings of POST runs, without starting anything.
     HttpResponse preflight_run(const HttpRequest& req) const;
-    // The per-run bounds; field names where the client set the value. nullopt if within.
-    std::optional<HttpResponse> check_run_size(const Scenario& sc, const std::string& field) const;
+    // The plan of a POST runs (or preflight) scenario: plan_run within this service's per-run
+    // bounds. Beyond them: the 413 to send, naming the field where the client set the value
+    // ("fixture" for a fixture); any other error throws as a ConfigError under "scenario".
+    std::optional<HttpResponse> plan_scenario(const nlohmann::json& body, Scenario sc, std::optional<RunPlan>& plan) const;
     HttpResponse list_runs(const std::map<std::string, std::string>& query);
     HttpResponse get_run(const std::string& id);
     HttpResponse run_artifact(const std::string& id, const std::string& what, const std::map<std::string, std::string>& query);

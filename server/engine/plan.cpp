@@ -1,0 +1,146 @@
+#include "server/engine/plan.hpp"
+
+#include "drivers/device.hpp"
+#include "server/engine/limits.hpp"
+#include "signal_gen/base/config.hpp"
+
+#include <cstdio>
+
+namespace fringe {
+
+namespace {
+
+est::EstimatorConfig estimator_config(const Scenario& sc, const EstimatorSpec& spec) {
+    est::EstimatorConfig cfg;
+    cfg.sample_rate_hz = sc.sample_rate_hz;
+    cfg.encoder = spec.encoder ? spec.encoder : sc.encoder_known ? std::optional(sc.encoder) : std::nullopt;
+    cfg.params = spec.params;
+    return cfg;
+}
+
+// Can this estimator be given an efficiency? (A tracker must declare its prior.)
+std::string why_no_efficiency(const EstimatorSpec& spec, const est::Estimator* built) {
+    if (est::traits_of(spec.name).child_process || !built) {
+        const std::string model = spec.params.is_object() ? spec.params.value("model", std::string("unknown")) : "unknown";
+        return model == "unknown" ? "the " + spec.name + " estimator declares no model: set params.model (memoryless, tracker-cv or tracker-ca) "
+                                    "and, for a tracker, params.natural_freq_hz (docs/external-estimator.md)"
+                                  : "";
+    }
+    if (built->bound_class() == est::BoundClass::Tracker && !built->prior()) return spec.label + " (" + spec.name + ") declares no tracking prior";
+    return "";
+}
+
+// Each estimator built once (its parameters checked by its reset) and kept for the run; a
+// child process is not started before the run, only its declared model checked.
+void build_estimators(RunPlan& p) {
+    const Scenario& sc = p.scenario;
+    if (sc.estimators.empty()) throw ConfigError("estimators", "a run needs at least one estimator under test");
+    p.estimators.resize(sc.estimators.size());
+    for (std::size_t i = 0; i < sc.estimators.size(); ++i) {
+        const auto& spec = sc.estimators[i];
+        p.configs.push_back(estimator_config(sc, spec));
+        try {
+            const auto& info = est::find(spec.name);
+            const Params params = resolve_params(info.params, spec.params);  // cheap checks first
+            if (!info.traits.child_process) p.estimators[i] = est::make(spec.name, p.configs.back());
+            else if (params.string("model").rfind("tracker", 0) == 0 && !(params.number("natural_freq_hz") > 0))
+                throw ConfigError("params.natural_freq_hz", "a tracker's declared prior needs its natural frequency (> 0 Hz)");
+        } catch (const ConfigError& e) {
+            // An unknown estimator is the scenario's "name" key (est::find names the CLI's --estimator).
+            if (e.field() == "estimator") throw ConfigError("estimators[" + std::to_string(i) + "].name", e.message());
+            throw e.prefixed("estimators[" + std::to_string(i) + "]");
+        }
+    }
+}
+
+void check_limits(const RunPlan& p) {
+    const Scenario& sc = p.scenario;
+    for (std::size_t i = 0; i < sc.limits.size(); ++i) {
+        const auto& l = sc.limits[i];
+        const std::string path = "limits[" + std::to_string(i) + "]";
+        if (!find_metric(l.metric)) {
+            std::string known;
+            for (const auto& m : metric_catalog())
+                if (m.limitable) known += (known.empty() ? "" : ", ") + m.name;
+            throw ConfigError(path + ".metric", "unknown metric '" + l.metric + "' (known: " + known + ", and harmonic_Nx_rad up to 64x)");
+        }
+        if (!find_metric(l.metric)->limitable)
+            throw ConfigError(path + ".metric", "'" + l.metric + "' is a bound of the signal, not a figure of the estimator: a limit on it grades nothing");
+        if (find_metric(l.metric)->run_level) {
+            if (l.estimator != "*" && l.estimator != "run")
+                throw ConfigError(path + ".estimator", "'" + l.metric + "' is measured once for the run (alignment, signal quality): leave estimator out or give \"run\"");
+        } else if (l.estimator != "*") {
+            bool found = false;
+            for (const auto& e : sc.estimators) found |= e.label == l.estimator;
+            found |= l.estimator == "dut";  // a DUT board's own position (step mode)
+            if (!found) throw ConfigError(path + ".estimator", "no estimator labelled '" + l.estimator + "' in this scenario");
+        }
+        // A limit that can never be measured is refused now, not failed later.
+        if (l.metric == "efficiency") {
+            if (l.estimator == "dut") throw ConfigError(path + ".estimator", "a DUT's own position has no efficiency (it declares no model)");
+            for (std::size_t k = 0; k < sc.estimators.size(); ++k) {
+                const auto& e = sc.estimators[k];
+                if (l.estimator != "*" && l.estimator != e.label) continue;
+                if (const std::string why = why_no_efficiency(e, p.estimators[k].get()); !why.empty())
+                    throw ConfigError(path + ".metric", "efficiency cannot be computed for '" + e.label + "': " + why);
+            }
+        }
+    }
+}
+
+// The form and settings of every device URI (nothing is opened); errors name "device",
+// "device.output", "device.input" or "device.dut". Returns the input device's parts (the
+// preflight reads a loopback's converter from them).
+dev::UriParts check_device_uris(const Scenario& sc) {
+    dev::UriParts input;
+    for (const auto& [field, uri] : sc.device_uris()) {
+        dev::UriParts parts;
+        try {
+            parts = dev::check_uri(uri);
+        } catch (const ConfigError& e) {
+            // check_uri names "device" or "device.<setting>": the same under this URI's field.
+            const std::string f = e.field();
+            throw ConfigError(f.rfind("device", 0) == 0 ? field + f.substr(6) : field, e.message());
+        }
+        if (parts.scheme == "loopback" && !parts.path.empty())
+            throw ConfigError(field, "loopback takes no path (got '" + parts.path + "'); use loopback:?key=value");
+        if (field == "device" || field == "device.input") input = parts;
+    }
+    if (sc.instruments && !sc.instruments->dut.empty())
+        throw ConfigError("device.dut", "a separate DUT readout device is not supported yet (the URI is valid; runs with output and input instruments "
+                                        "score the estimators under test)");
+    return input;
+}
+
+void check_budget(const Scenario& sc, const RunBudget& b) {
+    // In double: duration_s * sample_rate_hz may not fit an integer at all.
+    const double samples = sc.duration_s * sc.sample_rate_hz;
+    if (!(samples <= b.max_samples)) {
+        char msg[256];
+        std::snprintf(msg, sizeof msg, "duration_s %g s at sample_rate_hz %g Hz is %.4g samples; this service runs at most %.4g per run",
+                      sc.duration_s, sc.sample_rate_hz, samples, b.max_samples);
+        throw RunTooLarge("too_many_samples", "duration_s", msg);
+    }
+    if (sc.estimators.size() > b.max_estimators)
+        throw RunTooLarge("too_many_estimators", "estimators", "the scenario has " + std::to_string(sc.estimators.size()) +
+                                                                   " estimators; this service runs at most " + std::to_string(b.max_estimators) + " per run");
+    if (sc.limits.size() > b.max_limits)
+        throw RunTooLarge("too_many_limits", "limits", "the scenario has " + std::to_string(sc.limits.size()) + " limits; this service takes at most " +
+                                                           std::to_string(b.max_limits) + " per run");
+}
+
+}  // namespace
+
+RunPlan plan_run(Scenario sc, const RunBudget& budget) {
+    check_budget(sc, budget);
+    RunPlan p;
+    p.scenario = std::move(sc);
+    build_estimators(p);
+    check_limits(p);
+    const dev::UriParts input = check_device_uris(p.scenario);
+    p.samples_per_cycle = min_samples_per_cycle(p.scenario);
+    p.warnings = preflight(p.scenario, p.samples_per_cycle, input);
+    return p;
+}
+
+}  // namespace fringe
