@@ -2,6 +2,7 @@
 
 #include "server/analysis/align.hpp"
 #include "signal_gen/base/config.hpp"
+#include "signal_gen/base/ring.hpp"
 #include "signal_gen/fastmath.hpp"
 #include "signal_gen/generator.hpp"
 
@@ -84,7 +85,10 @@ public:
     StreamSource(const Scenario& sc, dev::Device& d, const dev::DeviceInfo& info, std::size_t block)
         : sc_(sc), dev_(d), gen_(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed, sc.t0_s), block_(block), total_(sc.samples()) {
         // The first latency_samples input frames predate the signal and are not scored.
-        for (int k = 0; k < info.latency_samples; ++k) pending_.push_back({sc.t0_s + k / sc.sample_rate_hz, 0, 0, false});
+        for (int k = 0; k < info.latency_samples; ++k) {
+            const double t = sc.t0_s + k / sc.sample_rate_hz, zero = 0;
+            pending_.push(1, &t, &zero, &zero, 0);
+        }
         dev_.start(sc.sample_rate_hz);
         started_ = true;
     }
@@ -106,7 +110,7 @@ public:
             const auto w = dev_.write(b_.sin_v, b_.cos_v);
             if (w.status != dev::StreamStatus::Ok)
                 return {false, false, std::string("output ") + dev::to_string(w.status) + " at sample " + std::to_string(k_out_ + w.frames) + ": " + w.message};
-            for (std::size_t i = 0; i < nw; ++i) pending_.push_back({b_.t_s[i], b_.theta_rad[i], b_.omega_rad_s[i], true});
+            pending_.push(nw, b_.t_s.data(), b_.theta_rad.data(), b_.omega_rad_s.data(), 1);
             k_out_ += nw;
             if (k_out_ == total_) dev_.end_of_output();
         }
@@ -134,16 +138,25 @@ public:
     }
 
 private:
-    struct Truth { double t, th, om; bool known; };
-    void fill_truth(Frames& out) {
-        for (std::size_t i = 0; i < out.size(); ++i) {
-            const Truth tr = pending_.front();
-            pending_.pop_front();
-            out.t_s[i] = tr.t;
-            out.theta_true_rad[i] = tr.th;
-            out.omega_true_rad_s[i] = tr.om;
-            out.truth_known[i] = tr.known;
+    // The truth of the frames written and not yet read, in order, a ring per column.
+    struct TruthFifo {
+        Ring<double> t, th, om;
+        Ring<std::uint8_t> known;
+        void push(std::size_t n, const double* t_s, const double* th_rad, const double* om_rad_s, std::uint8_t k) {
+            t.push(t_s, n);
+            th.push(th_rad, n);
+            om.push(om_rad_s, n);
+            known.push_fill(k, n);
         }
+        void pop(std::size_t n, Frames& out) {
+            t.pop(out.t_s.data(), n);
+            th.pop(out.theta_true_rad.data(), n);
+            om.pop(out.omega_true_rad_s.data(), n);
+            known.pop(out.truth_known.data(), n);
+        }
+    };
+    void fill_truth(Frames& out) {
+        pending_.pop(out.size(), out);
         k_in_ += out.size();
     }
     const Scenario& sc_;
@@ -152,7 +165,7 @@ private:
     Block b_;
     std::size_t block_;
     std::uint64_t total_, k_out_ = 0, k_in_ = 0;
-    std::deque<Truth> pending_;
+    TruthFifo pending_;
     bool started_ = false;
 };
 
