@@ -333,8 +333,9 @@ private:
         // The noise, drawn in the chain's order: sin, then cos, sample by sample.
         const bool noisy = noise_v_ > 0;
         if (noisy) {
-            nz_.resize(2 * m);
-            for (std::size_t i = 0; i < 2 * m; ++i) nz_[i] = standard_normal(rng_);
+            nz_[0].resize(m);
+            nz_[1].resize(m);
+            standard_normal_pairs(rng_, m, nz_[0].data(), nz_[1].data());
         }
         // Each channel through its filters. A filter with no cutoff passes its input through
         // (y = x + 0, its state stays zero while the input is finite): skipped then, unless the
@@ -347,17 +348,17 @@ private:
         for (int ch = 0; ch < 2; ++ch) {
             const double* h = h_[ch].data();
             double* a = a_[ch].data();
-            const double* z = noisy ? nz_.data() + ch : nullptr;
+            const double* z = noisy ? nz_[ch].data() : nullptr;
             if (direct) {
                 if (noisy)
-                    for (std::size_t i = 0; i < m; ++i) a[i] = h[i] + nv * z[2 * i];
+                    for (std::size_t i = 0; i < m; ++i) a[i] = h[i] + nv * z[i];
                 else
                     std::copy(h, h + m, a);
             } else {
                 Biquad r = recon_[ch], f = aa_[ch];
                 for (std::size_t i = 0; i < m; ++i) {
                     double x = r.step(h[i]);
-                    if (noisy) x += nv * z[2 * i];
+                    if (noisy) x += nv * z[i];
                     a[i] = f.step(x);
                 }
                 recon_[ch] = r;
@@ -447,7 +448,7 @@ private:
         }
     };
     Fifo queue_;
-    std::vector<double> h_[2], a_[2], nz_;  // write's scratch: held DAC output, ADC input, noise
+    std::vector<double> h_[2], a_[2], nz_[2];  // write's scratch per channel: held DAC output, ADC input, noise
     std::uint64_t written_ = 0, read_ = 0, pending_drop_ = 0, dropped_total_ = 0, clipped_ = 0;
     long long drop_after_ = -1, drop_count_ = 0, stall_after_ = -1, saturate_after_ = -1;
     bool running_ = false;
