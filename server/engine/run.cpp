@@ -432,13 +432,13 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
         std::exception_ptr source_failure;
         std::uint64_t produced = 0, laned = 0;  // frames delivered by the source, and through the estimators
         std::size_t have[3] = {0, 0, 0};  // frames in each slot
-        enum class Kind { Source, Estimate, Analyse, Traces };
+        enum class Kind { Source, Ahead, Estimate, Analyse, Traces };
         struct Job {
             Kind kind;
             std::size_t lane = 0, analyser = 0;
             double* seconds = nullptr;  // the task's time in the last step it ran
         };
-        double source_s = 0, traces_s = 0;
+        double source_s = 0, ahead_s = 0, traces_s = 0;
         std::vector<double> estimate_s(lanes.size(), 0.0);
         std::vector<std::vector<double>> analyse_s(lanes.size());
         for (std::size_t j = 0; j < lanes.size(); ++j) analyse_s[j].assign(lanes[j]->analysers.size(), 0.0);
@@ -454,7 +454,10 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             const std::size_t ks = step % 3, ke = (step + 2) % 3, ka = (step + 1) % 3;  // slots of blocks step, step-1, step-2
             const int le = static_cast<int>((step + 1) % 2), la = static_cast<int>(step % 2);  // lane slots of blocks step-1, step-2
             jobs.clear();
-            if (produce) jobs.push_back({Kind::Source, 0, 0, &source_s});
+            if (produce) {
+                jobs.push_back({Kind::Source, 0, 0, &source_s});
+                jobs.push_back({Kind::Ahead, 0, 0, &ahead_s});
+            }
             if (estimate_step)
                 for (std::size_t j = 0; j < lanes.size(); ++j) jobs.push_back({Kind::Estimate, j, 0, &estimate_s[j]});
             if (analyse_step) {
@@ -472,6 +475,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
                         st = source->next(o.block, slot[ks]);
                         alignment = source->alignment();
                         break;
+                    case Kind::Ahead: source->generate_ahead(); break;
                     case Kind::Estimate: lanes[jb.lane]->estimate(slot[ke], le); break;
                     case Kind::Analyse: lanes[jb.lane]->analyse(jb.analyser, la); break;
                     case Kind::Traces: {
@@ -489,12 +493,13 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
             // Faults in the order the one-lane-task pipeline met them: the source's, then an
             // estimator's (the lanes whose estimator finished that block still analyse it), then
             // an analyser's or the traces'.
-            std::exception_ptr source_error, estimator_error, analysis_error;
+            std::exception_ptr source_error, ahead_error, estimator_error, analysis_error;
             std::vector<bool> estimated(lanes.size(), true);
             for (std::size_t t = 0; t < jobs.size(); ++t) {
                 if (!errors[t]) continue;
                 switch (jobs[t].kind) {
                 case Kind::Source: source_error = errors[t]; break;
+                case Kind::Ahead: ahead_error = errors[t]; break;
                 case Kind::Estimate:
                     estimated[jobs[t].lane] = false;
                     if (!estimator_error) estimator_error = errors[t];
@@ -503,6 +508,7 @@ json execute_run(const Scenario& sc, const RunOptions& o) {
                     if (!analysis_error) analysis_error = errors[t];
                 }
             }
+            if (!source_error) source_error = ahead_error;  // the source could not generate ahead
             if (analyse_step) have[ka] = 0;
             if (produce) {
                 if (source_error) {
