@@ -128,21 +128,31 @@ void Scorer::add(std::size_t n, const double* t, const double* th_true, const do
     m_.invalid_after_settle += na - good;
     // The rate: its truth over the usable samples where it is known, and the estimate's error.
     if (omt_after) {
-        rate_d_.clear();
+        // Local accumulators (members written through `this` could alias the inputs: a reload
+        // and a store per sample), summed in the same order.
+        rate_d_.resize(na);
+        double* rd = rate_d_.data();
+        std::size_t nd = 0;
+        double s_om = sum_omega_true_, s_abs = sum_abs_omega_true_;
+        std::uint64_t n_om = n_omega_true_, nonfinite = 0;
         for (std::size_t i = 0; i < na; ++i) {
             if (!ok_after[i] || !std::isfinite(omt_after[i])) continue;
-            sum_omega_true_ += omt_after[i];
-            sum_abs_omega_true_ += std::fabs(omt_after[i]);
-            ++n_omega_true_;
+            s_om += omt_after[i];
+            s_abs += std::fabs(omt_after[i]);
+            ++n_om;
             if (omh_after) {
                 const double d = omh_after[i] - omt_after[i];
-                if (!std::isfinite(d)) { ++m_.omega_nonfinite; continue; }
-                rate_d_.push_back(d);
+                if (!std::isfinite(d)) { ++nonfinite; continue; }
+                rd[nd++] = d;
             }
         }
+        sum_omega_true_ = s_om;
+        sum_abs_omega_true_ = s_abs;
+        n_omega_true_ = n_om;
+        m_.omega_nonfinite += nonfinite;
         double mb = 0, qb = 0;
-        block_moments(rate_d_.data(), rate_d_.size(), mb, qb);
-        merge_moments(om_n_, om_mean_, om_m2_, rate_d_.size(), mb, qb);
+        block_moments(rd, nd, mb, qb);
+        merge_moments(om_n_, om_mean_, om_m2_, nd, mb, qb);
     }
     // Unusable samples carry 0 (the error array is handed on as it stands).
     if (good < na) {

@@ -22,14 +22,6 @@ inline double wrap_pi(double x) {
     return y <= -kPi ? y + kTwoPi : (y > kPi ? y - kTwoPi : y);
 }
 
-// Bin of an electrical angle wrapped to [0, 2 pi).
-std::size_t angle_bin(double theta_rad, std::size_t bins) {
-    const double turns = theta_rad * (1 / kTwoPi);
-    const double frac = turns - std::floor(turns);
-    const auto b = static_cast<std::size_t>(frac * static_cast<double>(bins));
-    return b < bins ? b : bins - 1;
-}
-
 // Where in bucket b its Lissajous point is taken: scattered (a hash of b), so a speed at which the
 // bucket length is a whole number of electrical periods cannot put every point at one phase.
 std::uint64_t scatter(std::uint64_t b, std::uint64_t len) {
@@ -97,10 +89,19 @@ void TraceRecorder::add(std::size_t m, const double* t_s, const double* sin_v, c
                         const std::uint8_t* truth_known, const std::vector<const double*>& err_rad) {
     const std::size_t lanes = std::min(err_rad.size(), labels_.size());
     // The true-angle bin of each sample that enters the folds (-1: not folded), once for all lanes.
+    // The bin of the true angle wrapped to [0, 2 pi) in a pass that vectorises (an unfolded
+    // sample's angle taken as 0, its bin -1), then the cycle sums in order.
     abin_.resize(m);
+    std::int32_t* bin_of = abin_.data();
+    const double nb = static_cast<double>(bins_), from = fold_from_s_;
     for (std::size_t i = 0; i < m; ++i) {
-        const bool known = (!truth_known || truth_known[i]) && std::isfinite(theta_true_rad[i]);
-        abin_[i] = known && t_s[i] >= fold_from_s_ ? static_cast<std::int32_t>(angle_bin(theta_true_rad[i], bins_)) : -1;
+        const double th = theta_true_rad[i];
+        const bool fold = (!truth_known || truth_known[i]) && std::isfinite(th) && t_s[i] >= from;
+        const double turns = (fold ? th : 0.0) * (1 / kTwoPi);
+        const double b = std::trunc((turns - std::floor(turns)) * nb);
+        bin_of[i] = fold ? static_cast<std::int32_t>(b < nb ? b : nb - 1) : -1;
+    }
+    for (std::size_t i = 0; i < m; ++i) {
         if (abin_[i] >= 0 && std::isfinite(sin_v[i]) && std::isfinite(cos_v[i])) {
             const auto ab = static_cast<std::size_t>(abin_[i]);
             cyc_sin_[ab] += sin_v[i];
