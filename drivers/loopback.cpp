@@ -11,10 +11,12 @@
 #include "device.hpp"
 
 #include "signal_gen/base/config.hpp"
+#include "signal_gen/base/ring.hpp"
 #include "signal_gen/fastmath.hpp"
 #include "signal_gen/noise.hpp"
 #include "signal_gen/quantizer.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <deque>
 
@@ -31,6 +33,8 @@ struct Biquad {
         z2 = b2 * x - a2 * y;
         return y;
     }
+    // No cutoff: y = x + z1 with the state staying zero (for finite input).
+    bool passes() const { return b0 == 1 && b1 == 0 && b2 == 0 && a1 == 0 && a2 == 0 && z1 == 0 && z2 == 0; }
     static Biquad lowpass(int order, double fc_hz, double fs_hz) {
         Biquad q;
         if (fc_hz <= 0) return q;
@@ -156,7 +160,10 @@ public:
             aa_[ch] = Biquad::lowpass(s_.at("aa_order").get<int>(), s_.at("aa_cutoff_hz").get<double>(), fs);
         }
         queue_.clear();
-        for (int k = 0; k < latency_; ++k) queue_.push_back({adc_read(0.0), adc_read(0.0), 0.0});
+        for (int k = 0; k < latency_; ++k) {
+            const double z = adc_read(0.0);
+            queue_.push(1, &z, &z, 0);
+        }
         written_ = read_ = 0;
         pending_drop_ = 0;
         last_update_ = -1;
@@ -166,41 +173,19 @@ public:
     }
     StreamResult write(std::span<const double> s, std::span<const double> c) override {
         if (!running_) throw DeviceError(uri_, "write before start");
-        for (std::size_t i = 0; i < s.size(); ++i, ++written_) {
-            const long long k = static_cast<long long>(written_);
-            // DAC update rate: a new code is latched when floor(k*dac_rate/fs) advances
-            // (zero-order hold in between); 0 means every sample.
-            const std::int64_t u = dac_rate_hz_ > 0 ? static_cast<std::int64_t>(std::floor(static_cast<double>(k) * dac_rate_hz_ / fs_)) : k;
-            if (u != last_update_) {
-                held_[0] = dac_.apply(s[i]);
-                held_[1] = dac_.apply(c[i]);
-                last_update_ = u;
-            }
-            double v[2] = {held_[0], held_[1]};
-            for (int ch = 0; ch < 2; ++ch) {
-                double a = recon_[ch].step(v[ch]);
-                if (noise_v_ > 0) a += noise_v_ * standard_normal(rng_);
-                a = aa_[ch].step(a);
-                if (saturate_after_ >= 0 && k >= saturate_after_) a = 2 * adc_.max_v;  // driven into the rail
-                if (adc_.clips(a)) ++clipped_;
-                v[ch] = adc_read(a);
-            }
-            if (drop_after_ >= 0 && k >= drop_after_ && k < drop_after_ + drop_count_) {
-                ++pending_drop_;  // lost on the way in: the gap is reported where it happened
-                continue;
-            }
-            queue_.push_back({v[0], v[1], static_cast<double>(pending_drop_)});
-            pending_drop_ = 0;
-        }
+        // A block at a time, in passes, with the same arithmetic per sample as the chain below
+        // read sample by sample: the DAC codes held, the noise drawn in its order (sin then
+        // cos per sample), each channel through its filters, then the ADC.
+        for (std::size_t off = 0; off < s.size(); off += kChunk) write_chunk(s.subspan(off, std::min(kChunk, s.size() - off)), c.subspan(off, std::min(kChunk, c.size() - off)));
         return {StreamStatus::Ok, s.size(), 0, 0, {}};
     }
     StreamResult read(std::span<double> s, std::span<double> c, int) override {
         StreamResult r;
         r.first_index = read_ + dropped_total_;
-        const double gap = !queue_.empty() ? queue_.front()[2] : static_cast<double>(pending_drop_);
+        const std::uint64_t gap = !queue_.empty() ? queue_.gap_at_front() : pending_drop_;
         if (gap > 0) {  // samples were lost just before the next frame
-            const auto lost = static_cast<std::uint64_t>(gap);
-            if (!queue_.empty()) queue_.front()[2] = 0; else pending_drop_ = 0;
+            const auto lost = gap;
+            if (!queue_.empty()) queue_.clear_front_gap(); else pending_drop_ = 0;
             r.status = StreamStatus::Overflow;
             r.dropped = lost;
             dropped_total_ += lost;
@@ -214,14 +199,9 @@ public:
             return r;
         }
         std::size_t n = std::min(s.size(), queue_.size());
-        for (std::size_t i = 1; i < n; ++i)  // stop before the next gap
-            if (queue_[i][2] > 0) { n = i; break; }
+        n = std::min(n, queue_.frames_before_next_gap());  // stop before the next gap
         if (stall_after_ >= 0) n = std::min<std::size_t>(n, static_cast<std::size_t>(stall_after_ - static_cast<long long>(read_)));
-        for (std::size_t i = 0; i < n; ++i) {
-            s[i] = queue_.front()[0];
-            c[i] = queue_.front()[1];
-            queue_.pop_front();
-        }
+        queue_.pop(n, s.data(), c.data());
         read_ += n;
         r.frames = n;
         return r;
@@ -318,6 +298,112 @@ private:
         }
     }
 
+    static constexpr std::size_t kChunk = 4096;
+    void write_chunk(std::span<const double> s, std::span<const double> c) {
+        const std::size_t m = s.size();
+        for (auto* v : {&h_[0], &h_[1], &a_[0], &a_[1]}) v->resize(m);
+        // The DAC: a new code is latched when floor(k*dac_rate/fs) advances (zero-order hold in
+        // between); dac_rate 0 means every sample.
+        if (dac_rate_hz_ > 0) {
+            for (std::size_t i = 0; i < m; ++i) {
+                const long long k = static_cast<long long>(written_ + i);
+                const std::int64_t u = static_cast<std::int64_t>(std::floor(static_cast<double>(k) * dac_rate_hz_ / fs_));
+                if (u != last_update_) {
+                    held_[0] = dac_.apply(s[i]);
+                    held_[1] = dac_.apply(c[i]);
+                    last_update_ = u;
+                }
+                h_[0][i] = held_[0];
+                h_[1][i] = held_[1];
+            }
+        } else if (m) {
+            const Quantizer d = dac_;
+            const bool ideal = d.ideal();
+            const double lo = d.min_v, inv = ideal ? 0.0 : d.inv_step(), q = ideal ? 0.0 : d.step_v(), top = ideal ? 0.0 : d.max_code();
+            for (int ch = 0; ch < 2; ++ch) {
+                const double* x = ch ? c.data() : s.data();
+                double* h = h_[ch].data();
+                if (ideal) std::copy(x, x + m, h);
+                else
+                    for (std::size_t i = 0; i < m; ++i) h[i] = Quantizer::quantize(x[i], lo, inv, q, top);
+            }
+            held_[0] = h_[0][m - 1];
+            held_[1] = h_[1][m - 1];
+            last_update_ = static_cast<std::int64_t>(written_ + m - 1);
+        }
+        // The noise, drawn in the chain's order: sin, then cos, sample by sample.
+        const bool noisy = noise_v_ > 0;
+        if (noisy) {
+            nz_[0].resize(m);
+            nz_[1].resize(m);
+            standard_normal_pairs(rng_, m, nz_[0].data(), nz_[1].data());
+        }
+        // Each channel through its filters. A filter with no cutoff passes its input through
+        // (y = x + 0, its state stays zero while the input is finite): skipped then, unless the
+        // sign of a zero could reach the output (an ideal ADC) or an input is not finite.
+        bool finite = true;
+        for (int ch = 0; ch < 2; ++ch)
+            for (std::size_t i = 0; i < m; ++i) finite &= std::isfinite(h_[ch][i]);
+        const bool direct = finite && !adc_.ideal() && recon_[0].passes() && aa_[0].passes() && recon_[1].passes() && aa_[1].passes();
+        const double nv = noise_v_;
+        for (int ch = 0; ch < 2; ++ch) {
+            const double* h = h_[ch].data();
+            double* a = a_[ch].data();
+            const double* z = noisy ? nz_[ch].data() : nullptr;
+            if (direct) {
+                if (noisy)
+                    for (std::size_t i = 0; i < m; ++i) a[i] = h[i] + nv * z[i];
+                else
+                    std::copy(h, h + m, a);
+            } else {
+                Biquad r = recon_[ch], f = aa_[ch];
+                for (std::size_t i = 0; i < m; ++i) {
+                    double x = r.step(h[i]);
+                    if (noisy) x += nv * z[i];
+                    a[i] = f.step(x);
+                }
+                recon_[ch] = r;
+                aa_[ch] = f;
+            }
+        }
+        // Driven into the rail from saturate_after on.
+        if (saturate_after_ >= 0)
+            for (std::size_t i = 0; i < m; ++i)
+                if (static_cast<long long>(written_ + i) >= saturate_after_) a_[0][i] = a_[1][i] = 2 * adc_.max_v;
+        // The ADC (nearest level, ties to even; see adc_read), counting samples past its rails.
+        if (!adc_.ideal()) {
+            const double lo = adc_.min_v, inv = adc_.inv_step(), q = adc_.step_v(), top = adc_.max_code();
+            std::uint64_t clipped = 0;
+            for (int ch = 0; ch < 2; ++ch) {
+                double* a = a_[ch].data();
+                for (std::size_t i = 0; i < m; ++i) {
+                    const double raw = std::floor((a[i] - lo) * inv + 0.5);  // Quantizer::clips
+                    clipped += raw < 0.0 || raw > top;
+                    const double code = std::nearbyint((a[i] - lo) * inv);
+                    a[i] = lo + (code < 0.0 ? 0.0 : (code > top ? top : code)) * q;
+                }
+            }
+            clipped_ += clipped;
+        }
+        // Into the FIFO, less the samples lost on the way in (the gap is reported where it happened).
+        std::size_t i = 0;
+        while (i < m) {
+            const long long k = static_cast<long long>(written_ + i);
+            if (drop_after_ >= 0 && k >= drop_after_ && k < drop_after_ + drop_count_) {
+                ++pending_drop_;
+                ++i;
+                continue;
+            }
+            // The run of kept samples from i: up to the next dropped one.
+            std::size_t j = m;
+            if (drop_after_ >= 0 && k < drop_after_ && drop_count_ > 0) j = std::min<std::size_t>(m, i + static_cast<std::size_t>(drop_after_ - k));
+            queue_.push(j - i, a_[0].data() + i, a_[1].data() + i, pending_drop_);
+            pending_drop_ = 0;
+            i = j;
+        }
+        written_ += m;
+    }
+
     std::string uri_;
     nlohmann::json s_;
     Quantizer dac_, adc_;
@@ -325,26 +411,45 @@ private:
     int latency_ = 0;
     double noise_v_ = 0, fs_ = 0;
     Xoshiro256pp rng_{1};
-    // sin, cos, samples lost just before this frame: a FIFO kept in one vector (a deque
-    // allocated and freed a chunk every 512 samples, 5 % of a long run's time).
+    // The chain's output: sin and cos in two rings (a deque allocated and freed a chunk every
+    // 512 samples), and the gaps (samples lost just before a frame) by the frame's position in
+    // the stream of frames pushed.
     struct Fifo {
-        std::vector<std::array<double, 3>> v;
-        std::size_t head = 0;
-        bool empty() const { return head == v.size(); }
-        std::size_t size() const { return v.size() - head; }
-        std::array<double, 3>& front() { return v[head]; }
-        std::array<double, 3>& operator[](std::size_t i) { return v[head + i]; }
-        void push_back(const std::array<double, 3>& x) { v.push_back(x); }
-        void clear() { v.clear(); head = 0; }
-        void pop_front() {
-            if (++head == v.size()) clear();
-            else if (head >= 65536 && 2 * head >= v.size()) {  // keep the storage bounded
-                v.erase(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(head));
-                head = 0;
-            }
+        Ring<double> s, c;
+        std::uint64_t popped = 0;  // frames popped since the start
+        std::deque<std::pair<std::uint64_t, std::uint64_t>> gaps;  // (frame position, samples lost before it)
+        bool empty() const { return s.empty(); }
+        std::size_t size() const { return s.size(); }
+        std::uint64_t gap_at_front() const { return !gaps.empty() && gaps.front().first == popped ? gaps.front().second : 0; }
+        void clear_front_gap() {
+            if (gap_at_front()) gaps.pop_front();
+        }
+        // Frames from the front before the next one preceded by a gap (the front's own gap aside).
+        std::size_t frames_before_next_gap() const {
+            for (const auto& g : gaps)
+                if (g.first > popped) return static_cast<std::size_t>(g.first - popped);
+            return size();
+        }
+        void push(std::size_t n, const double* vs, const double* vc, std::uint64_t gap_before) {
+            if (!n) return;
+            if (gap_before) gaps.emplace_back(popped + size(), gap_before);
+            s.push(vs, n);
+            c.push(vc, n);
+        }
+        void clear() {
+            s.clear();
+            c.clear();
+            popped = 0;
+            gaps.clear();
+        }
+        void pop(std::size_t n, double* vs, double* vc) {
+            s.pop(vs, n);
+            c.pop(vc, n);
+            popped += n;
         }
     };
     Fifo queue_;
+    std::vector<double> h_[2], a_[2], nz_[2];  // write's scratch per channel: held DAC output, ADC input, noise
     std::uint64_t written_ = 0, read_ = 0, pending_drop_ = 0, dropped_total_ = 0, clipped_ = 0;
     long long drop_after_ = -1, drop_count_ = 0, stall_after_ = -1, saturate_after_ = -1;
     bool running_ = false;

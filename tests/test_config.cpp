@@ -2,13 +2,16 @@
 // the fixtures load; profiles survive a JSON round trip.
 #include "server/engine/scenario.hpp"
 #include "signal_gen/base/config.hpp"
+#include "signal_gen/base/ring.hpp"
 #include "signal_gen/optics.hpp"
 
 #include <catch2/catch.hpp>
 #include <nlohmann/json.hpp>
 
 #include <cstdint>
+#include <deque>
 #include <limits>
+#include <vector>
 
 using namespace fringe;
 using nlohmann::json;
@@ -138,4 +141,35 @@ TEST_CASE("scenario seed is an integer in [0, 2^53], checked exactly", "[config]
     CHECK(field(1.5) == "seed");
     CHECK(field(9007199254740993.0) == "<no error>");  // a float literal: the double is 2^53 exactly
     CHECK(field("7") == "seed");
+}
+
+TEST_CASE("Ring: first in, first out across growth and wrap-around", "[config]") {
+    // Against a deque: pushes and pops of varying sizes, so the ring wraps and grows many times.
+    Ring<double> r;
+    std::deque<double> ref;
+    double next = 0;
+    std::vector<double> in, out;
+    for (int step = 0; step < 2000; ++step) {
+        const std::size_t push = static_cast<std::size_t>((step * 37) % 1500), pop = static_cast<std::size_t>((step * 53) % 1400);
+        in.resize(push);
+        for (auto& v : in) v = next++;
+        if (step % 5 == 0) {
+            r.push_fill(-1.0, push);
+            ref.insert(ref.end(), push, -1.0);
+        } else {
+            r.push(in.data(), push);
+            ref.insert(ref.end(), in.begin(), in.end());
+        }
+        REQUIRE(r.size() == ref.size());
+        const std::size_t take = std::min(pop, r.size());
+        out.resize(take);
+        r.pop(out.data(), take);
+        for (std::size_t i = 0; i < take; ++i) {
+            REQUIRE(out[i] == ref.front());
+            ref.pop_front();
+        }
+    }
+    REQUIRE(r.size() == ref.size());
+    r.clear();
+    CHECK(r.empty());
 }

@@ -7,6 +7,8 @@
 // Contract: add() sees whole blocks (no per-sample virtual call) and must not keep the pointers;
 // finish() is called once, after the last block, in registration order, so an analyser may read
 // the results of those registered before it (the spectrum reads the truth scorer's rate).
+// The run engine calls the analysers of one lane on one block as separate tasks, possibly side
+// by side on different threads: an analyser's add() touches only its own state.
 #pragma once
 
 #include "server/analysis/scoring.hpp"
@@ -92,6 +94,9 @@ public:
     void add(const LaneBlock& b) {
         for (auto& a : analysers_) a->add(b);
     }
+    // The analysers one at a time (the run engine makes each a task of its own).
+    std::size_t size() const { return analysers_.size(); }
+    void add(std::size_t i, const LaneBlock& b) { analysers_[i]->add(b); }
     LaneResults finish();
 
 private:

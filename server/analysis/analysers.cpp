@@ -44,12 +44,23 @@ public:
     void add(const LaneBlock& b) override {
         if (!b.n) return;
         if (!have_t0_) { t0_ = b.t_s[0]; have_t0_ = true; }
-        // After the settle time, in order (the same samples the truth scorer scores).
+        // After the settle time, in order (the same samples the truth scorer scores); once
+        // settled, the whole block without a copy of the flags.
         e_.resize(b.n);
+        const double* t = b.t_s;
+        const double t0 = t0_, settle = settle_s_;
+        std::size_t before = 0;
+        for (std::size_t i = 0; i < b.n; ++i) before += t[i] - t0 < settle;
+        if (!before) {
+            double* e = e_.data();
+            for (std::size_t i = 0; i < b.n; ++i) e[i] = b.theta_hat_rad[i] - b.theta_true_rad[i];
+            spectrum_.add(b.n, e, b.valid);
+            return;
+        }
         ok_.resize(b.n);
         std::size_t m = 0;
         for (std::size_t i = 0; i < b.n; ++i) {
-            if (b.t_s[i] - t0_ < settle_s_) continue;
+            if (t[i] - t0 < settle) continue;
             e_[m] = b.theta_hat_rad[i] - b.theta_true_rad[i];
             ok_[m] = b.valid[i];
             ++m;

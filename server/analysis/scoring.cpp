@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 
 namespace fringe {
 
@@ -127,21 +128,31 @@ void Scorer::add(std::size_t n, const double* t, const double* th_true, const do
     m_.invalid_after_settle += na - good;
     // The rate: its truth over the usable samples where it is known, and the estimate's error.
     if (omt_after) {
-        rate_d_.clear();
+        // Local accumulators (members written through `this` could alias the inputs: a reload
+        // and a store per sample), summed in the same order.
+        rate_d_.resize(na);
+        double* rd = rate_d_.data();
+        std::size_t nd = 0;
+        double s_om = sum_omega_true_, s_abs = sum_abs_omega_true_;
+        std::uint64_t n_om = n_omega_true_, nonfinite = 0;
         for (std::size_t i = 0; i < na; ++i) {
             if (!ok_after[i] || !std::isfinite(omt_after[i])) continue;
-            sum_omega_true_ += omt_after[i];
-            sum_abs_omega_true_ += std::fabs(omt_after[i]);
-            ++n_omega_true_;
+            s_om += omt_after[i];
+            s_abs += std::fabs(omt_after[i]);
+            ++n_om;
             if (omh_after) {
                 const double d = omh_after[i] - omt_after[i];
-                if (!std::isfinite(d)) { ++m_.omega_nonfinite; continue; }
-                rate_d_.push_back(d);
+                if (!std::isfinite(d)) { ++nonfinite; continue; }
+                rd[nd++] = d;
             }
         }
+        sum_omega_true_ = s_om;
+        sum_abs_omega_true_ = s_abs;
+        n_omega_true_ = n_om;
+        m_.omega_nonfinite += nonfinite;
         double mb = 0, qb = 0;
-        block_moments(rate_d_.data(), rate_d_.size(), mb, qb);
-        merge_moments(om_n_, om_mean_, om_m2_, rate_d_.size(), mb, qb);
+        block_moments(rd, nd, mb, qb);
+        merge_moments(om_n_, om_mean_, om_m2_, nd, mb, qb);
     }
     // Unusable samples carry 0 (the error array is handed on as it stands).
     if (good < na) {
@@ -174,14 +185,14 @@ void Scorer::decide() {
 void Scorer::process(std::size_t n, const double* e_raw, const double* th_all, const std::uint8_t* ok) {
     // The scored errors (the 2*pi multiple removed) and their angles, compacted; e_ keeps the
     // full-length sequence for the sink, 0 where not scored.
-    e_.assign(n, 0.0);
+    if (sink_) e_.assign(n, 0.0);
     es_.resize(n);
     th_.resize(n);
     std::size_t ns = 0;
     for (std::size_t i = 0; i < n; ++i) {
         if (!ok[i]) continue;
         const double e = e_raw[i] - offset_rad_;
-        e_[i] = e;
+        if (sink_) e_[i] = e;
         es_[ns] = e;
         th_[ns] = th_all[i];
         ++ns;
@@ -227,25 +238,39 @@ void Scorer::process(std::size_t n, const double* e_raw, const double* th_all, c
         }
         // Into the fine angle bins: per bin the count and the power sums of the offset u from
         // the bin centre, plain and weighted by e (harmonic_sums() expands from them).
+        // First each sample's bin and offset (a pass that vectorises), then the sums, each bin's
+        // ten as two vector additions (element by element: the same sums in the same order).
         constexpr double kBinWidthRad = kTwoPi / kFineBins;
-        FineBin* fine = fine_.data();
+        fine_bin_.resize(ns);
+        fine_u_.resize(ns);
+        std::int32_t* fb = fine_bin_.data();
+        double* fu = fine_u_.data();
+#pragma omp simd
         for (std::size_t i = 0; i < ns; ++i) {
             const double turns = th[i] * (1 / kTwoPi);
             const double pos = (turns - std::floor(turns)) * kFineBins;  // [0, kFineBins], up to rounding
-            const long b = std::clamp<long>(static_cast<long>(pos), 0, kFineBins - 1);
-            const double u = (pos - (static_cast<double>(b) + 0.5)) * kBinWidthRad;
+            // the bin: pos truncated, within [0, kFineBins - 1] (0 for a NaN)
+            double b = std::trunc(pos);
+            b = b >= 0 ? (b > kFineBins - 1 ? kFineBins - 1 : b) : 0.0;
+            fu[i] = (pos - (b + 0.5)) * kBinWidthRad;
+            fb[i] = static_cast<std::int32_t>(b);
+        }
+        typedef double V8 __attribute__((vector_size(64)));
+        typedef double V2 __attribute__((vector_size(16)));
+        static_assert(sizeof(FineBin) == 10 * sizeof(double));
+        FineBin* fine = fine_.data();
+        for (std::size_t i = 0; i < ns; ++i) {
+            const double u = fu[i];
             const double u2 = u * u, u3 = u2 * u, u4 = u2 * u2, ee = es[i];
-            FineBin& f = fine[b];
-            f.p[0] += 1;
-            f.p[1] += u;
-            f.p[2] += u2;
-            f.p[3] += u3;
-            f.p[4] += u4;
-            f.q[0] += ee;
-            f.q[1] += ee * u;
-            f.q[2] += ee * u2;
-            f.q[3] += ee * u3;
-            f.q[4] += ee * u4;
+            auto* f = reinterpret_cast<unsigned char*>(&fine[fb[i]]);  // p[0..4], q[0..4]
+            V8 s8;
+            V2 s2;
+            std::memcpy(&s8, f, sizeof s8);
+            std::memcpy(&s2, f + sizeof s8, sizeof s2);
+            s8 += V8{1, u, u2, u3, u4, ee, ee * u, ee * u2};
+            s2 += V2{ee * u3, ee * u4};
+            std::memcpy(f, &s8, sizeof s8);
+            std::memcpy(f + sizeof s8, &s2, sizeof s2);
         }
     }
     if (sink_) sink_(n, e_.data(), ok);

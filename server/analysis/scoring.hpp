@@ -132,6 +132,8 @@ private:
     // block scratch
     std::vector<double> blk_e_, sel_e_, sel_th_, sel_omt_, sel_omh_, rate_d_, es_, th_, e_;
     std::vector<std::uint8_t> blk_ok_, sel_ok_;
+    std::vector<std::int32_t> fine_bin_;  // each scored sample's fine bin, and its offset from the centre
+    std::vector<double> fine_u_;
     Sink sink_;
 };
 

@@ -43,7 +43,7 @@ ErrorSpectrum::ErrorSpectrum(double sample_rate_hz, std::size_t segment_samples)
         s1_ += window_[i];
         s2_ += window_[i] * window_[i];
     }
-    buf_.reserve(n_);
+    buf_.assign(n_, 0.0);
     power_.assign(n_ / 2 + 1, 0.0);
 }
 
@@ -58,30 +58,39 @@ std::size_t ErrorSpectrum::choose_segment(double sample_rate_hz, double electric
 }
 
 void ErrorSpectrum::add(std::size_t n, const double* e_rad, const std::uint8_t* ok) {
+    const std::size_t mask = n_ - 1;
     for (std::size_t i = 0; i < n;) {
         // The run of usable samples from i, appended in pieces that complete segments.
         std::size_t j = i;
         while (j < n && (!ok || ok[j]) && std::isfinite(e_rad[j])) ++j;
         for (std::size_t k = i; k < j;) {
-            const std::size_t take = std::min(j - k, n_ - buf_.size());
-            buf_.insert(buf_.end(), e_rad + k, e_rad + k + take);
+            const std::size_t take = std::min(j - k, n_ - fill_);
+            for (std::size_t q = 0; q < take; ++q) buf_[(start_ + fill_ + q) & mask] = e_rad[k + q];
+            fill_ += take;
             k += take;
-            if (buf_.size() == n_) {
+            if (fill_ == n_) {
                 segment();
-                buf_.erase(buf_.begin(), buf_.begin() + static_cast<std::ptrdiff_t>(n_ / 2));  // 50 % overlap
+                start_ = (start_ + n_ / 2) & mask;  // 50 % overlap
+                fill_ = n_ / 2;
             }
         }
-        if (j < n) buf_.clear();  // a gap ends the segment: never bridged
+        if (j < n) fill_ = 0;  // a gap ends the segment: never bridged
         i = j + 1;
     }
 }
 
 void ErrorSpectrum::segment() {
+    // The segment is buf_ from start_ on, wrapping around: two runs, in order.
+    const std::size_t first = n_ - start_;
+    const double* a = buf_.data() + start_;
+    const double* b = buf_.data();
     double mean = 0;
-    for (double v : buf_) mean += v;
+    for (std::size_t i = 0; i < first; ++i) mean += a[i];
+    for (std::size_t i = 0; i < start_; ++i) mean += b[i];
     mean /= static_cast<double>(n_);
     x_.resize(n_);
-    for (std::size_t i = 0; i < n_; ++i) x_[i] = (buf_[i] - mean) * window_[i];
+    for (std::size_t i = 0; i < first; ++i) x_[i] = (a[i] - mean) * window_[i];
+    for (std::size_t i = 0; i < start_; ++i) x_[first + i] = (b[i] - mean) * window_[first + i];
     static thread_local Eigen::FFT<double> fft;
     fft.SetFlag(Eigen::FFT<double>::HalfSpectrum);  // bins 0..n/2 only: the input is real
     fft.fwd(X_, x_);

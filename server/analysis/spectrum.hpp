@@ -39,7 +39,8 @@ private:
     double fs_;
     std::size_t n_;
     std::size_t segments_ = 0;
-    std::vector<double> window_, buf_;  // buf_: the current run of contiguous valid samples (< n_)
+    std::vector<double> window_, buf_;  // buf_: the current run of contiguous valid samples, a ring of n_
+    std::size_t start_ = 0, fill_ = 0;  // its oldest sample, and how many (< n_ between segments)
     std::vector<double> power_;         // sum over segments of |X_k|^2, k = 0..n_/2
     std::vector<double> x_;             // windowed segment (scratch)
     std::vector<std::complex<double>> X_;  // its transform (scratch)

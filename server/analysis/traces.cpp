@@ -15,20 +15,11 @@ namespace {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
-// Wrap to (-pi, pi]. Rounding instead of std::remainder: this runs per sample and lane.
-double wrap_pi(double x) {
-    double y = x - kTwoPi * std::floor(x * (1 / kTwoPi) + 0.5);
-    if (y <= -kPi) y += kTwoPi;
-    else if (y > kPi) y -= kTwoPi;
-    return y;
-}
-
-// Bin of an electrical angle wrapped to [0, 2 pi).
-std::size_t angle_bin(double theta_rad, std::size_t bins) {
-    const double turns = theta_rad * (1 / kTwoPi);
-    const double frac = turns - std::floor(turns);
-    const auto b = static_cast<std::size_t>(frac * static_cast<double>(bins));
-    return b < bins ? b : bins - 1;
+// Wrap to (-pi, pi]. Rounding instead of std::remainder: this runs per sample and lane (in a
+// pass of its own that vectorises: no branches).
+inline double wrap_pi(double x) {
+    const double y = x - kTwoPi * std::floor(x * (1 / kTwoPi) + 0.5);
+    return y <= -kPi ? y + kTwoPi : (y > kPi ? y - kTwoPi : y);
 }
 
 // Where in bucket b its Lissajous point is taken: scattered (a hash of b), so a speed at which the
@@ -98,16 +89,33 @@ void TraceRecorder::add(std::size_t m, const double* t_s, const double* sin_v, c
                         const std::uint8_t* truth_known, const std::vector<const double*>& err_rad) {
     const std::size_t lanes = std::min(err_rad.size(), labels_.size());
     // The true-angle bin of each sample that enters the folds (-1: not folded), once for all lanes.
+    // The bin of the true angle wrapped to [0, 2 pi) in a pass that vectorises (an unfolded
+    // sample's angle taken as 0, its bin -1), then the cycle sums in order.
     abin_.resize(m);
+    std::int32_t* bin_of = abin_.data();
+    const double nb = static_cast<double>(bins_), from = fold_from_s_;
     for (std::size_t i = 0; i < m; ++i) {
-        const bool known = (!truth_known || truth_known[i]) && std::isfinite(theta_true_rad[i]);
-        abin_[i] = known && t_s[i] >= fold_from_s_ ? static_cast<std::int32_t>(angle_bin(theta_true_rad[i], bins_)) : -1;
+        const double th = theta_true_rad[i];
+        const bool fold = (!truth_known || truth_known[i]) && std::isfinite(th) && t_s[i] >= from;
+        const double turns = (fold ? th : 0.0) * (1 / kTwoPi);
+        const double b = std::trunc((turns - std::floor(turns)) * nb);
+        bin_of[i] = fold ? static_cast<std::int32_t>(b < nb ? b : nb - 1) : -1;
+    }
+    for (std::size_t i = 0; i < m; ++i) {
         if (abin_[i] >= 0 && std::isfinite(sin_v[i]) && std::isfinite(cos_v[i])) {
             const auto ab = static_cast<std::size_t>(abin_[i]);
             cyc_sin_[ab] += sin_v[i];
             cyc_cos_[ab] += cos_v[i];
             ++cyc_n_[ab];
         }
+    }
+    // Each lane's error wrapped, in a pass of its own.
+    wrapped_.resize(lanes);
+    for (std::size_t j = 0; j < lanes; ++j) {
+        wrapped_[j].resize(m);
+        const double* e = err_rad[j];
+        double* w = wrapped_[j].data();
+        for (std::size_t k = 0; k < m; ++k) w[k] = wrap_pi(e[k]);
     }
     // Bucket by bucket: no division per sample.
     for (std::size_t i = 0; i < m;) {
@@ -131,11 +139,12 @@ void TraceRecorder::add(std::size_t m, const double* t_s, const double* sin_v, c
         }
         for (std::size_t j = 0; j < lanes; ++j) {
             const double* e = err_rad[j];
+            const double* wr = wrapped_[j].data();
             Fold& f = fold_[j];
             double lo = err_[j].lo[b], hi = err_[j].hi[b];
             for (std::size_t k = i; k < i + len; ++k) {
                 if (!std::isfinite(e[k])) continue;  // invalid sample or unknown truth
-                const double w = wrap_pi(e[k]);
+                const double w = wr[k];
                 lo = std::min(lo, w);
                 hi = std::max(hi, w);
                 if (abin_[k] >= 0) {

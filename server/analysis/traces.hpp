@@ -61,6 +61,7 @@ private:
     std::vector<std::uint64_t> cyc_n_;
     std::vector<Fold> fold_;
     std::vector<std::int32_t> abin_;  // block scratch: each sample's true-angle bin, -1 when not folded
+    std::vector<std::vector<double>> wrapped_;  // block scratch: each lane's error wrapped to (-pi, pi]
 };
 
 }  // namespace fringe

@@ -2,6 +2,7 @@
 
 #include "server/analysis/align.hpp"
 #include "signal_gen/base/config.hpp"
+#include "signal_gen/base/ring.hpp"
 #include "signal_gen/fastmath.hpp"
 #include "signal_gen/generator.hpp"
 
@@ -82,9 +83,13 @@ private:
 class StreamSource final : public FrameSource {
 public:
     StreamSource(const Scenario& sc, dev::StreamPort& d, const dev::DeviceInfo& info, std::size_t block)
-        : sc_(sc), dev_(d), gen_(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed, sc.t0_s), block_(block), total_(sc.samples()) {
+        : sc_(sc), dev_(d), gen_(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed, sc.t0_s),
+          ahead_gen_(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed, sc.t0_s), block_(block), total_(sc.samples()) {
         // The first latency_samples input frames predate the signal and are not scored.
-        for (int k = 0; k < info.latency_samples; ++k) pending_.push_back({sc.t0_s + k / sc.sample_rate_hz, 0, 0, false});
+        for (int k = 0; k < info.latency_samples; ++k) {
+            const double t = sc.t0_s + k / sc.sample_rate_hz, zero = 0;
+            pending_.push(1, &t, &zero, &zero, 0);
+        }
         dev_.start(sc.sample_rate_hz);
         started_ = true;
     }
@@ -95,18 +100,40 @@ public:
             dev_.stop();
         }
     }
+    // Call c of next() writes block c + 3 once the first call has written blocks 0..3 (four
+    // blocks ahead, every call reading one): this generates block c + 4, for call c + 1, with
+    // a generator of its own. The generator's output depends only on the sample index.
+    void generate_ahead() override {
+        const std::uint64_t c = ahead_calls_++;
+        const std::size_t slot = static_cast<std::size_t>(c % 2);
+        const std::uint64_t first = (c + 4) * block_;
+        pre_first_[slot] = kNone;
+        if (first >= total_) return;
+        const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(block_, total_ - first));
+        pre_[slot].resize(n, sc_.encoder.index.enabled);
+        ahead_gen_.generate(first, pre_[slot]);
+        pre_first_[slot] = first;
+    }
     SourceStatus next(std::size_t max, Frames& out) override {
+        const std::uint64_t call = next_calls_++;
+        // What generate_ahead() made beside the call before (another slot than the one it fills now).
+        const std::size_t ready = static_cast<std::size_t>((call + 1) % 2);
         const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(max, total_ - k_in_));
         // Output runs up to four blocks ahead of input: a real-time board (USB) must never run
         // dry while the host reads. Truth is queued as it is written.
         while (k_out_ < std::min<std::uint64_t>(total_, k_in_ + 4 * block_)) {
             const std::size_t nw = static_cast<std::size_t>(std::min<std::uint64_t>(block_, total_ - k_out_));
-            b_.resize(nw, sc_.encoder.index.enabled);
-            gen_.generate(k_out_, b_);
-            const auto w = dev_.write(b_.sin_v, b_.cos_v);
+            const Block* b = &b_;
+            if (call > 0 && pre_first_[ready] == k_out_ && pre_[ready].size() == nw) {
+                b = &pre_[ready];
+            } else {
+                b_.resize(nw, sc_.encoder.index.enabled);
+                gen_.generate(k_out_, b_);
+            }
+            const auto w = dev_.write(b->sin_v, b->cos_v);
             if (w.status != dev::StreamStatus::Ok)
                 return {false, false, std::string("output ") + dev::to_string(w.status) + " at sample " + std::to_string(k_out_ + w.frames) + ": " + w.message};
-            for (std::size_t i = 0; i < nw; ++i) pending_.push_back({b_.t_s[i], b_.theta_rad[i], b_.omega_rad_s[i], true});
+            pending_.push(nw, b->t_s.data(), b->theta_rad.data(), b->omega_rad_s.data(), 1);
             k_out_ += nw;
             if (k_out_ == total_) dev_.end_of_output();
         }
@@ -134,25 +161,38 @@ public:
     }
 
 private:
-    struct Truth { double t, th, om; bool known; };
-    void fill_truth(Frames& out) {
-        for (std::size_t i = 0; i < out.size(); ++i) {
-            const Truth tr = pending_.front();
-            pending_.pop_front();
-            out.t_s[i] = tr.t;
-            out.theta_true_rad[i] = tr.th;
-            out.omega_true_rad_s[i] = tr.om;
-            out.truth_known[i] = tr.known;
+    // The truth of the frames written and not yet read, in order, a ring per column.
+    struct TruthFifo {
+        Ring<double> t, th, om;
+        Ring<std::uint8_t> known;
+        void push(std::size_t n, const double* t_s, const double* th_rad, const double* om_rad_s, std::uint8_t k) {
+            t.push(t_s, n);
+            th.push(th_rad, n);
+            om.push(om_rad_s, n);
+            known.push_fill(k, n);
         }
+        void pop(std::size_t n, Frames& out) {
+            t.pop(out.t_s.data(), n);
+            th.pop(out.theta_true_rad.data(), n);
+            om.pop(out.omega_true_rad_s.data(), n);
+            known.pop(out.truth_known.data(), n);
+        }
+    };
+    void fill_truth(Frames& out) {
+        pending_.pop(out.size(), out);
         k_in_ += out.size();
     }
+    static constexpr std::uint64_t kNone = ~std::uint64_t{0};
     const Scenario& sc_;
     dev::StreamPort& dev_;
-    Generator gen_;
+    Generator gen_, ahead_gen_;  // next()'s own, and generate_ahead()'s
     Block b_;
+    Block pre_[2];  // generate_ahead()'s blocks, by the parity of its call, and their first samples
+    std::uint64_t pre_first_[2] = {kNone, kNone};
+    std::uint64_t next_calls_ = 0, ahead_calls_ = 0;
     std::size_t block_;
     std::uint64_t total_, k_out_ = 0, k_in_ = 0;
-    std::deque<Truth> pending_;
+    TruthFifo pending_;
     bool started_ = false;
 };
 
@@ -404,6 +444,7 @@ public:
         rail_v_ = c.adc_range_v > 0 ? c.adc_range_v : 0.0;
         step_v_ = c.adc_q_v();
     }
+    void generate_ahead() override { inner_->generate_ahead(); }
     void stop() override { inner_->stop(); }
     nlohmann::json alignment() const override { return inner_->alignment(); }
     SourceStatus next(std::size_t max, Frames& out) override {

@@ -5,7 +5,7 @@
 // and the source is chosen from the ports the device has:
 //   StepSource    a StepPort (Modbus boards): one static pair per frame, settle, read back
 //   StreamSource  a StreamPort (loopback, USB): write ahead, read, align truth for the
-//                 device's declared latency
+//                 device's declared latency; generate_ahead() makes the next block beforehand
 //   ReplaySource  a ReplayPort (capture replay): frames and truth from the file
 //   InstrumentSource  a PlayPort plays the whole signal from a generator's memory, a
 //                 RecordPort on its own clock records it; truth is aligned from the signals
@@ -43,6 +43,11 @@ public:
     // Up to max frames into out (resized to what was delivered). Device faults on the stream
     // path come back as a status; configuration faults throw.
     virtual SourceStatus next(std::size_t max, Frames& out) = 0;
+    // Work for a later next() that a source can do beside next() on another thread: the stream
+    // source generates the signal its next call will write. The run engine calls it once with
+    // each next(), in the same step (the two touch separate state); frames are the same whether
+    // or not it is called.
+    virtual void generate_ahead() {}
     virtual void stop() {}
     // The truth alignment (report "alignment"; docs/alignment.md), null for sources without one.
     virtual nlohmann::json alignment() const { return nullptr; }

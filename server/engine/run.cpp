@@ -14,6 +14,7 @@
 #include "signal_gen/base/config.hpp"
 #include "signal_gen/fastmath.hpp"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -57,19 +58,28 @@ json unstarted_report(const Scenario& sc, const std::string& id, const std::stri
 namespace {
 
 // One estimator under test (or the DUT's own position) with its analysers. Its output for a
-// block stays in one of two slots while the traces of that block are drawn beside the next.
+// block stays in one of two slots while its analysers and the traces take that block beside
+// the estimator's next one.
 struct Lane {
     const EstimatorSpec* spec;
     std::unique_ptr<est::Estimator> e;  // null: the DUT's own position
     AnalyserSet analysers;
-    std::vector<double> th, om;
-    std::vector<std::uint8_t> valid;
-    std::vector<double> err[2];  // theta_hat - theta_true, NaN where invalid (plot traces), per slot
+    struct Slot {
+        std::vector<double> th, om;
+        std::vector<std::uint8_t> valid;
+        std::vector<double> err;  // theta_hat - theta_true, NaN where invalid (plot traces)
+        LaneBlock b;              // what the analysers see (into this slot and the frames)
+    } out[2];
     double estimator_s = 0;  // time inside the estimator
     std::function<void(std::size_t, const double*, const double*, const double*, const std::uint8_t*)> tap;  // RunOptions::estimates
     Lane(const EstimatorSpec* s, const LaneContext& ctx) : spec(s), analysers(ctx) {}
 
-    void process(const Frames& f, int slot) {
+    // The estimator on one block, into a slot (the analysers take it in the next step).
+    void estimate(const Frames& f, int slot) {
+        Slot& o = out[slot];
+        auto& th = o.th;
+        auto& om = o.om;
+        auto& valid = o.valid;
         const std::size_t m = f.size();
         th.resize(m); om.resize(m); valid.resize(m);
         if (!e) {  // the DUT's own position: no rate
@@ -85,7 +95,7 @@ struct Lane {
         }
         if (tap) tap(m, f.t_s.data(), th.data(), om.data(), valid.data());
         for (std::size_t i = 0; i < m; ++i) valid[i] = valid[i] && f.truth_known[i];
-        LaneBlock b;
+        LaneBlock& b = o.b;
         b.n = m;
         b.t_s = f.t_s.data();
         b.sin_v = f.sin_v.data();
@@ -96,11 +106,12 @@ struct Lane {
         b.theta_hat_rad = th.data();
         b.omega_hat_rad_s = e ? om.data() : nullptr;
         b.valid = valid.data();
-        analysers.add(b);
-        auto& out = err[slot];
-        out.resize(m);
-        for (std::size_t i = 0; i < m; ++i) out[i] = valid[i] ? th[i] - f.theta_true_rad[i] : std::numeric_limits<double>::quiet_NaN();
+        o.err.resize(m);
+        const double* tt = f.theta_true_rad.data();
+        for (std::size_t i = 0; i < m; ++i) o.err[i] = valid[i] ? th[i] - tt[i] : std::numeric_limits<double>::quiet_NaN();
     }
+    // Analyser i on the block in a slot.
+    void analyse(std::size_t i, int slot) { analysers.add(i, out[slot].b); }
 };
 
 // The pipeline's threads: asked for, else FRINGE_THREADS, else one per hardware thread.
@@ -312,67 +323,129 @@ json execute_run(RunPlan plan, const RunOptions& o) {
         if (report.contains("provenance") && report["provenance"]["dut"]["serial"] == "") report["provenance"]["dut"]["serial"] = dinfo.board_id;
         std::optional<Recorder> recorder;
         if (!o.record_path.empty()) recorder.emplace(o.record_path, sc, dinfo, report["id"]);
-        // The pipeline, one step per block: the source fills block k+1, the lanes process block
-        // k (each lane a task of its own), and block k-1 goes to the recorder and the traces,
-        // all side by side; each task touches only its own slot, so the report is the same for
-        // any thread count. Frames delivered before a fault or a cancel are processed.
+        // The pipeline, one step per block: the source fills block k+1, the estimators take
+        // block k (each lane a task of its own), and block k-1 goes to each lane's analysers
+        // (each analyser a task), the recorder and the traces, all side by side. Each task
+        // touches only its own slot and state, so the report is the same for any thread count;
+        // the tasks are handed out longest first (by their time in the step before), so the
+        // slowest estimator starts at once and the rest fill the other threads around it.
+        // Frames delivered before a fault or a cancel are processed.
         TaskPool pool(pipeline_threads(o.threads));
         Frames slot[3];
         SourceStatus st;
         bool source_done = false;
         std::exception_ptr source_failure;
-        std::uint64_t produced = 0, laned = 0;  // frames delivered by the source, and through the lanes
+        std::uint64_t produced = 0, laned = 0;  // frames delivered by the source, and through the estimators
         std::size_t have[3] = {0, 0, 0};  // frames in each slot
+        enum class Kind { Source, Ahead, Estimate, Analyse, Traces, Signal };
+        struct Job {
+            Kind kind;
+            std::size_t lane = 0, analyser = 0;
+            double* seconds = nullptr;  // the task's time in the last step it ran
+        };
+        double source_s = 0, ahead_s = 0, traces_s = 0, signal_s = 0;
+        std::vector<double> estimate_s(lanes.size(), 0.0);
+        std::vector<std::vector<double>> analyse_s(lanes.size());
+        for (std::size_t j = 0; j < lanes.size(); ++j) analyse_s[j].assign(lanes[j]->analysers.size(), 0.0);
+        std::vector<Job> jobs;
         std::vector<std::function<void()>> tasks;
         std::vector<std::exception_ptr> errors;
         for (std::uint64_t step = 0;; ++step) {
             if (!source_done && o.cancel && o.cancel->load()) { status = RunStatus::Aborted; error = "cancelled"; source_done = true; }
             const bool produce = !source_done && produced < total;
-            const bool lane_step = step >= 1 && have[(step - 1) % 3] > 0;  // block step-1
-            const bool trace_step = step >= 2 && have[(step - 2) % 3] > 0;  // block step-2
-            if (!produce && !lane_step && !trace_step) break;
+            const bool estimate_step = step >= 1 && have[(step - 1) % 3] > 0;  // block step-1
+            const bool analyse_step = step >= 2 && have[(step - 2) % 3] > 0;   // block step-2
+            if (!produce && !estimate_step && !analyse_step) break;
+            const std::size_t ks = step % 3, ke = (step + 2) % 3, ka = (step + 1) % 3;  // slots of blocks step, step-1, step-2
+            const int le = static_cast<int>((step + 1) % 2), la = static_cast<int>(step % 2);  // lane slots of blocks step-1, step-2
+            jobs.clear();
+            if (produce) {
+                jobs.push_back({Kind::Source, 0, 0, &source_s});
+                jobs.push_back({Kind::Ahead, 0, 0, &ahead_s});
+            }
+            if (estimate_step)
+                for (std::size_t j = 0; j < lanes.size(); ++j) jobs.push_back({Kind::Estimate, j, 0, &estimate_s[j]});
+            if (analyse_step) {
+                for (std::size_t j = 0; j < lanes.size(); ++j)
+                    for (std::size_t a = 0; a < lanes[j]->analysers.size(); ++a) jobs.push_back({Kind::Analyse, j, a, &analyse_s[j][a]});
+                jobs.push_back({Kind::Traces, 0, 0, &traces_s});
+                jobs.push_back({Kind::Signal, 0, 0, &signal_s});
+            }
+            std::stable_sort(jobs.begin(), jobs.end(), [](const Job& x, const Job& y) { return *x.seconds > *y.seconds; });
             tasks.clear();
-            if (produce)
-                tasks.emplace_back([&, k = step % 3] {
-                    st = source->next(o.block, slot[k]);
-                    alignment = source->alignment();
-                });
-            if (lane_step)
-                for (auto& lane : lanes)
-                    tasks.emplace_back([&, l = lane.get(), k = (step - 1) % 3] { l->process(slot[k], static_cast<int>((step - 1) % 2)); });
-            if (trace_step)
-                tasks.emplace_back([&, k = (step - 2) % 3] {
-                    const Frames& f = slot[k];
-                    if (recorder) recorder->add(f);
-                    std::vector<const double*> errs;
-                    for (auto& lane : lanes) errs.push_back(lane->err[(step - 2) % 2].data());
-                    traces->add(f.size(), f.t_s.data(), f.sin_v.data(), f.cos_v.data(), f.theta_true_rad.data(), f.truth_known.data(), errs);
-                    signal.add(f.t_s.data(), f.sin_v.data(), f.cos_v.data(), f.size());
+            for (const Job& jb : jobs)
+                tasks.emplace_back([&, jb] {
+                    const auto t0 = std::chrono::steady_clock::now();
+                    switch (jb.kind) {
+                    case Kind::Source:
+                        st = source->next(o.block, slot[ks]);
+                        alignment = source->alignment();
+                        break;
+                    case Kind::Ahead: source->generate_ahead(); break;
+                    case Kind::Estimate: lanes[jb.lane]->estimate(slot[ke], le); break;
+                    case Kind::Analyse: lanes[jb.lane]->analyse(jb.analyser, la); break;
+                    case Kind::Traces: {
+                        const Frames& f = slot[ka];
+                        if (recorder) recorder->add(f);
+                        std::vector<const double*> errs;
+                        for (auto& lane : lanes) errs.push_back(lane->out[la].err.data());
+                        traces->add(f.size(), f.t_s.data(), f.sin_v.data(), f.cos_v.data(), f.theta_true_rad.data(), f.truth_known.data(), errs);
+                        break;
+                    }
+                    case Kind::Signal: {
+                        const Frames& f = slot[ka];
+                        signal.add(f.t_s.data(), f.sin_v.data(), f.cos_v.data(), f.size());
+                        break;
+                    }
+                    }
+                    *jb.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
                 });
             pool.run(tasks, errors);
-            std::size_t t = 0;
-            if (trace_step) have[(step - 2) % 3] = 0;
+            // Faults in the order the one-lane-task pipeline met them: the source's, then an
+            // estimator's (the lanes whose estimator finished that block still analyse it), then
+            // an analyser's or the traces'.
+            std::exception_ptr source_error, ahead_error, estimator_error, analysis_error;
+            std::vector<bool> estimated(lanes.size(), true);
+            for (std::size_t t = 0; t < jobs.size(); ++t) {
+                if (!errors[t]) continue;
+                switch (jobs[t].kind) {
+                case Kind::Source: source_error = errors[t]; break;
+                case Kind::Ahead: ahead_error = errors[t]; break;
+                case Kind::Estimate:
+                    estimated[jobs[t].lane] = false;
+                    if (!estimator_error) estimator_error = errors[t];
+                    break;
+                default:
+                    if (!analysis_error) analysis_error = errors[t];
+                }
+            }
+            if (!source_error) source_error = ahead_error;  // the source could not generate ahead
+            if (analyse_step) have[ka] = 0;
             if (produce) {
-                if (errors[t]) {
-                    source_failure = errors[t];  // like a fault: what came before is still processed
-                    have[step % 3] = 0;
+                if (source_error) {
+                    source_failure = source_error;  // like a fault: what came before is still processed
+                    have[ks] = 0;
                     source_done = true;
                 } else {
-                    have[step % 3] = slot[step % 3].size();
-                    produced += have[step % 3];
+                    have[ks] = slot[ks].size();
+                    produced += have[ks];
                     if (!st.ok) { status = RunStatus::Error; error = st.error; source_done = true; }
                     if (st.end) source_done = true;
                 }
-                ++t;
             }
-            if (lane_step) {
-                for (std::size_t j = 0; j < lanes.size(); ++j, ++t)
-                    if (errors[t]) std::rethrow_exception(errors[t]);  // an estimator failed: the run ends here
-                laned += have[(step - 1) % 3];
+            if (estimator_error) {
+                // An estimator failed: the run ends here, once the others' analysers took this block.
+                for (std::size_t j = 0; j < lanes.size() && !analysis_error; ++j)
+                    if (estimated[j])
+                        for (std::size_t a = 0; a < lanes[j]->analysers.size(); ++a) lanes[j]->analyse(a, le);
+                std::rethrow_exception(estimator_error);
+            }
+            if (estimate_step) {
+                laned += have[ke];
                 processed = laned;
                 if (o.progress) o.progress(processed, total);
             }
-            if (trace_step && errors[t]) std::rethrow_exception(errors[t]);
+            if (analysis_error) std::rethrow_exception(analysis_error);
         }
         if (source_failure) std::rethrow_exception(source_failure);
         source->stop();
