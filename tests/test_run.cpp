@@ -84,7 +84,11 @@ TEST_CASE("loopback: the same frames whatever the write and read sizes", "[devic
                                   "loopback:?dac_bits=0&adc_bits=0", "loopback:?dac_bits=12&adc_bits=14&recon_cutoff_hz=30000&aa_cutoff_hz=20000",
                                   "loopback:?dac_bits=16&adc_bits=12&aa_cutoff_hz=25000&aa_order=1&dac_rate_hz=40000&saturate_after=9000"}) {
         CAPTURE(uri);
-        auto whole = dev::open(uri), bits = dev::open(uri);
+        auto whole_dev = dev::open(uri), bits_dev = dev::open(uri);
+        dev::StreamPort* whole = whole_dev->stream();
+        dev::StreamPort* bits = bits_dev->stream();
+        REQUIRE(whole);
+        REQUIRE(bits);
         whole->start(fs);
         bits->start(fs);
         whole->write(s, c);

@@ -132,7 +132,7 @@ TEST_CASE("signal quality: backwards and through reversals the figures are the s
     }
 }
 
-TEST_CASE("signal quality: memory is flat in the number of periods; no period says why", "[signal]") {
+TEST_CASE("signal quality: memory is flat in the number of periods, and no period says why", "[signal]") {
     // 2e5 periods at 20 samples each
     const auto q = analyse(Sig{}, [](double t) { return kTwoPi * 5000 * t; }, 100000, 40.0, 1, 65536);
     CHECK(q.periods() > 190000);

@@ -192,11 +192,20 @@ function valueCell(m, v) {
 const heading = (m) => [m.column || m.name, m.unit ? h('span', { class: 'unit' }, ` (${m.unit})`) : ''];
 
 function estimatorsTable(mt) {
-  const cols = mt.metrics.filter((m) => m.column);
+  const cols = mt.metrics.filter((m) => m.column && m.scope === 'estimator');
   const lanes = mt.lanes.filter((l) => l !== 'run');
   return scroller(h('table', { id: 'estimators' },
     h('thead', {}, h('tr', {}, h('th', {}, 'estimator'), cols.map((m) => h('th', { title: `${m.name}: ${m.description}` }, ...heading(m))))),
     h('tbody', {}, lanes.map((l) => h('tr', {}, h('td', {}, l), cols.map((m) => valueCell(m, m.values[l])))))));
+}
+
+// The signals' quality, once for the run (docs/signal-quality.md): the run-level summary columns.
+function signalTable(mt) {
+  const cols = mt.metrics.filter((m) => m.column && m.scope === 'run' && m.group === 'signal');
+  if (!cols.length) return '';
+  return h('div', {}, h('h2', {}, 'Signal quality'), scroller(h('table', { id: 'signal' },
+    h('thead', {}, h('tr', {}, cols.map((m) => h('th', { title: `${m.name}: ${m.description}` }, ...heading(m))))),
+    h('tbody', {}, h('tr', {}, cols.map((m) => valueCell(m, m.values.run)))))));
 }
 
 function allMetricsTable(mt) {
@@ -241,7 +250,7 @@ async function report(id, into) {
       h('a', { href: `${base}/report.html?download=1`, download: '', id: 'dl-html' }, 'HTML'),
       h('a', { href: `#/compare/${id}` }, 'compare with…')),
     h('h2', {}, 'Measurements'), measurementsTable(r),
-    h('h2', {}, 'Estimators'), estimatorsTable(mt), allMetricsTable(mt), harmonicsTable(r),
+    h('h2', {}, 'Estimators'), estimatorsTable(mt), signalTable(mt), allMetricsTable(mt), harmonicsTable(r),
     h('h2', {}, 'Plots'), plotBox);
   const t = tr.traces || {};
   const empty = !t.t_s || !t.t_s.length;
@@ -269,7 +278,7 @@ async function compare(a, b) {
   const labels = [...new Set([...ma0.lanes, ...mb0.lanes])].filter((l) => l !== 'run');
   const byName = (mt) => Object.fromEntries(mt.metrics.map((m) => [m.name, m]));
   const na = byName(ma0), nb = byName(mb0);
-  const cols = ma0.metrics.filter((m) => m.column);
+  const cols = ma0.metrics.filter((m) => m.column && m.scope === 'estimator');
   const rows = [];
   const val = (m, l) => (m && m.values[l] ? m.values[l].value : null);
   for (const l of labels)

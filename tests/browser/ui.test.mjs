@@ -197,6 +197,8 @@ try {
   const missing = table.filter((m) => !rowsShown.some(([name, unit]) => name === m.name && unit === m.unit));
   check(table.length > 40 && missing.length === 0, `all ${table.length} metrics of GET /schema with their units in #metrics (missing: ${missing.map((m) => m.name).join(', ')})`);
   check(rowsShown.some(([name, , text]) => name === 'alignment_delay_s' && text.includes('not measured')), 'a metric the run could not measure reads "not measured"');
+  const phase = await page.$eval('#signal td.m-signal_phase_deg', (td) => td.textContent).catch(() => '');
+  check(Math.abs(parseFloat(phase) - 90) < 2, `the signal-quality table shows the phase between A and B (${phase} deg)`);
   }
   await page.waitForFunction(() => document.querySelectorAll('#plots canvas').length >= 5);
   const ink = await inkedCanvases(page);
