@@ -19,13 +19,31 @@ double wrap_deg(double d) {
     return d;
 }
 
-// Fourier series of one channel over one period, by the trapezoid rule on the period's points.
-ChannelQuality fit_channel(const std::vector<double>& phi, const std::vector<double>& w, const std::vector<double>& x) {
+// cos and sin of 2 pi g / kGrid: the fitted shape's extremes are sought on this grid.
+constexpr int kGrid = 128;
+struct GridTable {
+    double c[kGrid], s[kGrid];
+    GridTable() {
+        for (int g = 0; g < kGrid; ++g) {
+            c[g] = std::cos(kTwoPi * g / kGrid);
+            s[g] = std::sin(kTwoPi * g / kGrid);
+        }
+    }
+};
+const GridTable& grid() {
+    static const GridTable t;
+    return t;
+}
+
+// Fourier series of one channel over one period, by the trapezoid rule on the period's points;
+// c1, s1: cos and sin of each point's angle (the harmonics by the angle-addition recurrence).
+ChannelQuality fit_channel(const std::vector<double>& phi, const std::vector<double>& c1v, const std::vector<double>& s1v,
+                           const std::vector<double>& w, const std::vector<double>& x) {
     constexpr int K = SignalQuality::kHarmonics;
     const std::size_t n = phi.size();
     double c0 = 0, a[K + 1] = {}, b[K + 1] = {};
     for (std::size_t i = 0; i < n; ++i) {
-        const double c1 = std::cos(phi[i]), s1 = std::sin(phi[i]);
+        const double c1 = c1v[i], s1 = s1v[i];
         double ck = 1, sk = 0;
         const double wx = w[i] * x[i];
         c0 += wx;
@@ -54,29 +72,53 @@ ChannelQuality fit_channel(const std::vector<double>& phi, const std::vector<dou
         h2 += hk * hk;
     }
     q.thd_percent = std::sqrt(h2);
-    auto shape = [&](double p) {
-        double v = c0;
-        for (int k = 1; k <= K; ++k) v += a[k] * std::cos(k * p) + b[k] * std::sin(k * p);
+    // The shape at an angle given its cos and sin.
+    auto shape = [&](double c1, double s1) {
+        double v = c0, ck = 1, sk = 0;
+        for (int k = 1; k <= K; ++k) {
+            const double cn = ck * c1 - sk * s1, sn = sk * c1 + ck * s1;
+            ck = cn;
+            sk = sn;
+            v += a[k] * ck + b[k] * sk;
+        }
         return v;
     };
     // The fitted shape's extremes on a fine grid (the samples' own extremes grow with noise).
-    constexpr int kGrid = 360;
+    const GridTable& g = grid();
     q.max_v = -std::numeric_limits<double>::infinity();
     q.min_v = std::numeric_limits<double>::infinity();
-    for (int g = 0; g < kGrid; ++g) {
-        const double v = shape(kTwoPi * g / kGrid);
-        q.max_v = std::max(q.max_v, v);
-        q.min_v = std::min(q.min_v, v);
+    double vals[kGrid];
+    int jmax = 0, jmin = 0;
+    for (int j = 0; j < kGrid; ++j) {
+        double v = c0;
+        int idx = 0;
+        for (int k = 1; k <= K; ++k) {
+            idx += j;
+            if (idx >= kGrid) idx -= kGrid;
+            v += a[k] * g.c[idx] + b[k] * g.s[idx];
+        }
+        vals[j] = v;
+        if (v > vals[jmax]) jmax = j;
+        if (v < vals[jmin]) jmin = j;
     }
+    // The extreme between grid points: the parabola through the best point and its neighbours.
+    auto refine = [&](int j) {
+        const double y0 = vals[(j + kGrid - 1) % kGrid], y1 = vals[j], y2 = vals[(j + 1) % kGrid], den = y0 - 2 * y1 + y2;
+        return den != 0 ? y1 - 0.125 * (y2 - y0) * (y2 - y0) / den : y1;
+    };
+    q.max_v = refine(jmax);
+    q.min_v = refine(jmin);
     const double P = q.max_v, N = -q.min_v, M = q.max_v - q.min_v;
     q.sym = M > 0 ? std::fabs(P - N) / (2 * M) : 0.0;
     // Noise: the samples about the shape (the interpolated end points are not samples).
     double r2 = 0;
     for (std::size_t i = 1; i + 1 < n; ++i) {
-        const double d = x[i] - shape(phi[i]);
+        const double d = x[i] - shape(c1v[i], s1v[i]);
         r2 += d * d;
     }
-    q.noise_v_rms = n > 2 ? std::sqrt(r2 / static_cast<double>(n - 2)) : 0.0;
+    // 2K + 1 coefficients were fitted to these points: the residual has that many fewer degrees of freedom.
+    const double dof = static_cast<double>(n) - 2.0 - (2 * K + 1);
+    q.noise_v_rms = dof > 0 ? std::sqrt(r2 / dof) : 0.0;
     // On/off ratio: the share of the period the channel is above 0 V, crossings interpolated.
     double high = 0;
     for (std::size_t i = 0; i + 1 < n; ++i) {
@@ -95,6 +137,41 @@ ChannelQuality fit_channel(const std::vector<double>& phi, const std::vector<dou
 
 PeriodQuality SignalQuality::analyse_period(const std::vector<double>& t_s, const std::vector<double>& phi, const std::vector<double>& a_v,
                                             const std::vector<double>& b_v) {
+    PeriodQuality p;
+    // The radius over every sample (as a monitor sees it), the shape from at most kFitPoints:
+    // 256 points a period resolve the 8th harmonic and the zero crossings; more only cost.
+    p.radius_min_v = std::numeric_limits<double>::infinity();
+    p.radius_max_v = 0;
+    {
+        double r2_min = std::numeric_limits<double>::infinity(), r2_max = 0;
+        for (std::size_t i = 1; i + 1 < phi.size(); ++i) {
+            const double r2 = a_v[i] * a_v[i] + b_v[i] * b_v[i];
+            r2_min = std::min(r2_min, r2);
+            r2_max = std::max(r2_max, r2);
+        }
+        p.radius_min_v = phi.size() > 2 ? std::sqrt(r2_min) : 0.0;
+        p.radius_max_v = std::sqrt(r2_max);
+    }
+    constexpr std::size_t kFitPoints = 256;
+    if (phi.size() > kFitPoints + 2) {
+        const std::size_t stride = (phi.size() - 2 + kFitPoints - 1) / kFitPoints;
+        std::vector<double> dt, dp, da, db;
+        for (std::size_t i = 0; i + 1 < phi.size(); i += (i == 0 ? 1 : stride)) {
+            dt.push_back(t_s[i]);
+            dp.push_back(phi[i]);
+            da.push_back(a_v[i]);
+            db.push_back(b_v[i]);
+        }
+        dt.push_back(t_s.back());
+        dp.push_back(phi.back());
+        da.push_back(a_v.back());
+        db.push_back(b_v.back());
+        PeriodQuality q = analyse_period(dt, dp, da, db);
+        q.samples = phi.size() - 2;
+        q.radius_min_v = p.radius_min_v;
+        q.radius_max_v = p.radius_max_v;
+        return q;
+    }
     const std::size_t n = phi.size();
     std::vector<double> w(n, 0.0);
     for (std::size_t i = 0; i + 1 < n; ++i) {
@@ -102,23 +179,33 @@ PeriodQuality SignalQuality::analyse_period(const std::vector<double>& t_s, cons
         w[i] += h;
         w[i + 1] += h;
     }
-    PeriodQuality p;
     p.t_start_s = t_s.front();
     p.t_end_s = t_s.back();
     p.direction = phi.back() >= phi.front() ? 1 : -1;
     p.samples = n >= 2 ? n - 2 : 0;
-    p.a = fit_channel(phi, w, a_v);
-    p.b = fit_channel(phi, w, b_v);
+    // cos and sin of each angle: exact at the ends and every 64 points, by rotation between
+    // (uniform sampling: one rotation for the whole period).
+    std::vector<double> c1(n), s1(n);
+    double last_step = std::numeric_limits<double>::quiet_NaN(), rc = 1, rs = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+        if (i == 0 || i + 1 == n || i % 64 == 0) {
+            c1[i] = std::cos(phi[i]);
+            s1[i] = std::sin(phi[i]);
+            continue;
+        }
+        const double step = phi[i] - phi[i - 1];
+        if (!(std::fabs(step - last_step) <= 1e-12 * std::fabs(step))) {
+            rc = std::cos(step);
+            rs = std::sin(step);
+            last_step = step;
+        }
+        c1[i] = c1[i - 1] * rc - s1[i - 1] * rs;
+        s1[i] = s1[i - 1] * rc + c1[i - 1] * rs;
+    }
+    p.a = fit_channel(phi, c1, s1, w, a_v);
+    p.b = fit_channel(phi, c1, s1, w, b_v);
     p.ab_ratio = p.b.amplitude_v > 0 ? p.a.amplitude_v / p.b.amplitude_v : 0.0;
     p.phase_deg = wrap_deg((p.b.phase_rad - p.a.phase_rad) * 180.0 / kPi);
-    p.radius_min_v = std::numeric_limits<double>::infinity();
-    p.radius_max_v = 0;
-    for (std::size_t i = 1; i + 1 < n; ++i) {
-        const double r = std::hypot(a_v[i], b_v[i]);
-        p.radius_min_v = std::min(p.radius_min_v, r);
-        p.radius_max_v = std::max(p.radius_max_v, r);
-    }
-    if (n <= 2) p.radius_min_v = 0;
     p.freq_hz = p.t_end_s > p.t_start_s ? 1.0 / (p.t_end_s - p.t_start_s) : 0.0;
     return p;
 }
@@ -246,10 +333,24 @@ void SignalQuality::record(const PeriodQuality& p) {
     per_record_ *= 2;
 }
 
+namespace {
+// The quadrant of psi = atan2(A, B): 0 for [0, pi/2), 1 for [pi/2, pi), 2 for [pi, 3pi/2),
+// 3 for [3pi/2, 2pi); -1 at the origin. psi crosses a multiple of 2 pi going from 3 to 0 (A
+// rising through 0 while B > 0) or back.
+int quadrant(double a, double b) {
+    if (a >= 0 && b > 0) return 0;
+    if (a > 0 && b <= 0) return 1;
+    if (a <= 0 && b < 0) return 2;
+    if (a < 0 && b >= 0) return 3;
+    return -1;
+}
+}  // namespace
+
 void SignalQuality::add(const double* t_s, const double* a_v, const double* b_v, std::size_t n) {
     for (std::size_t i = 0; i < n; ++i) {
         const double t = t_s[i], a = a_v[i], b = b_v[i];
-        if (!std::isfinite(t) || !std::isfinite(a) || !std::isfinite(b)) {  // a gap: the open period is lost
+        const int q = std::isfinite(t) && std::isfinite(a) && std::isfinite(b) ? quadrant(a, b) : -2;
+        if (q == -2) {  // a gap: the open period is lost
             if (open_) ++skipped_;
             open_ = false;
             have_prev_ = false;
@@ -257,33 +358,32 @@ void SignalQuality::add(const double* t_s, const double* a_v, const double* b_v,
         }
         if (samples_++ == 0) t_first_ = t;
         t_last_ = t;
-        const double raw = std::atan2(a, b);
+        if (q < 0) continue;  // exactly at the origin: no angle
         if (!have_prev_) {
             prev_t_ = t;
             prev_a_ = a;
             prev_b_ = b;
-            prev_psi_ = raw;
+            prev_q_ = q;
+            quarter_ = q;
             have_prev_ = true;
             continue;
         }
-        double d = raw - std::remainder(prev_psi_, kTwoPi);
-        d -= kTwoPi * std::round(d / kTwoPi);
-        const double psi = prev_psi_ + d;
-        const long long k0 = static_cast<long long>(std::floor(prev_psi_ / kTwoPi)), k1 = static_cast<long long>(std::floor(psi / kTwoPi));
-        if (k1 != k0) {
-            // At most one boundary between two samples unless the signal jumps by more than a
-            // period (then the open period is lost).
-            if (std::llabs(k1 - k0) > 1) {
-                if (open_) ++skipped_;
-                open_ = false;
-            } else {
-                const int s = k1 > k0 ? 1 : -1;
-                const long long m = s > 0 ? k1 : k0;  // the boundary 2 pi m crossed
-                const double f = (kTwoPi * static_cast<double>(m) - prev_psi_) / (psi - prev_psi_);
-                const double tc = prev_t_ + f * (t - prev_t_), ac = prev_a_ + f * (a - prev_a_), bc = prev_b_ + f * (b - prev_b_);
-                if (open_ && dir_ == s && k_start_ + s == m) close_period(tc, ac, bc);
+        const int d = (q - prev_q_ + 4) % 4;
+        if (d == 2) {  // half a turn between two samples: the direction is unknown
+            if (open_) ++skipped_;
+            open_ = false;
+        } else if (d != 0) {
+            const int s = d == 1 ? 1 : -1;
+            const long long k0 = floor_div4(quarter_);
+            quarter_ += s;
+            const long long k1 = floor_div4(quarter_);
+            if (k1 != k0) {
+                const long long m = s > 0 ? k1 : k0;  // the boundary 2 pi m crossed: A through 0 with B > 0
+                const double f = prev_a_ / (prev_a_ - a);
+                const double tc = prev_t_ + f * (t - prev_t_), bc = prev_b_ + f * (b - prev_b_);
+                if (open_ && dir_ == s && k_start_ + s == m) close_period(tc, 0.0, bc);
                 else if (open_) ++skipped_;  // turned back inside the period
-                start_period(tc, ac, bc, m, s);
+                start_period(tc, 0.0, bc, m, s);
             }
         }
         if (open_ && !too_long_) {
@@ -301,7 +401,7 @@ void SignalQuality::add(const double* t_s, const double* a_v, const double* b_v,
         prev_t_ = t;
         prev_a_ = a;
         prev_b_ = b;
-        prev_psi_ = psi;
+        prev_q_ = q;
     }
 }
 

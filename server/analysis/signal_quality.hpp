@@ -69,7 +69,10 @@ private:
 
     // The stream
     bool have_prev_ = false;
-    double prev_t_ = 0, prev_a_ = 0, prev_b_ = 0, prev_psi_ = 0;  // psi unwrapped
+    double prev_t_ = 0, prev_a_ = 0, prev_b_ = 0;
+    int prev_q_ = 0;          // quadrant of the last sample
+    long long quarter_ = 0;   // quadrants passed, unwrapped: psi is in [quarter pi/2, (quarter + 1) pi/2)
+    static long long floor_div4(long long q) { return q >= 0 ? q / 4 : -((-q + 3) / 4); }
     // The open period
     bool open_ = false;
     long long k_start_ = 0;  // starts at psi = 2 pi k_start_
