@@ -1,6 +1,7 @@
 #include "server/analysis/metrics.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdlib>
 
 namespace fringe {
@@ -16,8 +17,10 @@ Value none(std::string* why, const std::string& w) {
     if (why) *why = w;
     return std::nullopt;
 }
+// A figure that is not a finite number was not measured (an overflow is no value).
 Value number(const json& j, std::string* why, const std::string& w) {
-    if (j.is_number()) return j.get<double>();
+    if (j.is_number() && std::isfinite(j.get<double>())) return j.get<double>();
+    if (j.is_number()) return none(why, "not finite (the computation overflowed)");
     return none(why, w);
 }
 const json& metrics_of(const json& entry) {
@@ -163,7 +166,7 @@ std::vector<MetricInfo> build_catalog() {
               const json& b = bounds_of(e);
               if (!b.is_object()) return none(why, "no bound (nothing scored, or no signal model)");
               if (b.value("efficiency_not_credible", json()).is_string()) return none(why, b["efficiency_not_credible"].get<std::string>());
-              if (b.value("efficiency", json()).is_number()) return b["efficiency"].get<double>();
+              if (b.value("efficiency", json()).is_number()) return number(b["efficiency"], why, "not measured");
               return none(why, "no efficiency: " + b.value("efficiency_against", std::string("no bound")));
           },
           [](const json& e, double value) -> Interval {
@@ -272,10 +275,12 @@ std::vector<MetricInfo> build_catalog() {
     v.push_back(S("signal_noise_b_v", "V", "B channel noise about its fitted shape, rms", {"b", "noise_v_rms"}));
     v.push_back(S("signal_radius_min_v", "V", "smallest sqrt(A^2 + B^2) of any sample", {"radius_min_v"}));
     v.push_back(S("signal_radius_max_v", "V", "largest sqrt(A^2 + B^2) of any sample", {"radius_max_v"}));
+    for (auto& m : v)
+        if (m.name == "signal_radius_min_v" || m.name == "signal_radius_max_v") m.uncertainty = "none: an extreme value";
     v.push_back(S("signal_freq_hz", "Hz", "signal (electrical) frequency, mean over the periods", {"freq_hz"}));
     for (auto& m : v) {
-        if (m.name == "signal_vpp_a_v") m.column = "A";
-        if (m.name == "signal_vpp_b_v") m.column = "B";
+        if (m.name == "signal_vpp_a_v") m.column = "A pp";
+        if (m.name == "signal_vpp_b_v") m.column = "B pp";
         if (m.name == "signal_ab_ratio") m.column = "A/B";
         if (m.name == "signal_phase_deg") m.column = "phase";
         if (m.name == "signal_offset_a_v") m.column = "offset A";

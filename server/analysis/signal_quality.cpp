@@ -2,6 +2,8 @@
 
 #include "signal_gen/base/constants.hpp"
 
+#include <Eigen/Dense>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -35,31 +37,79 @@ const GridTable& grid() {
     return t;
 }
 
-// Fourier series of one channel over one period, by the trapezoid rule on the period's points;
-// c1, s1: cos and sin of each point's angle (the harmonics by the angle-addition recurrence).
-ChannelQuality fit_channel(const std::vector<double>& phi, const std::vector<double>& c1v, const std::vector<double>& s1v,
-                           const std::vector<double>& w, const std::vector<double>& x) {
+struct Coeffs {
+    double c0 = 0, a[SignalQuality::kHarmonics + 1] = {}, b[SignalQuality::kHarmonics + 1] = {};
+};
+
+// Fourier series of one channel over one period, by the trapezoid rule on the period's points
+// (many points: the interpolated end points cost nothing); c1, s1: cos and sin of each point's
+// angle (the harmonics by the angle-addition recurrence).
+Coeffs coeffs_trapezoid(const std::vector<double>& c1v, const std::vector<double>& s1v, const std::vector<double>& w, const std::vector<double>& x) {
     constexpr int K = SignalQuality::kHarmonics;
-    const std::size_t n = phi.size();
-    double c0 = 0, a[K + 1] = {}, b[K + 1] = {};
-    for (std::size_t i = 0; i < n; ++i) {
+    Coeffs f;
+    for (std::size_t i = 0; i < c1v.size(); ++i) {
         const double c1 = c1v[i], s1 = s1v[i];
         double ck = 1, sk = 0;
         const double wx = w[i] * x[i];
-        c0 += wx;
+        f.c0 += wx;
         for (int k = 1; k <= K; ++k) {
             const double cn = ck * c1 - sk * s1, sn = sk * c1 + ck * s1;
             ck = cn;
             sk = sn;
-            a[k] += wx * ck;
-            b[k] += wx * sk;
+            f.a[k] += wx * ck;
+            f.b[k] += wx * sk;
         }
     }
-    c0 /= kTwoPi;
+    f.c0 /= kTwoPi;
     for (int k = 1; k <= K; ++k) {
-        a[k] /= kPi;
-        b[k] /= kPi;
+        f.a[k] /= kPi;
+        f.b[k] /= kPi;
     }
+    return f;
+}
+
+// The same series by least squares on the samples alone (few points a period: the trapezoid
+// rule's interpolated end points and its uneven last interval would leak into the harmonics).
+void coeffs_least_squares(const std::vector<double>& c1v, const std::vector<double>& s1v, const std::vector<double>& xa,
+                          const std::vector<double>& xb, Coeffs& fa, Coeffs& fb) {
+    constexpr int K = SignalQuality::kHarmonics, P = 2 * K + 1;
+    Eigen::Matrix<double, P, P> ata = Eigen::Matrix<double, P, P>::Zero();
+    Eigen::Matrix<double, P, 2> atb = Eigen::Matrix<double, P, 2>::Zero();
+    Eigen::Matrix<double, P, 1> row;
+    for (std::size_t i = 1; i + 1 < c1v.size(); ++i) {  // the samples, not the interpolated ends
+        const double c1 = c1v[i], s1 = s1v[i];
+        double ck = 1, sk = 0;
+        row(0) = 1;
+        for (int k = 1; k <= K; ++k) {
+            const double cn = ck * c1 - sk * s1, sn = sk * c1 + ck * s1;
+            ck = cn;
+            sk = sn;
+            row(2 * k - 1) = ck;
+            row(2 * k) = sk;
+        }
+        ata.selfadjointView<Eigen::Lower>().rankUpdate(row);
+        atb.col(0) += row * xa[i];
+        atb.col(1) += row * xb[i];
+    }
+    const Eigen::Matrix<double, P, 2> sol = ata.selfadjointView<Eigen::Lower>().ldlt().solve(atb);
+    for (int ch = 0; ch < 2; ++ch) {
+        Coeffs& f = ch == 0 ? fa : fb;
+        f.c0 = sol(0, ch);
+        for (int k = 1; k <= K; ++k) {
+            f.a[k] = sol(2 * k - 1, ch);
+            f.b[k] = sol(2 * k, ch);
+        }
+    }
+}
+
+// A channel's figures from its series and its points.
+ChannelQuality channel_figures(const Coeffs& f, const std::vector<double>& phi, const std::vector<double>& c1v, const std::vector<double>& s1v,
+                               const std::vector<double>& x) {
+    constexpr int K = SignalQuality::kHarmonics;
+    const std::size_t n = phi.size();
+    const double c0 = f.c0;
+    const double* a = f.a;
+    const double* b = f.b;
     ChannelQuality q;
     q.amplitude_v = std::hypot(a[1], b[1]);
     q.vpp_v = 2 * q.amplitude_v;
@@ -119,17 +169,19 @@ ChannelQuality fit_channel(const std::vector<double>& phi, const std::vector<dou
     // 2K + 1 coefficients were fitted to these points: the residual has that many fewer degrees of freedom.
     const double dof = static_cast<double>(n) - 2.0 - (2 * K + 1);
     q.noise_v_rms = dof > 0 ? std::sqrt(r2 / dof) : 0.0;
-    // On/off ratio: the share of the period the channel is above 0 V, crossings interpolated.
+    // On/off ratio: the share of the period the fitted shape is above 0 V (its crossings
+    // interpolated between grid points). The samples' own crossings flicker with the noise,
+    // and the period's ends sit on one channel's crossings.
     double high = 0;
-    for (std::size_t i = 0; i + 1 < n; ++i) {
-        const double len = std::fabs(phi[i + 1] - phi[i]), x0 = x[i], x1 = x[i + 1];
-        if (x0 > 0 && x1 > 0) high += len;
+    for (int j = 0; j < kGrid; ++j) {
+        const double x0 = vals[j], x1 = vals[(j + 1) % kGrid];
+        if (x0 > 0 && x1 > 0) high += 1;
         else if (x0 > 0 || x1 > 0) {
-            const double f = x0 / (x0 - x1);  // where the segment crosses 0
-            high += x0 > 0 ? f * len : (1 - f) * len;
+            const double cross = x0 / (x0 - x1);  // where the segment crosses 0
+            high += x0 > 0 ? cross : 1 - cross;
         }
     }
-    q.tv_deg = high * 180.0 / kPi - 180.0;
+    q.tv_deg = high * 360.0 / kGrid - 180.0;
     return q;
 }
 
@@ -151,6 +203,16 @@ PeriodQuality SignalQuality::analyse_period(const std::vector<double>& t_s, cons
         }
         p.radius_min_v = phi.size() > 2 ? std::sqrt(r2_min) : 0.0;
         p.radius_max_v = std::sqrt(r2_max);
+        if (r2_min < 1e-250 || r2_max < 1e-250) {  // the squares underflow: hypot, sample by sample
+            double rmin = std::numeric_limits<double>::infinity(), rmax = 0;
+            for (std::size_t i = 1; i + 1 < phi.size(); ++i) {
+                const double r = std::hypot(a_v[i], b_v[i]);
+                rmin = std::min(rmin, r);
+                rmax = std::max(rmax, r);
+            }
+            p.radius_min_v = phi.size() > 2 ? rmin : 0.0;
+            p.radius_max_v = rmax;
+        }
     }
     constexpr std::size_t kFitPoints = 256;
     if (phi.size() > kFitPoints + 2) {
@@ -202,8 +264,15 @@ PeriodQuality SignalQuality::analyse_period(const std::vector<double>& t_s, cons
         c1[i] = c1[i - 1] * rc - s1[i - 1] * rs;
         s1[i] = s1[i - 1] * rc + c1[i - 1] * rs;
     }
-    p.a = fit_channel(phi, c1, s1, w, a_v);
-    p.b = fit_channel(phi, c1, s1, w, b_v);
+    Coeffs fa, fb;
+    if (n < kLeastSquaresBelow) {
+        coeffs_least_squares(c1, s1, a_v, b_v, fa, fb);
+    } else {
+        fa = coeffs_trapezoid(c1, s1, w, a_v);
+        fb = coeffs_trapezoid(c1, s1, w, b_v);
+    }
+    p.a = channel_figures(fa, phi, c1, s1, a_v);
+    p.b = channel_figures(fb, phi, c1, s1, b_v);
     p.ab_ratio = p.b.amplitude_v > 0 ? p.a.amplitude_v / p.b.amplitude_v : 0.0;
     p.phase_deg = wrap_deg((p.b.phase_rad - p.a.phase_rad) * 180.0 / kPi);
     p.freq_hz = p.t_end_s > p.t_start_s ? 1.0 / (p.t_end_s - p.t_start_s) : 0.0;
@@ -231,14 +300,36 @@ void SignalQuality::close_period(double t, double a, double b) {
     pa_.push_back(a);
     pb_.push_back(b);
     const double t0 = pt_.front(), T = t - t0;
-    if (!(T > 0) || pt_.size() < 8) {  // fewer than 6 samples in a period: not a shape
+    // The period before, if this one follows it directly in the same direction: its length
+    // tells whether the speed held (the angle is taken as linear in time within a period).
+    const double prev_T = prev_period_end_ == t0 && prev_period_dir_ == dir_ ? prev_period_T_ : 0.0;
+    prev_period_end_ = t;
+    prev_period_dir_ = dir_;
+    prev_period_T_ = T;
+    if (!(T > 0) || pt_.size() < kMinPeriodSamples + 2) {  // too few samples to fit 17 coefficients and keep some noise
         ++skipped_;
         ++skipped_short_;
+        return;
+    }
+    if (!(prev_T > 0)) {  // the first period after a start, a gap or a turn: the speed before it is unknown
+        ++skipped_;
+        ++skipped_unsteady_;
+        return;
+    }
+    if (std::fabs(T / prev_T - 1.0) > kMaxPeriodChange) {
+        ++skipped_;
+        ++skipped_unsteady_;
         return;
     }
     std::vector<double> phi(pt_.size());
     for (std::size_t i = 0; i < pt_.size(); ++i) phi[i] = dir_ * kTwoPi * (pt_[i] - t0) / T;
     const PeriodQuality p = analyse_period(pt_, phi, pa_, pb_);
+    const bool finite = std::isfinite(p.a.amplitude_v) && std::isfinite(p.b.amplitude_v) && std::isfinite(p.a.noise_v_rms) &&
+                        std::isfinite(p.b.noise_v_rms) && std::isfinite(p.phase_deg) && std::isfinite(p.ab_ratio) && p.b.amplitude_v > 0;
+    if (!finite) {
+        ++skipped_;
+        return;
+    }
     if (!have_worst_) {
         worst_lo_ = worst_hi_ = p;
         radius_min_v_ = p.radius_min_v;
@@ -349,11 +440,15 @@ int quadrant(double a, double b) {
 void SignalQuality::add(const double* t_s, const double* a_v, const double* b_v, std::size_t n) {
     for (std::size_t i = 0; i < n; ++i) {
         const double t = t_s[i], a = a_v[i], b = b_v[i];
-        const int q = std::isfinite(t) && std::isfinite(a) && std::isfinite(b) ? quadrant(a, b) : -2;
+        // A sample beyond 1e100 V would overflow the squares of the fit: a gap, like a non-finite one.
+        const bool usable = std::isfinite(t) && std::fabs(a) < kMaxAbsV && std::fabs(b) < kMaxAbsV;
+        const int q = usable ? quadrant(a, b) : -2;
         if (q == -2) {  // a gap: the open period is lost
             if (open_) ++skipped_;
+            if (std::isfinite(a) && std::isfinite(b) && std::isfinite(t)) ++out_of_range_;
             open_ = false;
             have_prev_ = false;
+            prev_period_end_ = std::numeric_limits<double>::quiet_NaN();
             continue;
         }
         if (samples_++ == 0) t_first_ = t;
@@ -372,18 +467,33 @@ void SignalQuality::add(const double* t_s, const double* a_v, const double* b_v,
         if (d == 2) {  // half a turn between two samples: the direction is unknown
             if (open_) ++skipped_;
             open_ = false;
+            prev_period_end_ = std::numeric_limits<double>::quiet_NaN();
         } else if (d != 0) {
             const int s = d == 1 ? 1 : -1;
             const long long k0 = floor_div4(quarter_);
             quarter_ += s;
             const long long k1 = floor_div4(quarter_);
+            // A turn: the angle went back half a quadrant past the open period's start (noise
+            // that only flickers across the start boundary is not a turn).
+            if (open_ && ((dir_ > 0 && quarter_ <= 4 * k_start_ - 2) || (dir_ < 0 && quarter_ >= 4 * k_start_ + 1))) {
+                ++skipped_;
+                ++skipped_unsteady_;
+                open_ = false;
+                prev_period_end_ = std::numeric_limits<double>::quiet_NaN();
+            }
             if (k1 != k0) {
                 const long long m = s > 0 ? k1 : k0;  // the boundary 2 pi m crossed: A through 0 with B > 0
                 const double f = prev_a_ / (prev_a_ - a);
                 const double tc = prev_t_ + f * (t - prev_t_), bc = prev_b_ + f * (b - prev_b_);
-                if (open_ && dir_ == s && k_start_ + s == m) close_period(tc, 0.0, bc);
-                else if (open_) ++skipped_;  // turned back inside the period
-                start_period(tc, 0.0, bc, m, s);
+                if (open_ && dir_ == s && k_start_ + s == m) {
+                    close_period(tc, 0.0, bc);  // the first crossing of the end, as of the start
+                    start_period(tc, 0.0, bc, m, s);
+                } else if (open_ && m == k_start_) {
+                    // noise flickering across the start boundary: the period keeps its first crossing
+                } else {
+                    if (open_) ++skipped_;
+                    start_period(tc, 0.0, bc, m, s);
+                }
             }
         }
         if (open_ && !too_long_) {
@@ -408,11 +518,19 @@ void SignalQuality::add(const double* t_s, const double* a_v, const double* b_v,
 json SignalQuality::to_json() const {
     if (periods_ == 0) {
         std::string note = "no whole electrical period in the signals (the angle atan2(A, B) never went once round between two multiples of 2 pi)";
-        if (samples_ == 0) note = "no samples";
+        if (out_of_range_ > 0)
+            note = std::to_string(out_of_range_) + " samples beyond 1e100 V: no figure of such signals is computed";
+        else if (samples_ == 0)
+            note = "no samples";
         else if (skipped_short_ > 0)
-            note = std::to_string(skipped_short_) + " periods with fewer than 6 samples each: too few samples per electrical cycle to see a period's shape";
+            note = std::to_string(skipped_short_) + " period" + (skipped_short_ == 1 ? "" : "s") + " with fewer than " + std::to_string(kMinPeriodSamples) +
+                   " samples each: too few samples per electrical cycle to fit the 8th harmonic and see the noise";
         else if (skipped_long_ > 0)
-            note = std::to_string(skipped_long_) + " periods longer than " + std::to_string(kMaxPeriodSamples) + " samples each (slower than the analysis takes)";
+            note = std::to_string(skipped_long_) + " period" + (skipped_long_ == 1 ? "" : "s") + " longer than " + std::to_string(kMaxPeriodSamples) +
+                   " samples each (slower than the analysis takes)";
+        else if (skipped_unsteady_ > 0)
+            note = std::to_string(skipped_unsteady_) + " period" + (skipped_unsteady_ == 1 ? "" : "s") +
+                   " where the speed changed by more than 5 % from the period before, or next to a turn (the analysis needs two whole periods at a steady speed)";
         return {{"periods", 0}, {"skipped_periods", skipped_}, {"samples", samples_}, {"note", note}};
     }
     auto ch = [&](const ChannelQuality& c, const ChannelQuality& lo, const ChannelQuality& hi) {
@@ -443,6 +561,7 @@ json SignalQuality::to_json() const {
     if (pending_.count > 0) push(pending_);
     return {{"periods", periods_},
             {"skipped_periods", skipped_},
+            {"skipped_unsteady_periods", skipped_unsteady_},
             {"samples", samples_},
             {"freq_hz", mean_.freq_hz},
             {"a", ch(mean_.a, worst_lo_.a, worst_hi_.a)},

@@ -14,6 +14,7 @@
 #include <nlohmann/json.hpp>
 
 #include <array>
+#include <limits>
 #include <cstddef>
 #include <string>
 #include <vector>
@@ -49,6 +50,10 @@ public:
     static constexpr std::size_t kMaxRecords = 2048;     // per-period buckets kept
     static constexpr std::size_t kMaxPeriodSamples = 1u << 17;  // a longer period is skipped (counted)
     static constexpr int kHarmonics = 8;
+    static constexpr std::size_t kMinPeriodSamples = 24;  // 17 coefficients and some noise left
+    static constexpr double kMaxPeriodChange = 0.05;      // a period 5 % longer or shorter than the one before is not at a steady speed
+    static constexpr double kMaxAbsV = 1e100;
+    static constexpr std::size_t kLeastSquaresBelow = 128;  // fewer points a period: least squares, else the trapezoid rule             // beyond: a gap (the squares would overflow)
 
     void add(const double* t_s, const double* a_v, const double* b_v, std::size_t n);
     // The figures of one period from its points: phi_rad[i] the electrical angle (0..2 pi
@@ -81,7 +86,11 @@ private:
     std::vector<double> pt_, pa_, pb_;
     // Totals
     std::size_t periods_ = 0, skipped_ = 0, samples_ = 0;
-    std::size_t skipped_short_ = 0, skipped_long_ = 0;  // fewer than 6 samples; more than kMaxPeriodSamples
+    std::size_t skipped_short_ = 0, skipped_long_ = 0;  // fewer than kMinPeriodSamples; more than kMaxPeriodSamples
+    std::size_t skipped_unsteady_ = 0;                 // speed changed, first after a gap or a turn
+    std::size_t out_of_range_ = 0;                     // samples beyond kMaxAbsV
+    double prev_period_end_ = std::numeric_limits<double>::quiet_NaN(), prev_period_T_ = 0;
+    int prev_period_dir_ = 0;
     PeriodQuality sum_{}, mean_{}, worst_lo_{}, worst_hi_{};
     bool have_worst_ = false;
     double radius_min_v_ = 0, radius_max_v_ = 0;

@@ -183,6 +183,7 @@ int run_estimate(const EstimateOptions& o) {
                             static_cast<unsigned long long>(m["scored"].get<std::uint64_t>()));
         }
         if (const std::string n = state_notes(lane.value("state", json())); !n.empty() && !notes_shown) std::printf("%s: %s\n", o.estimator.c_str(), term_escape(n).c_str());
+        print_signal_summary(r);
         for (const auto& d : r["estimators"]) {
             if (d.value("label", "") != "dut" || d.value("name", "") != "dut") continue;
             const auto& ro = d["metrics"]["abz"];

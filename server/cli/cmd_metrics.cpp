@@ -35,8 +35,8 @@ int run_metrics(const MetricsOptions& o) {
 Command add_metrics(CLI::App& app) {
     auto o = std::make_shared<MetricsOptions>();
     auto* c = app.add_subcommand("metrics", "The metrics a report carries and a limit may name: unit, meaning, lanes, 95 % interval");
-    c->add_flag("--json", o->as_json, "As JSON (the same as GET /api/v1/schema \"metrics\")");
-    c->add_flag("--markdown", o->markdown, "As the markdown table of docs/schema.md");
+    auto* js = c->add_flag("--json", o->as_json, "As JSON (the same as GET /api/v1/schema \"metrics\")");
+    c->add_flag("--markdown", o->markdown, "As the markdown table of docs/schema.md")->excludes(js);
     return {c, [o] { return run_metrics(*o); }};
 }
 

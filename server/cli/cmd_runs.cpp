@@ -94,9 +94,9 @@ Command add_runs(CLI::App& app) {
     rs->add_option("--scenario", o->scenario, "Only runs of this scenario name");
     rs->add_option("--since", o->since, "Only runs started at or after this UTC date or time (2026-11-21, 2026-11-21T15:00:00Z), today, yesterday or Nd");
     rs->add_option("--limit", o->limit, "At most this many")->check(CLI::PositiveNumber);
-    rs->add_option("--show", o->show, "Print the summary of this run (its whole report with --json)");
+    auto* show = rs->add_option("--show", o->show, "Print the summary of this run (its whole report with --json)");
     rs->add_flag("--json", o->as_json, "As JSON");
-    rs->add_flag("--metrics", o->metrics, "With --show: also every metric of every estimator");
+    rs->add_flag("--metrics", o->metrics, "With --show: also every metric of every estimator")->needs(show);
     return {rs, [o] { return run_runs(*o); }};
 }
 

@@ -131,6 +131,26 @@ std::string interval_text(const json& iv) {
     return b;
 }
 
+// The signals' quality, once for the run (docs/signal-quality.md): its summary columns, or why
+// it was not analysed.
+void print_signal_summary(const json& r) {
+    std::string line;
+    for (const auto* mi : summary_metrics(true)) {
+        const auto v = mi->value(r, nullptr);
+        if (!v) continue;
+        char b[40];
+        if (*v == std::floor(*v) && std::fabs(*v) < 1e15) std::snprintf(b, sizeof b, "%.0f", *v);
+        else if (std::fabs(*v) >= 1e-2 && std::fabs(*v) < 1e5) std::snprintf(b, sizeof b, "%.4g", *v);
+        else std::snprintf(b, sizeof b, "%.3e", *v);
+        line += (line.empty() ? "" : ", ") + mi->column + " " + b + (mi->unit.empty() ? "" : " " + mi->unit);
+    }
+    const json sq = r.value("signal", json());
+    if (!line.empty())
+        std::printf("  %-20s %s (%s periods)\n", "signal", line.c_str(), sq.value("periods", json()).dump().c_str());
+    else if (sq.is_object() && sq.value("note", json()).is_string())
+        std::printf("  %-20s not analysed: %s\n", "signal", term_escape(sq["note"].get<std::string>()).c_str());
+}
+
 // Every string here comes from a report: a scenario file, a client or a device wrote it.
 void print_run_summary(const json& r, const std::string& name, bool all_metrics) {
     const auto str = [](const json& v) { return term_escape(v.is_string() ? v.get<std::string>() : v.dump()); };
@@ -165,24 +185,7 @@ void print_run_summary(const json& r, const std::string& name, bool all_metrics)
             if (!line.empty()) std::printf("  %-20s %s\n", std::string(group) == "error" ? str(e["label"]).c_str() : "", line.c_str());
         }
     }
-    // The signals' quality, once for the run (docs/signal-quality.md).
-    {
-        std::string line;
-        for (const auto* mi : summary_metrics(true)) {
-            const auto v = mi->value(r, nullptr);
-            if (!v) continue;
-            char b[40];
-            if (*v == std::floor(*v) && std::fabs(*v) < 1e15) std::snprintf(b, sizeof b, "%.0f", *v);
-            else if (std::fabs(*v) >= 1e-2 && std::fabs(*v) < 1e5) std::snprintf(b, sizeof b, "%.4g", *v);
-            else std::snprintf(b, sizeof b, "%.3e", *v);
-            line += (line.empty() ? "" : ", ") + mi->column + " " + b + (mi->unit.empty() ? "" : " " + mi->unit);
-        }
-        const json sq = r.value("signal", json());
-        if (!line.empty())
-            std::printf("  %-20s %s (%s periods)\n", "signal", line.c_str(), sq.value("periods", json()).dump().c_str());
-        else if (sq.is_object() && sq.value("note", json()).is_string())
-            std::printf("  %-20s not analysed: %s\n", "signal", term_escape(sq["note"].get<std::string>()).c_str());
-    }
+    print_signal_summary(r);
     if (all_metrics) std::printf("%s", term_escape(metrics_text(r), true).c_str());
     for (const auto& e : r["estimators"])
         if (const std::string n = state_notes(e.value("state", json())); !n.empty())

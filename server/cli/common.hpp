@@ -71,5 +71,7 @@ std::string state_notes(const nlohmann::json& state);
 std::string interval_text(const nlohmann::json& interval);
 // all_metrics: also every metric of the table for every lane (--metrics).
 void print_run_summary(const nlohmann::json& report, const std::string& name, bool all_metrics = false);
+// The report's signal quality as one summary line (docs/signal-quality.md).
+void print_signal_summary(const nlohmann::json& report);
 
 }  // namespace fringe::cli

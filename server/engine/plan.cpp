@@ -69,6 +69,8 @@ void check_limits(const RunPlan& p) {
         if (find_metric(l.metric)->run_level) {
             if (l.estimator != "*" && l.estimator != "run")
                 throw ConfigError(path + ".estimator", "'" + l.metric + "' is measured once for the run (alignment, signal quality): leave estimator out or give \"run\"");
+        } else if (l.estimator == "run") {
+            throw ConfigError(path + ".estimator", "'" + l.metric + "' is a figure of each estimator, not of the run: give an estimator's label or \"*\"");
         } else if (l.estimator != "*") {
             bool found = false;
             for (const auto& e : sc.estimators) found |= e.label == l.estimator;

@@ -172,6 +172,11 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
             EstimatorSpec e;
             e.name = er.string("name");
             e.label = bounded(er.string("label", e.name), path + ".label", kMaxNameChars);
+            // Limits and reports name lanes by label: "run" is the run's own lane, "*" every
+            // lane, "dut" a board's own position; an empty label names nothing.
+            if (e.label.empty() || e.label == "run" || e.label == "*" || e.label == "dut")
+                throw ConfigError(path + ".label", "'" + e.label + "' is reserved (\"run\": the run's own figures, \"*\": every estimator, "
+                                                   "\"dut\": a board's own position; an empty label names nothing): give another label");
             if (er.has("params")) e.params = er.raw("params");
             if (er.has("encoder")) e.encoder = encoder_from_json(resolve_json_ref(er.raw("encoder"), base_dir), path + ".encoder");
             er.finish();
@@ -195,6 +200,8 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
             l.marginal_fraction = lk.number(lr, "marginal_fraction");
             lr.finish();
             if (!l.max && !l.min) throw ConfigError(path, "needs max or min");
+            if (l.max && l.min && *l.min > *l.max)
+                throw ConfigError(path + ".min", "min " + std::to_string(*l.min) + " is above max " + std::to_string(*l.max) + ": no value could pass");
             s.limits.push_back(std::move(l));
         }
     }

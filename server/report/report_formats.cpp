@@ -236,6 +236,7 @@ struct Axis {
 // A tick label a person reads at a glance: 0.25, 120, 1.5e-5 (not 1.5e-05), 3e+06 as 3e6.
 std::string fmt_num(double v) {
     if (v == 0) return "0";
+    if (!std::isfinite(v)) return std::isnan(v) ? "nan" : v > 0 ? "inf" : "-inf";  // never reached by a metric (not measured), but never a crash
     char b[32];
     const double a = std::fabs(v);
     if (a < 1e7 && v == std::floor(v)) {  // counts and round ticks in full: 90000 samples, not 9e+04
