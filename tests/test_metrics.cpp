@@ -207,3 +207,24 @@ TEST_CASE("metrics: a limit may name only what the table allows", "[metrics][con
         CHECK(std::string(e.what()).find("bound of the signal") != std::string::npos);
     }
 }
+
+TEST_CASE("metrics: reserved labels, an empty limit band and a non-finite figure are refused or not measured", "[metrics][config]") {
+    const std::string enc = std::string(FRINGE_SOURCE_DIR) + "/fixtures/encoders";
+    for (const char* label : {"run", "*", "dut", ""}) {
+        INFO("label '" << label << "'");
+        json j = metrics_scenario();
+        j["estimators"][0]["label"] = label;
+        CHECK_THROWS_WITH(scenario_from_json(j, enc), Catch::Contains("estimators[0].label") && Catch::Contains("reserved"));
+    }
+    json j = metrics_scenario();
+    j["limits"] = json::array({json{{"estimator", "run"}, {"metric", "signal_phase_deg"}, {"min", 95.5}, {"max", 94.0}}});
+    CHECK_THROWS_WITH(scenario_from_json(j, enc), Catch::Contains("limits[0].min") && Catch::Contains("no value could pass"));
+    j["limits"] = json::array({json{{"estimator", "run"}, {"metric", "rms_rad"}, {"max", 1.0}}});
+    CHECK_THROWS_WITH(plan_run(scenario_from_json(j, enc)), Catch::Contains("a figure of each estimator, not of the run"));
+    // An overflowed figure (NaN or inf in memory, null once stored) is not measured, so its limit FAILs.
+    std::string why;
+    CHECK_FALSE(run_metric_value("signal_sym_a", json{{"signal", {{"periods", 3}, {"a", {{"sym", std::nan("")}}}}}}, &why));
+    CHECK(why.find("not finite") != std::string::npos);
+    CHECK_FALSE(run_metric_value("signal_ab_ratio", json{{"signal", {{"periods", 3}, {"ab_ratio", HUGE_VAL}}}}, &why));
+    CHECK_FALSE(metric_value("rms_rad", json{{"rms", {{"rad", std::nan("")}}}}, json()));
+}
