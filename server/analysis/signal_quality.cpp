@@ -451,8 +451,7 @@ void SignalQuality::add(const double* t_s, const double* a_v, const double* b_v,
             prev_period_end_ = std::numeric_limits<double>::quiet_NaN();
             continue;
         }
-        if (samples_++ == 0) t_first_ = t;
-        t_last_ = t;
+        ++samples_;
         if (q < 0) continue;  // exactly at the origin: no angle
         if (!have_prev_) {
             prev_t_ = t;

@@ -94,7 +94,6 @@ private:
     PeriodQuality sum_{}, mean_{}, worst_lo_{}, worst_hi_{};
     bool have_worst_ = false;
     double radius_min_v_ = 0, radius_max_v_ = 0;
-    double t_first_ = 0, t_last_ = 0;
     // Recording: buckets of whole periods, each the mean of the periods in it.
     struct Record {
         std::size_t first = 0, count = 0;

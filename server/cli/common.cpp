@@ -131,18 +131,28 @@ std::string interval_text(const json& iv) {
     return b;
 }
 
+namespace {
+// One summary column of a lane (or of the run): "column value unit (95 % lo..hi)", "" when not measured.
+std::string summary_cell(const MetricInfo& mi, const json& src) {
+    const auto v = mi.value(src, nullptr);
+    if (!v) return "";
+    char b[40];
+    if (*v == std::floor(*v) && std::fabs(*v) < 1e15) std::snprintf(b, sizeof b, "%.0f", *v);
+    else if (std::fabs(*v) >= 1e-2 && std::fabs(*v) < 1e5) std::snprintf(b, sizeof b, "%.4g", *v);
+    else std::snprintf(b, sizeof b, "%.3e", *v);
+    std::string c = mi.column + " " + b + (mi.unit.empty() ? "" : " " + mi.unit);
+    if (mi.interval)
+        if (const auto iv = mi.interval(src, *v)) c += interval_text(json::array({iv->first, iv->second}));
+    return c;
+}
+}  // namespace
+
 // The signals' quality, once for the run (docs/signal-quality.md): its summary columns, or why
 // it was not analysed.
 void print_signal_summary(const json& r) {
     std::string line;
     for (const auto* mi : summary_metrics(true)) {
-        const auto v = mi->value(r, nullptr);
-        if (!v) continue;
-        char b[40];
-        if (*v == std::floor(*v) && std::fabs(*v) < 1e15) std::snprintf(b, sizeof b, "%.0f", *v);
-        else if (std::fabs(*v) >= 1e-2 && std::fabs(*v) < 1e5) std::snprintf(b, sizeof b, "%.4g", *v);
-        else std::snprintf(b, sizeof b, "%.3e", *v);
-        line += (line.empty() ? "" : ", ") + mi->column + " " + b + (mi->unit.empty() ? "" : " " + mi->unit);
+        if (const std::string c = summary_cell(*mi, r); !c.empty()) line += (line.empty() ? "" : ", ") + c;
     }
     const json sq = r.value("signal", json());
     if (!line.empty())
@@ -172,15 +182,7 @@ void print_run_summary(const json& r, const std::string& name, bool all_metrics)
             std::string line;
             for (const auto* mi : summary_metrics()) {
                 if (mi->group != group) continue;
-                const auto v = mi->value(e, nullptr);
-                if (!v) continue;
-                char b[40];
-                if (*v == std::floor(*v) && std::fabs(*v) < 1e15) std::snprintf(b, sizeof b, "%.0f", *v);
-                else if (std::fabs(*v) >= 1e-2 && std::fabs(*v) < 1e5) std::snprintf(b, sizeof b, "%.4g", *v);
-                else std::snprintf(b, sizeof b, "%.3e", *v);
-                line += (line.empty() ? "" : ", ") + mi->column + " " + b + (mi->unit.empty() ? "" : " " + mi->unit);
-                if (mi->interval)
-                    if (const auto iv = mi->interval(e, *v)) line += interval_text(json::array({iv->first, iv->second}));
+                if (const std::string c = summary_cell(*mi, e); !c.empty()) line += (line.empty() ? "" : ", ") + c;
             }
             if (!line.empty()) std::printf("  %-20s %s\n", std::string(group) == "error" ? str(e["label"]).c_str() : "", line.c_str());
         }
