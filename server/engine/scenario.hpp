@@ -39,6 +39,7 @@ struct ScoringRules {
     double min_scored_cycles = 3.0;         // electrical cycles of truth under the scored samples
     double min_valid_fraction = 0.95;       // valid share of the samples after the settle time
     std::uint64_t max_slipped_samples = 0;  // scored samples off by more than pi (cycle slips)
+    bool self_reference = false;            // also measure each lane's error without truth (docs/self-reference.md)
 };
 
 struct Scenario {
