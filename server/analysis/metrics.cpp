@@ -217,6 +217,60 @@ std::vector<MetricInfo> build_catalog() {
             m.group = "evidence";
     }
     for (int k = 1; k <= 16; ++k) v.push_back(harmonic_metric(k));
+    // The error without truth (self_reference.hpp, docs/self-reference.md): against a reference
+    // built from the signals themselves, labelled self-referenced wherever it is shown.
+    const std::string self_lanes = "every lane of a capture without truth, or of a run with scoring.self_reference";
+    auto self_ref = [](const json& e, std::string* why) -> json {
+        const json sr = sub(sub(e, "analysers"), "self_reference");
+        if (!sr.is_object()) {
+            if (why) *why = "not measured: the run had truth and did not ask for it (scoring.self_reference)";
+            return json();
+        }
+        if (sr.value("measured", false) != true) {
+            if (why) *why = sr.value("why_not", json()).is_string() ? sr["why_not"].get<std::string>() : std::string("not measured");
+            return json();
+        }
+        return sr;
+    };
+    {
+        MetricInfo m = M("self_ref_rms_rad", "rad", "rms error about its mean, self-referenced (no truth: against the signals' own lag-free phase)",
+                         self_lanes, "normal law, the standard uncertainty from the fit with correlated residuals (docs/self-reference.md)",
+                         "self-ref rms", [self_ref](const json& e, std::string* why) -> Value {
+                             const json sr = self_ref(e, why);
+                             if (sr.is_null()) return std::nullopt;
+                             return number(sr.value("rms_rad", json()), why, "not measured");
+                         },
+                         [self_ref](const json& e, double value) -> Interval {
+                             const json sr = self_ref(e, nullptr);
+                             if (!sr.is_object() || !sr.value("rms_u_rad", json()).is_number()) return std::nullopt;
+                             const double u = sr["rms_u_rad"].get<double>();
+                             return std::make_pair(std::max(0.0, value - 1.96 * u), value + 1.96 * u);
+                         });
+        v.push_back(std::move(m));
+    }
+    for (int k = 1; k <= 4; ++k) {
+        MetricInfo m = M("self_ref_harmonic_" + std::to_string(k) + "x_rad", "rad",
+                         std::to_string(k) + "x harmonic of the error against the electrical angle, self-referenced", self_lanes,
+                         "normal law of the fitted amplitude (docs/self-reference.md)", "",
+                         [self_ref, k](const json& e, std::string* why) -> Value {
+                             const json sr = self_ref(e, why);
+                             if (sr.is_null()) return std::nullopt;
+                             for (const auto& h : sr.value("harmonics", json::array()))
+                                 if (h.value("order", 0) == k) return number(h.value("amplitude_rad", json()), why, "not fitted");
+                             return none(why, "not fitted");
+                         },
+                         [self_ref, k](const json& e, double value) -> Interval {
+                             const json sr = self_ref(e, nullptr);
+                             if (!sr.is_object()) return std::nullopt;
+                             for (const auto& h : sr.value("harmonics", json::array()))
+                                 if (h.value("order", 0) == k && h.value("u_rad", json()).is_number()) {
+                                     const double u = h["u_rad"].get<double>();
+                                     return std::make_pair(std::max(0.0, value - 1.96 * u), value + 1.96 * u);
+                                 }
+                             return std::nullopt;
+                         });
+        v.push_back(std::move(m));
+    }
     // The run's truth alignment (output and input instruments on their own clocks).
     const std::string aligned = "the run, once (estimator \"run\"), when its device plays and records on its own clock (docs/alignment.md)";
     auto R = [&](std::string name, std::string unit, std::string desc, const char* key) {
