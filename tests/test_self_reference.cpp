@@ -16,6 +16,7 @@
 
 #include <cmath>
 #include <random>
+#include <set>
 #include <vector>
 
 using namespace fringe;
@@ -233,4 +234,54 @@ TEST_CASE("self-reference: a capture without truth is measured, and agrees with 
     const double truth = scored["estimators"][0]["metrics"]["std"]["rad"].get<double>();
     INFO("truth std " << truth << " self-referenced " << sr["rms_rad"]);
     CHECK(sr["rms_rad"].get<double>() == Approx(truth).epsilon(0.1));
+}
+
+TEST_CASE("self-reference: a run on a capture without truth is judged on the self-referenced figures, not FAILed for lack of truth", "[selfref][capture][run]") {
+    TempDir d;
+    const Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
+    const auto cap = d.path / "bare.fcap";
+    {
+        Generator g(gen.encoder, gen.motion, gen.sample_rate_hz, gen.seed);
+        Block b;
+        b.resize(150000, false);
+        g.generate(0, b);
+        CaptureWriter w(cap.string(), CaptureColumns{false, false, false}, json{{"sample_rate_hz", gen.sample_rate_hz}});
+        w.write(b);
+        w.close();
+    }
+    auto scenario = [&](json limits) {
+        json j{{"name", "bare-capture"}, {"encoder", gen.encoder}, {"motion", {{"kind", "constant"}, {"electrical_freq_hz", 100.0}}},
+               {"sample_rate_hz", gen.sample_rate_hz}, {"duration_s", 150000 / gen.sample_rate_hz}, {"settle_s", 0.05}, {"seed", 1},
+               {"device", "capture:" + cap.string()}, {"estimators", json::array({json{{"name", "atan2"}}})}, {"limits", std::move(limits)}};
+        return scenario_from_json(j, FRINGE_SOURCE_DIR "/fixtures/scenarios");
+    };
+    SECTION("a limit on the self-referenced rms: PASS on the evidence of the self-referenced windows") {
+        const json r = execute_run(scenario(json::array({json{{"estimator", "atan2"}, {"metric", "self_ref_rms_rad"}, {"max", 0.5}}})));
+        REQUIRE(r["status"] == "done");
+        CHECK(r["verdict"] == "PASS");
+        std::set<std::string> metrics;
+        for (const auto& m : r["measurements"]) {
+            metrics.insert(m["metric"].get<std::string>());
+            CHECK(m["outcome"] == "PASS");
+        }
+        CHECK(metrics == std::set<std::string>{"self_ref_samples", "self_ref_cycles", "self_ref_valid_fraction", "self_ref_rms_rad"});
+        CHECK(r["estimators"][0]["analysers"]["self_reference"]["measured"] == true);
+    }
+    SECTION("a limit the capture cannot measure (rms_rad needs truth) FAILs and says why") {
+        const json r = execute_run(scenario(json::array({json{{"estimator", "atan2"}, {"metric", "rms_rad"}, {"max", 0.5}}})));
+        REQUIRE(r["status"] == "done");
+        CHECK(r["verdict"] == "FAIL");
+        bool seen = false;
+        for (const auto& m : r["measurements"])
+            if (m["metric"] == "rms_rad") {
+                seen = true;
+                CHECK(m["outcome"] == "FAIL");
+                CHECK_THAT(m["reason"].get<std::string>(), Catch::Contains("no truth") && Catch::Contains("self_ref_"));
+            }
+        CHECK(seen);
+    }
+    SECTION("a self-referenced limit it fails") {
+        const json r = execute_run(scenario(json::array({json{{"estimator", "atan2"}, {"metric", "self_ref_rms_rad"}, {"max", 1e-9}}})));
+        CHECK(r["verdict"] == "FAIL");
+    }
 }

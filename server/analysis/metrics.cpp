@@ -248,6 +248,26 @@ std::vector<MetricInfo> build_catalog() {
                          });
         v.push_back(std::move(m));
     }
+    // Evidence of a run without truth: what the self-referenced figures rest on.
+    auto self_field = [](const char* key) {
+        return [key](const json& e, std::string* why) -> Value {
+            const json sr = sub(sub(e, "analysers"), "self_reference");
+            if (!sr.is_object()) return none(why, "not measured: the run had truth and did not ask for it (scoring.self_reference)");
+            return number(sr.value(key, json()), why, "not counted");
+        };
+    };
+    {
+        MetricInfo a = M("self_ref_samples", "samples", "samples in the self-referenced windows (evidence without truth)", self_lanes,
+                         "none: an exact count", "", self_field("samples"));
+        MetricInfo b = M("self_ref_cycles", "cycles", "electrical periods swept by the self-referenced windows (evidence without truth)", self_lanes,
+                         "none: counted from the signals", "", self_field("cycles"));
+        MetricInfo c = M("self_ref_valid_fraction", "", "share of the samples after the settle time the estimator vouched for (evidence without truth)",
+                         self_lanes, "none: an exact ratio", "", self_field("valid_fraction"));
+        for (MetricInfo* x : {&a, &b, &c}) {
+            x->group = "evidence";
+            v.push_back(std::move(*x));
+        }
+    }
     for (int k = 1; k <= 4; ++k) {
         MetricInfo m = M("self_ref_harmonic_" + std::to_string(k) + "x_rad", "rad",
                          std::to_string(k) + "x harmonic of the error against the electrical angle, self-referenced", self_lanes,
@@ -378,6 +398,19 @@ std::optional<double> metric_value(const std::string& name, const json& metrics,
     if (!m || m->run_level) return none(why, "unknown metric");
     if (!metrics.is_object()) return none(why, "no metrics (the estimator was not scored)");
     return m->value(json{{"metrics", metrics}, {"bounds", bounds}}, why);
+}
+
+std::optional<double> lane_metric_value(const std::string& name, const json& entry, std::string* why) {
+    const auto m = find_metric(name);
+    if (!m || m->run_level) return none(why, "unknown metric");
+    if (!entry.is_object() || !entry.value("metrics", json()).is_object()) return none(why, "no metrics (the estimator was not scored)");
+    return m->value(entry, why);
+}
+
+std::optional<std::pair<double, double>> lane_metric_interval(const std::string& name, const json& entry, double value) {
+    const auto m = find_metric(name);
+    if (!m || !m->interval || !entry.is_object()) return std::nullopt;
+    return m->interval(entry, value);
 }
 
 std::optional<double> run_metric_value(const std::string& name, const json& run, std::string* why) {

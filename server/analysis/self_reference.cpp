@@ -33,11 +33,14 @@ void SelfReference::add(std::size_t n, const double* t_s, const double* sin_v, c
     }
     for (std::size_t i = 0; i < n; ++i) {
         const double th = theta_hat_rad[i];
+        const bool settled = !(t_s[i] - t0_ < o_.settle_s);
+        r_.after_settle += settled;
         if (!valid[i] || !std::isfinite(th) || !std::isfinite(t_s[i]) || !std::isfinite(sin_v[i]) || !std::isfinite(cos_v[i]) ||
-            (sin_v[i] == 0 && cos_v[i] == 0) || t_s[i] - t0_ < o_.settle_s) {
+            (sin_v[i] == 0 && cos_v[i] == 0) || !settled) {
             close_window();  // a gap ends the window: the motion model does not span it
             continue;
         }
+        ++r_.valid_after_settle;
         const double w = std::atan2(sin_v[i], cos_v[i]);
         double u = w;
         if (!t_.empty()) {
@@ -235,6 +238,8 @@ nlohmann::json to_json(const SelfReferenceResult& r) {
                       "mean is not observable"},
            {"measured", r.measured},
            {"samples", r.samples},
+           {"samples_after_settle", r.after_settle},
+           {"valid_fraction", r.after_settle ? json(static_cast<double>(r.valid_after_settle) / static_cast<double>(r.after_settle)) : json()},
            {"windows", r.windows},
            {"windows_skipped", skipped},
            {"cycles", r.cycles}};

@@ -55,6 +55,8 @@ struct SelfReferenceResult {
     bool measured = false;
     std::string why_not;                 // when not measured
     std::uint64_t samples = 0;           // samples in the windows used
+    std::uint64_t after_settle = 0;      // samples seen after the settle time
+    std::uint64_t valid_after_settle = 0;  // of them, vouched for by the estimator with finite signals and output
     std::uint64_t windows = 0;           // windows used
     std::map<std::string, std::uint64_t> windows_skipped;  // reason -> count
     double cycles = 0;                   // electrical periods covered by the windows used

@@ -266,6 +266,7 @@ RunReport execute_run(RunPlan plan, const RunOptions& o) {
     const std::size_t segment = ErrorSpectrum::choose_segment(
         sc.sample_rate_hz, planned_electrical_hz(sc), static_cast<std::uint64_t>(std::max(0.0, (sc.duration_s - sc.settle_s) * sc.sample_rate_hz)));
     json alignment = nullptr;
+    bool has_truth = true;
     try {
         // Separate instruments: the generator (output) and the digitizer (input); the same URI
         // twice is one device. Faults name the scenario field.
@@ -291,7 +292,10 @@ RunReport execute_run(RunPlan plan, const RunOptions& o) {
         for (auto* d : {device.get(), input_device.get()})
             if (d) d->set_cancel(o.cancel);  // a device waiting on a failing board sees a cancel
         for (const auto& f : preflight_device(sc, dinfo)) warnings.push_back(f);
-        const LaneContext lane_ctx{sc.sample_rate_hz, sc.settle_s, sc.scoring.max_harmonic, segment, sc.scoring.self_reference};
+        // A capture without truth: nothing can be scored against truth, so each lane's error is
+        // measured self-referenced (docs/self-reference.md) and the evidence is that analysis's.
+        has_truth = !(dinfo.replay && dinfo.settings.is_object() && dinfo.settings.value("has_truth", true) == false);
+        const LaneContext lane_ctx{sc.sample_rate_hz, sc.settle_s, sc.scoring.max_harmonic, segment, sc.scoring.self_reference || !has_truth};
         for (std::size_t i = 0; i < sc.estimators.size(); ++i) {
             const auto& spec = sc.estimators[i];
             auto lane = std::make_unique<Lane>(&spec, lane_ctx);
@@ -471,7 +475,7 @@ RunReport execute_run(RunPlan plan, const RunOptions& o) {
     report.alignment = alignment;
     report.signal = signal.to_json();
     report.measurements = evaluate_limits(sc, estimators_json(report.estimators), status, verdict,
-                                          json{{"alignment", report.alignment}, {"signal", report.signal}});
+                                          json{{"alignment", report.alignment}, {"signal", report.signal}}, has_truth);
     report.status = status;
     report.verdict = verdict;
     report.error = error;
