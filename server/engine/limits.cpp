@@ -88,6 +88,45 @@ json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus statu
             measure(label, l.metric, l.max, l.min, l.marginal_fraction, false, ej);
         }
     }
+    // The signals graded against the scenario's interface profile: within the mounting tolerance
+    // PASS, within the specification only MARGINAL, outside it or not measured FAIL.
+    if (sc.interface)
+        for (const auto& b : sc.interface->bands) {
+            const auto mi = find_metric(b.metric);
+            std::string why;
+            const auto v = run_metric_value(b.metric, run, &why);
+            auto pair = [](const std::optional<double>& lo, const std::optional<double>& hi) {
+                return json::array({lo ? json(*lo) : json(), hi ? json(*hi) : json()});
+            };
+            json mj{{"estimator", "run"}, {"metric", b.metric}, {"unit", mi ? mi->unit : ""}, {"value", v ? json(*v) : json()},
+                    {"interface", sc.interface->name}, {"band", {{"spec", pair(b.spec_lo, b.spec_hi)}}}};
+            if (b.has_mounting) mj["band"]["mounting"] = pair(b.mount_lo, b.mount_hi);
+            json lim = json::object();
+            if (b.spec_lo) lim["min"] = *b.spec_lo;
+            if (b.spec_hi) lim["max"] = *b.spec_hi;
+            mj["limit"] = lim;
+            auto within = [&](const std::optional<double>& lo, const std::optional<double>& hi) { return (!lo || *v >= *lo) && (!hi || *v <= *hi); };
+            Verdict o = Verdict::Pass;
+            std::string grade;
+            if (status != RunStatus::Done) o = Verdict::Error;
+            else if (!v) {
+                o = Verdict::Fail;
+                mj["reason"] = "not measured: " + why;
+                grade = "not measured";
+            } else if (!within(b.spec_lo, b.spec_hi)) {
+                o = Verdict::Fail;
+                grade = "out of specification";
+            } else if (b.has_mounting && !within(b.mount_lo, b.mount_hi)) {
+                o = Verdict::Marginal;
+                grade = "within specification, outside mounting tolerance";
+            } else {
+                grade = b.has_mounting ? "within mounting tolerance" : "within specification";
+            }
+            if (!grade.empty()) mj["grade"] = grade;
+            mj["outcome"] = to_string(o);
+            verdict = worse(verdict, o);
+            out.push_back(std::move(mj));
+        }
     if (status == RunStatus::Error) verdict = Verdict::Error;
     if (status == RunStatus::Aborted || status == RunStatus::Interrupted) verdict = Verdict::Aborted;
     return out;

@@ -133,6 +133,17 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
         if (file.empty()) throw;
         throw ConfigError(e.field().empty() ? "encoder" : e.field(), std::string(e.what()) + " (in " + file + ")");
     }
+    if (r.has("interface")) {
+        const json& itf = r.raw("interface");
+        if (!itf.is_string() && !itf.is_object()) throw ConfigError("interface", "expected an interface profile object or a file name");
+        std::string ifile;
+        try {
+            s.interface = interface_from_json(resolve_json_ref(itf, base_dir, &ifile), "interface");
+        } catch (const ConfigError& e) {
+            if (ifile.empty()) throw;
+            throw ConfigError(e.field().empty() ? "interface" : e.field(), std::string(e.what()) + " (in " + ifile + ")");
+        }
+    }
     s.sample_rate_hz = k.number(r, "sample_rate_hz");
     s.duration_s = k.number(r, "duration_s");
     s.t0_s = k.number(r, "t0_s");
@@ -228,6 +239,7 @@ void to_json(json& j, const Scenario& s) {
              {"sample_rate_hz", s.sample_rate_hz}, {"duration_s", s.duration_s},
              {"t0_s", s.t0_s}, {"seed", s.seed}};
     if (!s.description.empty()) j["description"] = s.description;
+    if (s.interface) j["interface"] = *s.interface;
     if (s.instruments) {
         j["device"] = {{"output", s.instruments->output}, {"input", s.instruments->input}};
         if (!s.instruments->dut.empty()) j["device"]["dut"] = s.instruments->dut;

@@ -3,6 +3,7 @@
 // and out-of-range values are errors naming the key.
 #pragma once
 
+#include "server/engine/interface_profile.hpp"
 #include "signal_gen/encoder.hpp"
 #include "signal_gen/motion.hpp"
 
@@ -62,6 +63,9 @@ struct Scenario {
         std::string output, input, dut;
     };
     std::optional<Instruments> instruments;
+    // The interface profile the signals' quality is graded against (interface_profile.hpp);
+    // none: not graded.
+    std::optional<InterfaceProfile> interface;
     std::vector<EstimatorSpec> estimators;
     std::vector<Limit> limits;
     double settle_s = 0.1;
