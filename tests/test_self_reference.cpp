@@ -285,3 +285,30 @@ TEST_CASE("self-reference: a run on a capture without truth is judged on the sel
         CHECK(r["verdict"] == "FAIL");
     }
 }
+
+TEST_CASE("capture without truth: the preflight's stand-in motion is the signals' own speed, not zero", "[selfref][capture][preflight]") {
+    TempDir d;
+    const Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
+    const auto cap = d.path / "bare.fcap";
+    {
+        Generator g(gen.encoder, gen.motion, gen.sample_rate_hz, gen.seed);
+        Block b;
+        b.resize(60000, false);
+        g.generate(0, b);
+        CaptureWriter w(cap.string(), CaptureColumns{false, false, false}, json{{"sample_rate_hz", gen.sample_rate_hz}});
+        w.write(b);
+        w.close();
+    }
+    CaptureRunOptions o;
+    o.capture_path = cap.string();
+    o.estimator = "atan2";
+    o.encoder = gen.encoder;
+    const CapturePlan p = plan_capture_run(o);
+    CHECK_FALSE(p.has_truth);
+    // The generator's mean electrical speed over the settle time, from its own motion.
+    const double settle = std::min(o.settle_s, 60000 / gen.sample_rate_hz);
+    std::vector<double> t{0.0, settle}, phi(2), om(2), al(2);
+    gen.motion.evaluate(t.data(), 2, phi.data(), om.data(), al.data());
+    const double expect_rad_s = std::fabs(phi[1] - phi[0]) / settle;  // mechanical
+    CHECK(p.run.scenario.motion.velocity_rad_s == Approx(expect_rad_s).epsilon(0.02));
+}

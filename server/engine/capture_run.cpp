@@ -40,21 +40,33 @@ CapturePlan plan_capture_run(const CaptureRunOptions& o) {
     const bool truth = reader.columns().theta_true;
     std::uint64_t n = 0;
     double t_first = 0, th_prev = 0, settle_travel_rad = 0, travel_rad = 0;
+    bool have_prev = false;
     while (reader.read(o.block, d)) {
         const std::size_t m = d.size();
         if (m == 0) continue;
-        if (n == 0) {
-            t_first = d.t_s[0];
-            if (truth) th_prev = d.theta_true_rad[0];
-        }
-        if (truth)
-            for (std::size_t i = 0; i < m; ++i) {
-                // electrical radians travelled (distance, not net: a swing teaches ekf-auto on every pass)
-                const double step = std::fabs(d.theta_true_rad[i] - th_prev);
-                travel_rad += step;
-                if (d.t_s[i] - t_first < o.settle_s) settle_travel_rad += step;
+        if (n == 0) t_first = d.t_s[0];
+        for (std::size_t i = 0; i < m; ++i) {
+            // electrical radians travelled (distance, not net: a swing teaches ekf-auto on every
+            // pass): the truth's, else the signals' own phase (a step below pi a sample)
+            double step = 0;
+            if (truth) {
+                if (have_prev) step = std::fabs(d.theta_true_rad[i] - th_prev);
                 th_prev = d.theta_true_rad[i];
+                have_prev = true;
+            } else if (std::isfinite(d.sin_v[i]) && std::isfinite(d.cos_v[i]) && (d.sin_v[i] != 0 || d.cos_v[i] != 0)) {
+                const double w = std::atan2(d.sin_v[i], d.cos_v[i]);
+                if (have_prev) {
+                    double dw = w - th_prev;
+                    dw -= kTwoPi * std::round(dw / kTwoPi);
+                    step = std::fabs(dw);
+                }
+                th_prev = w;
+                have_prev = true;
             }
+            if (!std::isfinite(step)) continue;
+            travel_rad += step;
+            if (d.t_s[i] - t_first < o.settle_s) settle_travel_rad += step;
+        }
         n += m;
     }
     const double fs = reader.sample_rate_hz();
@@ -86,7 +98,7 @@ CapturePlan plan_capture_run(const CaptureRunOptions& o) {
     sc.duration_s = static_cast<double>(n) / fs;
     sc.t0_s = t_first;
     // A stand-in motion for the preflight's checks and the spectrum's segment length: constant
-    // at the truth's mean speed over the settle time (so the travel the preflight finds there,
+    // at the truth's (without truth: the signals' phase's) mean speed over the settle time (so the travel the preflight finds there,
     // ekf-auto's learning rule, is the capture's), or over the whole capture without a settle time.
     const double window = std::min(o.settle_s, sc.duration_s);
     const double electrical_rad_s = window > 0 ? settle_travel_rad / window : sc.duration_s > 0 ? travel_rad / sc.duration_s : 0.0;
