@@ -41,51 +41,72 @@ struct Coeffs {
     double c0 = 0, a[SignalQuality::kHarmonics + 1] = {}, b[SignalQuality::kHarmonics + 1] = {};
 };
 
-// Fourier series of one channel over one period, by the trapezoid rule on the period's points
-// (many points: the interpolated end points cost nothing); c1, s1: cos and sin of each point's
-// angle (the harmonics by the angle-addition recurrence).
-Coeffs coeffs_trapezoid(const std::vector<double>& c1v, const std::vector<double>& s1v, const std::vector<double>& w, const std::vector<double>& x) {
+// cos(k phi) and sin(k phi), k = 1..K, of each point by the angle-addition recurrence from its
+// cos and sin, once a period for both channels' series and shapes: point i's row at i * K.
+void harmonic_table(const std::vector<double>& c1v, const std::vector<double>& s1v, std::vector<double>& ck_tab, std::vector<double>& sk_tab) {
     constexpr int K = SignalQuality::kHarmonics;
-    Coeffs f;
-    for (std::size_t i = 0; i < c1v.size(); ++i) {
+    const std::size_t n = c1v.size();
+    ck_tab.resize(n * K);
+    sk_tab.resize(n * K);
+    for (std::size_t i = 0; i < n; ++i) {
         const double c1 = c1v[i], s1 = s1v[i];
         double ck = 1, sk = 0;
-        const double wx = w[i] * x[i];
-        f.c0 += wx;
+        double* cr = ck_tab.data() + i * K;
+        double* sr = sk_tab.data() + i * K;
         for (int k = 1; k <= K; ++k) {
             const double cn = ck * c1 - sk * s1, sn = sk * c1 + ck * s1;
             ck = cn;
             sk = sn;
-            f.a[k] += wx * ck;
-            f.b[k] += wx * sk;
+            cr[k - 1] = ck;
+            sr[k - 1] = sk;
         }
     }
-    f.c0 /= kTwoPi;
-    for (int k = 1; k <= K; ++k) {
-        f.a[k] /= kPi;
-        f.b[k] /= kPi;
+}
+
+// Fourier series of both channels over one period, by the trapezoid rule on the period's
+// points (many points: the interpolated end points cost nothing), from the harmonic table.
+void coeffs_trapezoid(const std::vector<double>& ck_tab, const std::vector<double>& sk_tab, const std::vector<double>& w,
+                      const std::vector<double>& xa, const std::vector<double>& xb, Coeffs& fa, Coeffs& fb) {
+    constexpr int K = SignalQuality::kHarmonics;
+    fa = Coeffs{};
+    fb = Coeffs{};
+    for (std::size_t i = 0; i < w.size(); ++i) {
+        const double* cr = ck_tab.data() + i * K;
+        const double* sr = sk_tab.data() + i * K;
+        const double wa = w[i] * xa[i], wb = w[i] * xb[i];
+        fa.c0 += wa;
+        fb.c0 += wb;
+        for (int k = 1; k <= K; ++k) {
+            fa.a[k] += wa * cr[k - 1];
+            fa.b[k] += wa * sr[k - 1];
+            fb.a[k] += wb * cr[k - 1];
+            fb.b[k] += wb * sr[k - 1];
+        }
     }
-    return f;
+    for (Coeffs* f : {&fa, &fb}) {
+        f->c0 /= kTwoPi;
+        for (int k = 1; k <= K; ++k) {
+            f->a[k] /= kPi;
+            f->b[k] /= kPi;
+        }
+    }
 }
 
 // The same series by least squares on the samples alone (few points a period: the trapezoid
 // rule's interpolated end points and its uneven last interval would leak into the harmonics).
-void coeffs_least_squares(const std::vector<double>& c1v, const std::vector<double>& s1v, const std::vector<double>& xa,
+void coeffs_least_squares(const std::vector<double>& ck_tab, const std::vector<double>& sk_tab, const std::vector<double>& xa,
                           const std::vector<double>& xb, Coeffs& fa, Coeffs& fb) {
     constexpr int K = SignalQuality::kHarmonics, P = 2 * K + 1;
     Eigen::Matrix<double, P, P> ata = Eigen::Matrix<double, P, P>::Zero();
     Eigen::Matrix<double, P, 2> atb = Eigen::Matrix<double, P, 2>::Zero();
     Eigen::Matrix<double, P, 1> row;
-    for (std::size_t i = 1; i + 1 < c1v.size(); ++i) {  // the samples, not the interpolated ends
-        const double c1 = c1v[i], s1 = s1v[i];
-        double ck = 1, sk = 0;
+    for (std::size_t i = 1; i + 1 < xa.size(); ++i) {  // the samples, not the interpolated ends
+        const double* cr = ck_tab.data() + i * K;
+        const double* sr = sk_tab.data() + i * K;
         row(0) = 1;
         for (int k = 1; k <= K; ++k) {
-            const double cn = ck * c1 - sk * s1, sn = sk * c1 + ck * s1;
-            ck = cn;
-            sk = sn;
-            row(2 * k - 1) = ck;
-            row(2 * k) = sk;
+            row(2 * k - 1) = cr[k - 1];
+            row(2 * k) = sr[k - 1];
         }
         ata.selfadjointView<Eigen::Lower>().rankUpdate(row);
         atb.col(0) += row * xa[i];
@@ -103,7 +124,7 @@ void coeffs_least_squares(const std::vector<double>& c1v, const std::vector<doub
 }
 
 // A channel's figures from its series and its points.
-ChannelQuality channel_figures(const Coeffs& f, const std::vector<double>& phi, const std::vector<double>& c1v, const std::vector<double>& s1v,
+ChannelQuality channel_figures(const Coeffs& f, const std::vector<double>& phi, const std::vector<double>& ck_tab, const std::vector<double>& sk_tab,
                                const std::vector<double>& x) {
     constexpr int K = SignalQuality::kHarmonics;
     const std::size_t n = phi.size();
@@ -122,15 +143,12 @@ ChannelQuality channel_figures(const Coeffs& f, const std::vector<double>& phi, 
         h2 += hk * hk;
     }
     q.thd_percent = std::sqrt(h2);
-    // The shape at an angle given its cos and sin.
-    auto shape = [&](double c1, double s1) {
-        double v = c0, ck = 1, sk = 0;
-        for (int k = 1; k <= K; ++k) {
-            const double cn = ck * c1 - sk * s1, sn = sk * c1 + ck * s1;
-            ck = cn;
-            sk = sn;
-            v += a[k] * ck + b[k] * sk;
-        }
+    // The shape at point i (its harmonics from the table).
+    auto shape = [&](std::size_t i) {
+        const double* cr = ck_tab.data() + i * K;
+        const double* sr = sk_tab.data() + i * K;
+        double v = c0;
+        for (int k = 1; k <= K; ++k) v += a[k] * cr[k - 1] + b[k] * sr[k - 1];
         return v;
     };
     // The fitted shape's extremes on a fine grid (the samples' own extremes grow with noise).
@@ -163,7 +181,7 @@ ChannelQuality channel_figures(const Coeffs& f, const std::vector<double>& phi, 
     // Noise: the samples about the shape (the interpolated end points are not samples).
     double r2 = 0;
     for (std::size_t i = 1; i + 1 < n; ++i) {
-        const double d = x[i] - shape(c1v[i], s1v[i]);
+        const double d = x[i] - shape(i);
         r2 += d * d;
     }
     // 2K + 1 coefficients were fitted to these points: the residual has that many fewer degrees of freedom.
@@ -196,7 +214,10 @@ PeriodQuality SignalQuality::analyse_period(const std::vector<double>& t_s, cons
     p.radius_max_v = 0;
     {
         double r2_min = std::numeric_limits<double>::infinity(), r2_max = 0;
-        for (std::size_t i = 1; i + 1 < phi.size(); ++i) {
+        const std::size_t last = phi.size() > 0 ? phi.size() - 1 : 0;
+        // the samples are finite: their minimum and maximum in any order are the same
+#pragma omp simd reduction(min : r2_min) reduction(max : r2_max)
+        for (std::size_t i = 1; i < last; ++i) {
             const double r2 = a_v[i] * a_v[i] + b_v[i] * b_v[i];
             r2_min = std::min(r2_min, r2);
             r2_max = std::max(r2_max, r2);
@@ -218,6 +239,7 @@ PeriodQuality SignalQuality::analyse_period(const std::vector<double>& t_s, cons
     if (phi.size() > kFitPoints + 2) {
         const std::size_t stride = (phi.size() - 2 + kFitPoints - 1) / kFitPoints;
         std::vector<double> dt, dp, da, db;
+        for (auto* v : {&dt, &dp, &da, &db}) v->reserve(kFitPoints + 3);
         for (std::size_t i = 0; i + 1 < phi.size(); i += (i == 0 ? 1 : stride)) {
             dt.push_back(t_s[i]);
             dp.push_back(phi[i]);
@@ -264,15 +286,13 @@ PeriodQuality SignalQuality::analyse_period(const std::vector<double>& t_s, cons
         c1[i] = c1[i - 1] * rc - s1[i - 1] * rs;
         s1[i] = s1[i - 1] * rc + c1[i - 1] * rs;
     }
+    std::vector<double> ck_tab, sk_tab;
+    harmonic_table(c1, s1, ck_tab, sk_tab);
     Coeffs fa, fb;
-    if (n < kLeastSquaresBelow) {
-        coeffs_least_squares(c1, s1, a_v, b_v, fa, fb);
-    } else {
-        fa = coeffs_trapezoid(c1, s1, w, a_v);
-        fb = coeffs_trapezoid(c1, s1, w, b_v);
-    }
-    p.a = channel_figures(fa, phi, c1, s1, a_v);
-    p.b = channel_figures(fb, phi, c1, s1, b_v);
+    if (n < kLeastSquaresBelow) coeffs_least_squares(ck_tab, sk_tab, a_v, b_v, fa, fb);
+    else coeffs_trapezoid(ck_tab, sk_tab, w, a_v, b_v, fa, fb);
+    p.a = channel_figures(fa, phi, ck_tab, sk_tab, a_v);
+    p.b = channel_figures(fb, phi, ck_tab, sk_tab, b_v);
     p.ab_ratio = p.b.amplitude_v > 0 ? p.a.amplitude_v / p.b.amplitude_v : 0.0;
     p.phase_deg = wrap_deg((p.b.phase_rad - p.a.phase_rad) * 180.0 / kPi);
     p.freq_hz = p.t_end_s > p.t_start_s ? 1.0 / (p.t_end_s - p.t_start_s) : 0.0;
