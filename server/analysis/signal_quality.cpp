@@ -21,15 +21,23 @@ double wrap_deg(double d) {
     return d;
 }
 
-// cos and sin of 2 pi g / kGrid: the fitted shape's extremes are sought on this grid.
+// cos and sin of 2 pi g / kGrid: the fitted shape's extremes are sought on this grid; and
+// harmonic k's values there, ck[k - 1][j] = c[j k mod kGrid] (sk likewise), so the shape on the
+// grid is a pass over j per harmonic that vectorises.
 constexpr int kGrid = 128;
 struct GridTable {
     double c[kGrid], s[kGrid];
+    double ck[SignalQuality::kHarmonics][kGrid], sk[SignalQuality::kHarmonics][kGrid];
     GridTable() {
         for (int g = 0; g < kGrid; ++g) {
             c[g] = std::cos(kTwoPi * g / kGrid);
             s[g] = std::sin(kTwoPi * g / kGrid);
         }
+        for (int k = 1; k <= SignalQuality::kHarmonics; ++k)
+            for (int j = 0; j < kGrid; ++j) {
+                ck[k - 1][j] = c[(j * k) % kGrid];
+                sk[k - 1][j] = s[(j * k) % kGrid];
+            }
     }
 };
 const GridTable& grid() {
@@ -156,18 +164,18 @@ ChannelQuality channel_figures(const Coeffs& f, const std::vector<double>& phi, 
     q.max_v = -std::numeric_limits<double>::infinity();
     q.min_v = std::numeric_limits<double>::infinity();
     double vals[kGrid];
+    for (int j = 0; j < kGrid; ++j) vals[j] = c0;
+    for (int k = 1; k <= K; ++k) {  // each grid value's terms in the order k = 1..K
+        const double ak = a[k], bk = b[k];
+        const double* ckj = g.ck[k - 1];
+        const double* skj = g.sk[k - 1];
+#pragma omp simd
+        for (int j = 0; j < kGrid; ++j) vals[j] += ak * ckj[j] + bk * skj[j];
+    }
     int jmax = 0, jmin = 0;
-    for (int j = 0; j < kGrid; ++j) {
-        double v = c0;
-        int idx = 0;
-        for (int k = 1; k <= K; ++k) {
-            idx += j;
-            if (idx >= kGrid) idx -= kGrid;
-            v += a[k] * g.c[idx] + b[k] * g.s[idx];
-        }
-        vals[j] = v;
-        if (v > vals[jmax]) jmax = j;
-        if (v < vals[jmin]) jmin = j;
+    for (int j = 1; j < kGrid; ++j) {
+        if (vals[j] > vals[jmax]) jmax = j;
+        if (vals[j] < vals[jmin]) jmin = j;
     }
     // The extreme between grid points: the parabola through the best point and its neighbours.
     auto refine = [&](int j) {
