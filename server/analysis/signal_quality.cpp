@@ -50,23 +50,26 @@ struct Coeffs {
 };
 
 // cos(k phi) and sin(k phi), k = 1..K, of each point by the angle-addition recurrence from its
-// cos and sin, once a period for both channels' series and shapes: point i's row at i * K.
+// cos and sin, once a period for both channels' series and shapes: harmonic k's row at
+// (k - 1) * n, each row a pass over the points that vectorises.
 void harmonic_table(const std::vector<double>& c1v, const std::vector<double>& s1v, std::vector<double>& ck_tab, std::vector<double>& sk_tab) {
     constexpr int K = SignalQuality::kHarmonics;
     const std::size_t n = c1v.size();
     ck_tab.resize(n * K);
     sk_tab.resize(n * K);
-    for (std::size_t i = 0; i < n; ++i) {
-        const double c1 = c1v[i], s1 = s1v[i];
-        double ck = 1, sk = 0;
-        double* cr = ck_tab.data() + i * K;
-        double* sr = sk_tab.data() + i * K;
-        for (int k = 1; k <= K; ++k) {
-            const double cn = ck * c1 - sk * s1, sn = sk * c1 + ck * s1;
-            ck = cn;
-            sk = sn;
-            cr[k - 1] = ck;
-            sr[k - 1] = sk;
+    const double* c1 = c1v.data();
+    const double* s1 = s1v.data();
+    std::copy(c1, c1 + n, ck_tab.data());
+    std::copy(s1, s1 + n, sk_tab.data());
+    for (int k = 2; k <= K; ++k) {
+        const double* cp = ck_tab.data() + static_cast<std::size_t>(k - 2) * n;
+        const double* sp = sk_tab.data() + static_cast<std::size_t>(k - 2) * n;
+        double* cr = ck_tab.data() + static_cast<std::size_t>(k - 1) * n;
+        double* sr = sk_tab.data() + static_cast<std::size_t>(k - 1) * n;
+#pragma omp simd
+        for (std::size_t i = 0; i < n; ++i) {
+            cr[i] = cp[i] * c1[i] - sp[i] * s1[i];
+            sr[i] = sp[i] * c1[i] + cp[i] * s1[i];
         }
     }
 }
@@ -78,17 +81,17 @@ void coeffs_trapezoid(const std::vector<double>& ck_tab, const std::vector<doubl
     constexpr int K = SignalQuality::kHarmonics;
     fa = Coeffs{};
     fb = Coeffs{};
-    for (std::size_t i = 0; i < w.size(); ++i) {
-        const double* cr = ck_tab.data() + i * K;
-        const double* sr = sk_tab.data() + i * K;
+    const std::size_t n = w.size();
+    for (std::size_t i = 0; i < n; ++i) {
         const double wa = w[i] * xa[i], wb = w[i] * xb[i];
         fa.c0 += wa;
         fb.c0 += wb;
         for (int k = 1; k <= K; ++k) {
-            fa.a[k] += wa * cr[k - 1];
-            fa.b[k] += wa * sr[k - 1];
-            fb.a[k] += wb * cr[k - 1];
-            fb.b[k] += wb * sr[k - 1];
+            const double ck = ck_tab[static_cast<std::size_t>(k - 1) * n + i], sk = sk_tab[static_cast<std::size_t>(k - 1) * n + i];
+            fa.a[k] += wa * ck;
+            fa.b[k] += wa * sk;
+            fb.a[k] += wb * ck;
+            fb.b[k] += wb * sk;
         }
     }
     for (Coeffs* f : {&fa, &fb}) {
@@ -108,13 +111,12 @@ void coeffs_least_squares(const std::vector<double>& ck_tab, const std::vector<d
     Eigen::Matrix<double, P, P> ata = Eigen::Matrix<double, P, P>::Zero();
     Eigen::Matrix<double, P, 2> atb = Eigen::Matrix<double, P, 2>::Zero();
     Eigen::Matrix<double, P, 1> row;
-    for (std::size_t i = 1; i + 1 < xa.size(); ++i) {  // the samples, not the interpolated ends
-        const double* cr = ck_tab.data() + i * K;
-        const double* sr = sk_tab.data() + i * K;
+    const std::size_t n = xa.size();
+    for (std::size_t i = 1; i + 1 < n; ++i) {  // the samples, not the interpolated ends
         row(0) = 1;
         for (int k = 1; k <= K; ++k) {
-            row(2 * k - 1) = cr[k - 1];
-            row(2 * k) = sr[k - 1];
+            row(2 * k - 1) = ck_tab[static_cast<std::size_t>(k - 1) * n + i];
+            row(2 * k) = sk_tab[static_cast<std::size_t>(k - 1) * n + i];
         }
         ata.selfadjointView<Eigen::Lower>().rankUpdate(row);
         atb.col(0) += row * xa[i];
@@ -151,14 +153,6 @@ ChannelQuality channel_figures(const Coeffs& f, const std::vector<double>& phi, 
         h2 += hk * hk;
     }
     q.thd_percent = std::sqrt(h2);
-    // The shape at point i (its harmonics from the table).
-    auto shape = [&](std::size_t i) {
-        const double* cr = ck_tab.data() + i * K;
-        const double* sr = sk_tab.data() + i * K;
-        double v = c0;
-        for (int k = 1; k <= K; ++k) v += a[k] * cr[k - 1] + b[k] * sr[k - 1];
-        return v;
-    };
     // The fitted shape's extremes on a fine grid (the samples' own extremes grow with noise).
     const GridTable& g = grid();
     q.max_v = -std::numeric_limits<double>::infinity();
@@ -186,10 +180,21 @@ ChannelQuality channel_figures(const Coeffs& f, const std::vector<double>& phi, 
     q.min_v = refine(jmin);
     const double P = q.max_v, N = -q.min_v, M = q.max_v - q.min_v;
     q.sym = M > 0 ? std::fabs(P - N) / (2 * M) : 0.0;
-    // Noise: the samples about the shape (the interpolated end points are not samples).
+    // Noise: the samples about the shape (the interpolated end points are not samples). The
+    // shape at every point first, harmonic by harmonic (each point's terms in the order k = 1..K).
+    thread_local std::vector<double> shape;
+    shape.assign(n, c0);
+    for (int k = 1; k <= K; ++k) {
+        const double ak = a[k], bk = b[k];
+        const double* cr = ck_tab.data() + static_cast<std::size_t>(k - 1) * n;
+        const double* sr = sk_tab.data() + static_cast<std::size_t>(k - 1) * n;
+        double* v = shape.data();
+#pragma omp simd
+        for (std::size_t i = 0; i < n; ++i) v[i] += ak * cr[i] + bk * sr[i];
+    }
     double r2 = 0;
     for (std::size_t i = 1; i + 1 < n; ++i) {
-        const double d = x[i] - shape(i);
+        const double d = x[i] - shape[i];
         r2 += d * d;
     }
     // 2K + 1 coefficients were fitted to these points: the residual has that many fewer degrees of freedom.
