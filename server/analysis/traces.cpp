@@ -194,9 +194,10 @@ void TraceRecorder::add(std::size_t m, const double* t_s, const double* sin_v, c
             double lo = err_[j].lo[b], hi = err_[j].hi[b];
 #pragma omp simd reduction(min : lo) reduction(max : hi)
             for (std::size_t k = i; k < i + len; ++k) {
-                const bool ok = (e[k] - e[k]) == 0.0;  // invalid sample or unknown truth: NaN
-                lo = std::min(lo, ok ? wr[k] : kInfV);
-                hi = std::max(hi, ok ? wr[k] : -kInfV);
+                const double ek = e[k], w = wr[k];
+                const bool ok = (ek - ek) == 0.0;  // invalid sample or unknown truth: NaN
+                lo = std::min(lo, ok ? w : kInfV);
+                hi = std::max(hi, ok ? w : -kInfV);
             }
             err_[j].lo[b] = lo;
             err_[j].hi[b] = hi;
