@@ -94,7 +94,10 @@ struct Lane {
             estimator_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
         }
         if (tap) tap(m, f.t_s.data(), th.data(), om.data(), valid.data());
-        for (std::size_t i = 0; i < m; ++i) valid[i] = valid[i] && f.truth_known[i];
+        // Valid where the truth is known too; then the error (branch-free passes that vectorise).
+        std::uint8_t* vd = valid.data();
+        const std::uint8_t* tk = f.truth_known.data();
+        for (std::size_t i = 0; i < m; ++i) vd[i] = static_cast<std::uint8_t>((vd[i] != 0) & (tk[i] != 0));
         LaneBlock& b = o.b;
         b.n = m;
         b.t_s = f.t_s.data();
@@ -108,7 +111,12 @@ struct Lane {
         b.valid = valid.data();
         o.err.resize(m);
         const double* tt = f.theta_true_rad.data();
-        for (std::size_t i = 0; i < m; ++i) o.err[i] = valid[i] ? th[i] - tt[i] : std::numeric_limits<double>::quiet_NaN();
+        const double* hat = th.data();
+        double* er = o.err.data();
+        for (std::size_t i = 0; i < m; ++i) {
+            const double d = hat[i] - tt[i];
+            er[i] = vd[i] ? d : std::numeric_limits<double>::quiet_NaN();
+        }
     }
     // Analyser i on the block in a slot.
     void analyse(std::size_t i, int slot) { analysers.add(i, out[slot].b); }
