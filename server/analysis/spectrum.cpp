@@ -167,13 +167,28 @@ std::size_t ErrorSpectrum::choose_segment(double sample_rate_hz, double electric
 
 void ErrorSpectrum::add(std::size_t n, const double* e_rad, const std::uint8_t* ok) {
     const std::size_t mask = n_ - 1;
+    constexpr std::size_t kScan = 64;
     for (std::size_t i = 0; i < n;) {
-        // The run of usable samples from i, appended in pieces that complete segments.
+        // The run of usable samples from i (kScan at a time while all are usable, in a pass that
+        // vectorises), appended in pieces that complete segments.
         std::size_t j = i;
+        while (j + kScan <= n) {
+            std::size_t bad = 0;
+#pragma omp simd reduction(+ : bad)
+            for (std::size_t q = 0; q < kScan; ++q) {
+                const double e = e_rad[j + q];
+                bad += static_cast<std::size_t>(!((e - e) == 0.0) || (ok && !ok[j + q]));  // e - e: NaN unless finite
+            }
+            if (bad) break;
+            j += kScan;
+        }
         while (j < n && (!ok || ok[j]) && std::isfinite(e_rad[j])) ++j;
         for (std::size_t k = i; k < j;) {
             const std::size_t take = std::min(j - k, n_ - fill_);
-            for (std::size_t q = 0; q < take; ++q) buf_[(start_ + fill_ + q) & mask] = e_rad[k + q];
+            // into the ring from (start_ + fill_) mod n_: up to its end, then from its start
+            const std::size_t at = (start_ + fill_) & mask, first = std::min(take, n_ - at);
+            std::copy_n(e_rad + k, first, buf_.data() + at);
+            std::copy_n(e_rad + k + first, take - first, buf_.data());
             fill_ += take;
             k += take;
             if (fill_ == n_) {
