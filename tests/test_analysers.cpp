@@ -134,12 +134,12 @@ TEST_CASE("analysers: the registry names the built-in ones and removes a scoped 
         for (const auto& a : analyser_registry()) v.push_back(a.name);
         return v;
     };
-    CHECK(names() == std::vector<std::string>{"truth", "conventions", "spectrum"});
+    CHECK(names() == std::vector<std::string>{"truth", "conventions", "spectrum", "self_reference"});
     {
         ScopedAnalyser a({"test-x", "x", [](const LaneContext& c) { return std::make_unique<CountingAnalyser>(c); }});
-        CHECK(names().size() == 4);
+        CHECK(names().size() == 5);
     }
-    CHECK(names().size() == 3);
+    CHECK(names().size() == 4);
     CHECK_THROWS_AS(est::find("test-offset-atan2"), ConfigError);
 }
 

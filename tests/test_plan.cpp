@@ -146,7 +146,7 @@ TEST_CASE("plan: a sweep row and a capture evaluation construct their estimator 
         const std::string capture = (dir.path / "run.csv").string();
         RunOptions ro;
         ro.record_path = capture;
-        REQUIRE(execute_run(scenario_from_json(scenario_json(json::array({json{{"name", "atan2"}}})), ""), ro)["status"] == "done");
+        REQUIRE(json(execute_run(scenario_from_json(scenario_json(json::array({json{{"name", "atan2"}}})), ""), ro))["status"] == "done");
         CaptureRunOptions o;
         o.capture_path = capture;
         o.estimator = "test-counted";

@@ -18,6 +18,8 @@
 #include <catch2/catch.hpp>
 
 #include <cstring>
+#include <fstream>
+#include <set>
 #include <filesystem>
 #include <limits>
 #include <sstream>
@@ -174,7 +176,7 @@ TEST_CASE("loopback: injected faults are reported with exact counts", "[device][
 TEST_CASE("run: PASS, MARGINAL and FAIL from limits, and exit codes", "[run]") {
     Scenario sc = short_run();
     sc.estimators = {{"ekf-diffraction", "ekf", json::object(), std::nullopt}};
-    auto run_with = [&](Limit l) {
+    auto run_with = [&](Limit l) -> json {
         sc.limits = {l};
         return execute_run(sc);
     };
@@ -210,17 +212,17 @@ TEST_CASE("run: PASS, MARGINAL and FAIL from limits, and exit codes", "[run]") {
 
 TEST_CASE("run: re-running with the same seed reproduces the metrics bit for bit", "[run]") {
     Scenario sc = short_run();
-    const auto a = execute_run(sc), b = execute_run(sc);
+    const json a = execute_run(sc), b = execute_run(sc);
     CHECK(a["estimators"] == b["estimators"]);
     sc.seed = 2;
-    const auto c = execute_run(sc);
+    const json c = execute_run(sc);
     CHECK(a["estimators"][1]["metrics"] != c["estimators"][1]["metrics"]);
 }
 
 TEST_CASE("run: device latency is compensated, sample loss and stalls end the run as ERROR", "[run][faults]") {
     Scenario sc = short_run();
     sc.device = "loopback:?dac_bits=16&adc_bits=16&latency_samples=25";
-    auto r = execute_run(sc);
+    json r = execute_run(sc);
     CHECK(r["status"] == "done");
     CHECK(r["estimators"][1]["metrics"]["rms"]["rad"].get<double>() < 4e-5);  // no 25-sample phase offset
     sc.device = "loopback:?drop_after=12345&drop_count=500";
@@ -242,6 +244,83 @@ TEST_CASE("run: device latency is compensated, sample loss and stalls end the ru
     CHECK(r["verdict"] == "FAIL");
 }
 
+TEST_CASE("report: one struct, its keys as docs/schema.md lists them for a finished, a failed and an unstarted run", "[run][report][docs]") {
+    // The table between the report-keys markers: each row's first cell names one or more keys.
+    std::ifstream in(std::string(FRINGE_SOURCE_DIR) + "/docs/schema.md");
+    REQUIRE(in);
+    std::set<std::string> documented;
+    bool inside = false;
+    for (std::string line; std::getline(in, line);) {
+        if (line.find("<!-- report-keys:begin") != std::string::npos) inside = true;
+        else if (line.find("<!-- report-keys:end") != std::string::npos) inside = false;
+        else if (inside && line.rfind("| `", 0) == 0) {
+            const std::string cell = line.substr(2, line.find(" |", 2) - 2);
+            for (std::size_t p = cell.find('`'); p != std::string::npos; p = cell.find('`', cell.find('`', p + 1) + 1))
+                documented.insert(cell.substr(p + 1, cell.find('`', p + 1) - p - 1));
+        }
+    }
+    REQUIRE(documented.size() >= 20);
+    const std::set<std::string> optional_keys{"provenance", "capture"};
+    auto keys_of = [](const json& r) {
+        std::set<std::string> k;
+        for (const auto& [key, v] : r.items()) k.insert(key);
+        return k;
+    };
+    Scenario sc = short_run(0.2);
+    RunOptions o;
+    o.provenance = json{{"dut", {{"serial", "SN-1"}}}};
+    const json done = execute_run(sc, o);
+    sc.device = "loopback:?drop_after=1000&drop_count=10";
+    const json failed = execute_run(sc);
+    const json unstarted = unstarted_report(sc, "id-1", "2026-11-26T00:00:00Z", RunStatus::Aborted, Verdict::Aborted, "cancelled while queued");
+    for (const auto& [r, what] : {std::pair{&done, "finished"}, {&failed, "failed"}, {&unstarted, "unstarted"}}) {
+        INFO(what);
+        for (const auto& k : keys_of(*r)) {
+            INFO("report key " << k);
+            CHECK(documented.count(k) == 1);
+        }
+        for (const auto& k : documented)
+            if (!optional_keys.count(k)) {
+                INFO("documented key " << k);
+                CHECK(r->contains(k));
+            }
+        CHECK((*r)["schema"] == RunReport::kSchema);
+        CHECK((*r)["schema_version"] == RunReport::kSchemaVersion);
+        CHECK((*r)["samples"]["planned"] == sc.samples());
+    }
+    CHECK(done["status"] == "done");
+    CHECK(done["provenance"]["dut"]["serial"] == "SN-1");
+    CHECK_FALSE(failed.contains("provenance"));
+    CHECK(failed["verdict"] == "ERROR");
+    CHECK(unstarted["verdict"] == "ABORTED");
+    CHECK(unstarted["error"] == "cancelled while queued");
+    CHECK(unstarted["estimators"].empty());
+    CHECK(unstarted["device"].is_null());
+    CHECK(done["estimators"].size() == sc.estimators.size());
+    // A typed lane entry serialises to what the limits and the renderings read.
+    RunReport typed;
+    typed.scenario = sc;
+    typed.verdict.reset();
+    EstimatorReport lane;
+    lane.label = "x";
+    lane.name = "atan2";
+    lane.metrics.scored = 7;
+    lane.convention_violations = 2;
+    lane.diagnosis.push_back({"c", "m"});
+    typed.estimators.push_back(lane);
+    typed.capture = json{{"path", "a.csv"}};
+    const json tj = typed;
+    CHECK(tj["verdict"].is_null());
+    CHECK(tj["error"].is_null());
+    CHECK(tj["device"].is_null());
+    CHECK(tj["capture"]["path"] == "a.csv");
+    CHECK(tj["estimators"][0]["metrics"]["scored"] == 7);
+    CHECK(tj["estimators"][0]["metrics"]["convention_violations"] == 2);
+    CHECK(tj["estimators"][0]["diagnosis"][0] == json{{"code", "c"}, {"message", "m"}});
+    CHECK_FALSE(tj["estimators"][0].contains("analysers"));
+    for (const auto& k : keys_of(tj)) CHECK(documented.count(k) == 1);
+}
+
 TEST_CASE("run: capture replay scores against the file's truth", "[run][capture]") {
     const auto sc0 = load_scenario(fixture("paper-duty1p6.json"));
     const std::string dir = std::filesystem::temp_directory_path() / ("fringe-run-" + std::to_string(getpid()));
@@ -259,7 +338,7 @@ TEST_CASE("run: capture replay scores against the file's truth", "[run][capture]
     Scenario sc = short_run();
     sc.encoder = sc0.encoder;
     sc.device = "capture:" + path;
-    const auto r = execute_run(sc);
+    const json r = execute_run(sc);
     CHECK(r["status"] == "done");
     CHECK(r["samples"]["processed"] == 30000);
     CHECK(r["estimators"][1]["metrics"]["rms"]["rad"].get<double>() < 4e-5);
@@ -282,7 +361,7 @@ TEST_CASE("run: scenario validation names the bad key", "[run][config]") {
 
 TEST_CASE("report renderings: JUnit testcases per measurement, HTML with plots", "[run][report]") {
     Scenario sc = short_run();
-    const auto r = execute_run(sc);
+    const json r = execute_run(sc);
     const std::string x = junit_xml(r);
     // 4 limits plus 5 evidence checks for each of the 3 estimators
     CHECK_THAT(x, Catch::Contains("<testsuite name=\"fig10c-loopback\" tests=\"19\" failures=\"0\""));
@@ -333,7 +412,7 @@ std::pair<std::size_t, double> polyline_segments(const std::string& s) {
 
 TEST_CASE("offline HTML: Lissajous joins only the folded cycle, error spectrum present, old reports honest", "[run][report]") {
     Scenario sc = short_run(1.0);  // stride 50: a polyline through stride samples jumps 1/19 of the circle
-    const auto r = execute_run(sc);
+    const json r = execute_run(sc);
     REQUIRE(r["traces"]["kind"] == "envelope");
     const std::string h = report_html(r);
     const std::string liss = svg_by_id(h, "plot-lissajous");
@@ -386,7 +465,7 @@ TEST_CASE("run history: begin, finish, list, interrupted runs", "[store]") {
         RunOptions o;
         o.run_id = "run-a";
         st.begin(o.run_id, "2026-01-01T00:00:00Z", sc.name, "");
-        const auto r = execute_run(sc, o);
+        const json r = execute_run(sc, o);
         st.finish(r);
         // a run whose process died: pid that cannot exist
         st.begin("run-b", "2026-01-01T00:00:01Z", "dead", "");
@@ -494,7 +573,7 @@ TEST_CASE("run history: provenance columns, filters, the forward state, an inter
             gone.begin(o.run_id, "2026-01-01T00:00:00Z", sc.name, sc.dut, "running");
         }
         st.begin(o.run_id, "2026-01-01T00:00:01Z", sc.name, sc.dut, "running", o.provenance);
-        const auto rep = execute_run(sc, o);
+        const json rep = execute_run(sc, o);
         CHECK(rep["provenance"]["dut"] == json({{"serial", "SN-1"}, {"part", "P-9"}}));
         CHECK(rep["provenance"]["scenario_sha256"] == sha256_hex(canonical_json(json(sc))));
         st.finish(rep);

@@ -332,6 +332,14 @@ TEST_CASE("service: errors are JSON with the right status", "[service]") {
         CHECK(err(post(a))["field"] == "scenario.encoder");
         a["encoder"] = "../encoders/ideal.json";  // inside the fixtures: fine
         CHECK(post(a).status == 201);
+        json i = sc;  // an interface profile is a file too
+        i["interface"] = "/etc/passwd";
+        CHECK(err(post(i))["field"] == "scenario.interface");
+        CHECK_THAT(err(post(i))["message"].get<std::string>(), Catch::Contains("absolute file paths are not accepted"));
+        i["interface"] = "../../../../etc/passwd";
+        CHECK_THAT(err(post(i))["message"].get<std::string>(), Catch::Contains("must stay inside the fixtures folder"));
+        i["interface"] = "../interfaces/1vpp.json";
+        CHECK(post(i).status == 201);
         json b = sc;
         b["device"] = "capture:/etc/passwd";
         CHECK(err(post(b))["field"] == "scenario.device");

@@ -37,6 +37,7 @@ struct LaneBlock {
     const double* theta_hat_rad = nullptr;     // the lane's estimate (unwrapped, rad)
     const double* omega_hat_rad_s = nullptr;   // null when the lane has no rate (a DUT's position)
     const std::uint8_t* valid = nullptr;       // the lane vouches for the sample and truth is known
+    const std::uint8_t* estimator_valid = nullptr;  // the lane vouches for the sample, truth or not (null: as valid)
 };
 
 // What every analyser of a lane is told when it is made.
@@ -45,6 +46,7 @@ struct LaneContext {
     double settle_s = 0;         // samples before t0 + settle_s are not scored
     int max_harmonic = 16;       // error harmonics fitted, 1x..max
     std::size_t spectrum_segment = 4096;  // Welch segment (samples), ErrorSpectrum::choose_segment
+    bool self_reference = false;  // measure the error without truth too (self_reference.hpp; scoring.self_reference)
 };
 
 // Typed results of one lane. Built-in analysers fill their member; others put their JSON under

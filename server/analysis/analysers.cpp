@@ -1,6 +1,7 @@
 // The built-in analysers (truth scorer, output conventions, error spectrum) and the registry.
 #include "server/analysis/analyser.hpp"
 
+#include "server/analysis/self_reference.hpp"
 #include "server/analysis/spectrum.hpp"
 #include "signal_gen/fastmath.hpp"
 
@@ -33,6 +34,24 @@ public:
 
 private:
     ConventionCheck check_;
+};
+
+// "self_reference": the error without truth (self_reference.hpp), on the samples the lane
+// vouched for whether or not truth is known; only when the run asks for it (a capture without
+// truth does), as it costs a least-squares fit of every sample.
+class SelfReferenced final : public Analyser {
+public:
+    explicit SelfReferenced(const LaneContext& c) : on_(c.self_reference), sr_(SelfReferenceOptions{8, 16, 4, 65536, c.settle_s}) {}
+    void add(const LaneBlock& b) override {
+        if (on_) sr_.add(b.n, b.t_s, b.sin_v, b.cos_v, b.theta_hat_rad, b.estimator_valid ? b.estimator_valid : b.valid);
+    }
+    void finish(LaneResults& r) override {
+        if (on_) r.extra["self_reference"] = to_json(sr_.finish());
+    }
+
+private:
+    bool on_;
+    SelfReference sr_;
 };
 
 // "spectrum": the error's spectrum at the full rate after the settle time (spectrum.hpp). Each
@@ -95,6 +114,9 @@ std::vector<AnalyserInfo>& registry() {
          [](const LaneContext&) { return std::make_unique<Conventions>(); }},
         {"spectrum", "the error's amplitude spectrum at the full rate (Welch, Hann, 50 % overlap)",
          [](const LaneContext& c) { return std::make_unique<Spectrum>(c); }},
+        {"self_reference", "the error without truth: a smooth motion per window and the error's harmonics of the estimated angle, "
+                           "fitted jointly (only when scoring.self_reference is on, as for a capture without truth)",
+         [](const LaneContext& c) { return std::make_unique<SelfReferenced>(c); }},
     };
     return r;
 }

@@ -217,6 +217,80 @@ std::vector<MetricInfo> build_catalog() {
             m.group = "evidence";
     }
     for (int k = 1; k <= 16; ++k) v.push_back(harmonic_metric(k));
+    // The error without truth (self_reference.hpp, docs/self-reference.md): against a reference
+    // built from the signals themselves, labelled self-referenced wherever it is shown.
+    const std::string self_lanes = "every lane of a capture without truth, or of a run with scoring.self_reference";
+    auto self_ref = [](const json& e, std::string* why) -> json {
+        const json sr = sub(sub(e, "analysers"), "self_reference");
+        if (!sr.is_object()) {
+            if (why) *why = "not measured: the run had truth and did not ask for it (scoring.self_reference)";
+            return json();
+        }
+        if (sr.value("measured", false) != true) {
+            if (why) *why = sr.value("why_not", json()).is_string() ? sr["why_not"].get<std::string>() : std::string("not measured");
+            return json();
+        }
+        return sr;
+    };
+    {
+        MetricInfo m = M("self_ref_rms_rad", "rad", "rms error about its mean, self-referenced (no truth: against the signals' own lag-free phase)",
+                         self_lanes, "normal law, the standard uncertainty from the fit with correlated residuals (docs/self-reference.md)",
+                         "self-ref rms", [self_ref](const json& e, std::string* why) -> Value {
+                             const json sr = self_ref(e, why);
+                             if (sr.is_null()) return std::nullopt;
+                             return number(sr.value("rms_rad", json()), why, "not measured");
+                         },
+                         [self_ref](const json& e, double value) -> Interval {
+                             const json sr = self_ref(e, nullptr);
+                             if (!sr.is_object() || !sr.value("rms_u_rad", json()).is_number()) return std::nullopt;
+                             const double u = sr["rms_u_rad"].get<double>();
+                             return std::make_pair(std::max(0.0, value - 1.96 * u), value + 1.96 * u);
+                         });
+        v.push_back(std::move(m));
+    }
+    // Evidence of a run without truth: what the self-referenced figures rest on.
+    auto self_field = [](const char* key) {
+        return [key](const json& e, std::string* why) -> Value {
+            const json sr = sub(sub(e, "analysers"), "self_reference");
+            if (!sr.is_object()) return none(why, "not measured: the run had truth and did not ask for it (scoring.self_reference)");
+            return number(sr.value(key, json()), why, "not counted");
+        };
+    };
+    {
+        MetricInfo a = M("self_ref_samples", "samples", "samples in the self-referenced windows (evidence without truth)", self_lanes,
+                         "none: an exact count", "", self_field("samples"));
+        MetricInfo b = M("self_ref_cycles", "cycles", "electrical periods swept by the self-referenced windows (evidence without truth)", self_lanes,
+                         "none: counted from the signals", "", self_field("cycles"));
+        MetricInfo c = M("self_ref_valid_fraction", "", "share of the samples after the settle time the estimator vouched for (evidence without truth)",
+                         self_lanes, "none: an exact ratio", "", self_field("valid_fraction"));
+        for (MetricInfo* x : {&a, &b, &c}) {
+            x->group = "evidence";
+            v.push_back(std::move(*x));
+        }
+    }
+    for (int k = 1; k <= 4; ++k) {
+        MetricInfo m = M("self_ref_harmonic_" + std::to_string(k) + "x_rad", "rad",
+                         std::to_string(k) + "x harmonic of the error against the electrical angle, self-referenced", self_lanes,
+                         "normal law of the fitted amplitude (docs/self-reference.md)", "",
+                         [self_ref, k](const json& e, std::string* why) -> Value {
+                             const json sr = self_ref(e, why);
+                             if (sr.is_null()) return std::nullopt;
+                             for (const auto& h : sr.value("harmonics", json::array()))
+                                 if (h.value("order", 0) == k) return number(h.value("amplitude_rad", json()), why, "not fitted");
+                             return none(why, "not fitted");
+                         },
+                         [self_ref, k](const json& e, double value) -> Interval {
+                             const json sr = self_ref(e, nullptr);
+                             if (!sr.is_object()) return std::nullopt;
+                             for (const auto& h : sr.value("harmonics", json::array()))
+                                 if (h.value("order", 0) == k && h.value("u_rad", json()).is_number()) {
+                                     const double u = h["u_rad"].get<double>();
+                                     return std::make_pair(std::max(0.0, value - 1.96 * u), value + 1.96 * u);
+                                 }
+                             return std::nullopt;
+                         });
+        v.push_back(std::move(m));
+    }
     // The run's truth alignment (output and input instruments on their own clocks).
     const std::string aligned = "the run, once (estimator \"run\"), when its device plays and records on its own clock (docs/alignment.md)";
     auto R = [&](std::string name, std::string unit, std::string desc, const char* key) {
@@ -324,6 +398,19 @@ std::optional<double> metric_value(const std::string& name, const json& metrics,
     if (!m || m->run_level) return none(why, "unknown metric");
     if (!metrics.is_object()) return none(why, "no metrics (the estimator was not scored)");
     return m->value(json{{"metrics", metrics}, {"bounds", bounds}}, why);
+}
+
+std::optional<double> lane_metric_value(const std::string& name, const json& entry, std::string* why) {
+    const auto m = find_metric(name);
+    if (!m || m->run_level) return none(why, "unknown metric");
+    if (!entry.is_object() || !entry.value("metrics", json()).is_object()) return none(why, "no metrics (the estimator was not scored)");
+    return m->value(entry, why);
+}
+
+std::optional<std::pair<double, double>> lane_metric_interval(const std::string& name, const json& entry, double value) {
+    const auto m = find_metric(name);
+    if (!m || !m->interval || !entry.is_object()) return std::nullopt;
+    return m->interval(entry, value);
 }
 
 std::optional<double> run_metric_value(const std::string& name, const json& run, std::string* why) {

@@ -41,6 +41,10 @@ std::vector<const MetricInfo*> summary_metrics(bool run_level = false);
 // be measured; why in *why when given).
 std::optional<double> metric_value(const std::string& name, const nlohmann::json& metrics, const nlohmann::json& bounds,
                                    std::string* why = nullptr);
+// The same from a lane's whole report entry (estimators[i]: its metrics, bounds and
+// analysers' results): what limits and sweeps use, so a metric an analyser writes is found.
+std::optional<double> lane_metric_value(const std::string& name, const nlohmann::json& entry, std::string* why = nullptr);
+std::optional<std::pair<double, double>> lane_metric_interval(const std::string& name, const nlohmann::json& entry, double value);
 // A run-level metric's value from the run's facts: the report, or any object with its
 // "alignment" and "signal" (nullopt and why when not measured).
 std::optional<double> run_metric_value(const std::string& name, const nlohmann::json& run, std::string* why = nullptr);

@@ -5,6 +5,7 @@
 #include "server/engine/capture_run.hpp"
 #include "server/engine/scenario.hpp"
 #include "signal_gen/base/text.hpp"
+#include "signal_gen/fastmath.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -142,6 +143,19 @@ int run_estimate(const EstimateOptions& o) {
                 std::printf("warning: %s marked %.1f %% of the samples invalid: %s\n", o.estimator.c_str(), 100.0 * (1.0 - vf),
                             why.empty() ? "it gives no reason (its state says nothing); check its parameters (fringe estimate --list) before using the estimates"
                                         : (term_escape(why) + "; check this before using the estimates").c_str());
+            }
+            // The error without truth, against the signals' own phase (docs/self-reference.md).
+            const json sr = lane.value("analysers", json::object()).value("self_reference", json());
+            if (sr.is_object() && sr.value("measured", false) == true) {
+                std::printf("self-referenced error (no truth: against the signals' own lag-free phase; its mean is not observable): rms %.3e rad +- %.1e "
+                            "(%.4f %% of a period) over %llu windows, %.1f electrical cycles; harmonics",
+                            sr["rms_rad"].get<double>(), sr["rms_u_rad"].get<double>(), 100.0 * sr["rms_rad"].get<double>() / kTwoPi,
+                            static_cast<unsigned long long>(sr["windows"].get<std::uint64_t>()), sr["cycles"].get<double>());
+                for (const auto& h : sr["harmonics"])
+                    if (h["order"].get<int>() <= 4) std::printf(" %dx %.2e", h["order"].get<int>(), h["amplitude_rad"].get<double>());
+                std::printf(" rad\n");
+            } else if (sr.is_object()) {
+                std::printf("self-referenced error: not measured: %s\n", term_escape(sr.value("why_not", std::string("no reason given"))).c_str());
             }
         } else if (m["scored"].get<std::uint64_t>() == 0) {
             const double n = static_cast<double>(cap["samples"].get<std::uint64_t>());

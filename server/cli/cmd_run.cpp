@@ -124,7 +124,7 @@ int run_run(const RunCliOptions& o) {
     try {
         r = execute_run(std::move(plan), ro);
     } catch (const std::exception& e) {  // out of memory, say: the history must not keep it "running"
-        r = unstarted_report(sc, ro.run_id, iso_now(), "error", "ERROR", e.what(), ro.provenance);
+        r = unstarted_report(sc, ro.run_id, iso_now(), RunStatus::Error, Verdict::Error, e.what(), ro.provenance);
     }
     progress.clear();
     // The report survives first: files, then the history.

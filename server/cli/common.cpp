@@ -206,6 +206,13 @@ void print_run_summary(const json& r, const std::string& name, bool all_metrics)
         const auto& l = m["limit"];
         if (l.contains("min")) lim += ">= " + fmt(l["min"]);
         if (l.contains("max")) lim += std::string(lim.empty() ? "" : ", ") + "<= " + fmt(l["max"]);
+        if (m.value("interface", json()).is_string() && m.value("grade", json()).is_string()) {  // an interface profile's band
+            lim += "; " + str(m["interface"]) + ": " + str(m["grade"]);
+            const json mount = m["band"].value("mounting", json());
+            if (mount.is_array() && mount.size() == 2)
+                lim += " (mounting " + (mount[0].is_number() ? fmt(mount[0]) : std::string("-inf")) + ".." +
+                       (mount[1].is_number() ? fmt(mount[1]) : std::string("inf")) + ")";
+        }
         char val[32];
         std::snprintf(val, sizeof val, "%s", fmt(m["value"]).c_str());
         const std::string unit = m["value"].is_number() && !m["unit"].get<std::string>().empty() ? " " + m["unit"].get<std::string>() : "";

@@ -117,6 +117,8 @@ CapturePlan plan_capture_run(const CaptureRunOptions& o) {
     }
     for (std::size_t i = 0; i < q.size(); ++i) uri += (i ? "&" : "?") + q[i];
     sc.device = uri;
+    // Without truth the error is measured against the estimator's own self-referenced phase.
+    if (!truth) sc.scoring.self_reference = true;
 
     p.facts = {{"path", o.capture_path}, {"samples", n}, {"sample_rate_hz", fs}, {"has_truth", truth},
                {"encoder_source", o.encoder ? "profile file" : (from_capture ? "capture metadata" : "none")}};
@@ -127,7 +129,7 @@ CapturePlan plan_capture_run(const CaptureRunOptions& o) {
     return p;
 }
 
-json run_capture(const CaptureRunOptions& o) {
+RunReport run_capture(const CaptureRunOptions& o) {
     CapturePlan p = plan_capture_run(o);
     std::optional<EstimatesWriter> out;
     if (!o.estimates_path.empty()) out.emplace(o.estimates_path);
@@ -143,7 +145,7 @@ json run_capture(const CaptureRunOptions& o) {
     };
     double estimator_s = 0;
     ro.estimator_s = &estimator_s;
-    json r = execute_run(std::move(p.run), ro);
+    RunReport r = execute_run(std::move(p.run), ro);
     if (out) out->close();
     json facts = p.facts;
     facts["estimates"] = {{"samples", samples}, {"valid_samples", valid},
@@ -151,19 +153,16 @@ json run_capture(const CaptureRunOptions& o) {
     facts["timing"] = {{"estimator_s", estimator_s},
                        {"estimator_samples_per_s", estimator_s > 0 ? static_cast<double>(samples) / estimator_s : 0.0}};
     facts["not_scored"] = nullptr;
-    if (!p.has_truth && r["status"] == "done") {
+    if (!p.has_truth && r.status == RunStatus::Done) {
         // Nothing could be scored, by design: no verdict rather than the evidence checks' FAIL,
         // and no warning about scores that do not exist (ekf-auto's learning, from a motion
         // the capture does not state).
         facts["not_scored"] = "the capture has no theta_true column: estimates only; nothing was scored, so the run has no verdict";
-        r["verdict"] = nullptr;
-        r["measurements"] = json::array();
-        json kept = json::array();
-        for (const auto& w : r["warnings"])
-            if (w.value("code", "") != "scores_learning") kept.push_back(w);
-        r["warnings"] = kept;
+        r.verdict.reset();
+        r.measurements = json::array();
+        std::erase_if(r.warnings, [](const Finding& w) { return w.code == "scores_learning"; });
     }
-    r["capture"] = facts;
+    r.capture = std::move(facts);
     return r;
 }
 

@@ -7,6 +7,7 @@
 #include "drivers/abz.hpp"
 #include "drivers/capture_file.hpp"
 #include "server/engine/plan.hpp"
+#include "server/engine/report.hpp"
 #include "server/engine/scenario.hpp"
 #include "signal_gen/encoder.hpp"
 
@@ -52,6 +53,6 @@ CapturePlan plan_capture_run(const CaptureRunOptions& o);
 // plan_capture_run, then execute_run. The report's status is "error" (with "error") when the
 // run failed part way (the estimates file is complete up to there); throws what
 // plan_capture_run throws, and CaptureError when the estimates cannot be written.
-nlohmann::json run_capture(const CaptureRunOptions& o);
+RunReport run_capture(const CaptureRunOptions& o);
 
 }  // namespace fringe

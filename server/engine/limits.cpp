@@ -18,7 +18,7 @@ std::string fmt_g(double v) {
 
 }  // namespace
 
-json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus status, Verdict& verdict, const json& run) {
+json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus status, Verdict& verdict, const json& run, bool has_truth) {
     json out = json::array();
     verdict = Verdict::Pass;
     auto measure = [&](const std::string& label, const std::string& metric, std::optional<double> max, std::optional<double> min,
@@ -26,7 +26,7 @@ json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus statu
         const auto mi = find_metric(metric);
         std::string why;
         const auto v = mi && mi->run_level ? run_metric_value(metric, run, &why)
-                                           : metric_value(metric, ej.value("metrics", json()), ej.value("bounds", json()), &why);
+                                           : lane_metric_value(metric, ej, &why);
         json mj{{"estimator", label}, {"metric", metric}, {"unit", mi ? mi->unit : ""}, {"value", v ? json(*v) : json()}};
         if (implicit) mj["implicit"] = true;
         json lim = json::object();
@@ -38,13 +38,15 @@ json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus statu
         if (status != RunStatus::Done) o = Verdict::Error;
         else if (!v) {
             o = Verdict::Fail;  // what could not be measured never passes
+            if (!has_truth && mi && !mi->run_level && metric.rfind("self_ref_", 0) != 0)
+                why = "the capture has no truth (theta_true), so " + metric + " cannot be measured; the self_ref_* metrics measure the error without it";
             mj["reason"] = "not measured: " + why;
         } else if ((max && *v > *max) || (min && *v < *min)) o = Verdict::Fail;
         else if (max && *v > *max - marginal * std::fabs(*max)) o = Verdict::Marginal;
         else if (min && *v < *min + marginal * std::fabs(*min)) o = Verdict::Marginal;
         // Every error figure has a 95 % interval: a limit inside it is no confident decision.
         if (v && status == RunStatus::Done && !implicit) {
-            if (const auto iv = metric_interval(metric, ej.value("metrics", json()), *v)) {
+            if (const auto iv = lane_metric_interval(metric, ej, *v)) {
                 mj["interval_95"] = json::array({iv->first, iv->second});
                 auto inside = [&](const std::optional<double>& l) { return l && iv->first <= *l && *l <= iv->second; };
                 if ((inside(max) || inside(min)) && (o == Verdict::Pass || o == Verdict::Fail)) {
@@ -61,6 +63,12 @@ json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus statu
     for (const auto& ej : estimators) {
         const std::string label = ej.value("label", "");
         const auto& r = sc.scoring;
+        if (!has_truth) {  // the evidence the self-referenced figures rest on
+            measure(label, "self_ref_samples", std::nullopt, static_cast<double>(r.min_scored_samples), 0.0, true, ej);
+            if (r.min_scored_cycles > 0) measure(label, "self_ref_cycles", std::nullopt, r.min_scored_cycles, 0.0, true, ej);
+            measure(label, "self_ref_valid_fraction", std::nullopt, r.min_valid_fraction, 0.0, true, ej);
+            continue;
+        }
         measure(label, "scored_samples", std::nullopt, static_cast<double>(r.min_scored_samples), 0.0, true, ej);
         if (r.min_scored_cycles > 0) measure(label, "scored_cycles", std::nullopt, r.min_scored_cycles, 0.0, true, ej);
         measure(label, "valid_fraction", std::nullopt, r.min_valid_fraction, 0.0, true, ej);
@@ -80,6 +88,45 @@ json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus statu
             measure(label, l.metric, l.max, l.min, l.marginal_fraction, false, ej);
         }
     }
+    // The signals graded against the scenario's interface profile: within the mounting tolerance
+    // PASS, within the specification only MARGINAL, outside it or not measured FAIL.
+    if (sc.interface)
+        for (const auto& b : sc.interface->bands) {
+            const auto mi = find_metric(b.metric);
+            std::string why;
+            const auto v = run_metric_value(b.metric, run, &why);
+            auto pair = [](const std::optional<double>& lo, const std::optional<double>& hi) {
+                return json::array({lo ? json(*lo) : json(), hi ? json(*hi) : json()});
+            };
+            json mj{{"estimator", "run"}, {"metric", b.metric}, {"unit", mi ? mi->unit : ""}, {"value", v ? json(*v) : json()},
+                    {"interface", sc.interface->name}, {"band", {{"spec", pair(b.spec_lo, b.spec_hi)}}}};
+            if (b.has_mounting) mj["band"]["mounting"] = pair(b.mount_lo, b.mount_hi);
+            json lim = json::object();
+            if (b.spec_lo) lim["min"] = *b.spec_lo;
+            if (b.spec_hi) lim["max"] = *b.spec_hi;
+            mj["limit"] = lim;
+            auto within = [&](const std::optional<double>& lo, const std::optional<double>& hi) { return (!lo || *v >= *lo) && (!hi || *v <= *hi); };
+            Verdict o = Verdict::Pass;
+            std::string grade;
+            if (status != RunStatus::Done) o = Verdict::Error;
+            else if (!v) {
+                o = Verdict::Fail;
+                mj["reason"] = "not measured: " + why;
+                grade = "not measured";
+            } else if (!within(b.spec_lo, b.spec_hi)) {
+                o = Verdict::Fail;
+                grade = "out of specification";
+            } else if (b.has_mounting && !within(b.mount_lo, b.mount_hi)) {
+                o = Verdict::Marginal;
+                grade = "within specification, outside mounting tolerance";
+            } else {
+                grade = b.has_mounting ? "within mounting tolerance" : "within specification";
+            }
+            if (!grade.empty()) mj["grade"] = grade;
+            mj["outcome"] = to_string(o);
+            verdict = worse(verdict, o);
+            out.push_back(std::move(mj));
+        }
     if (status == RunStatus::Error) verdict = Verdict::Error;
     if (status == RunStatus::Aborted || status == RunStatus::Interrupted) verdict = Verdict::Aborted;
     return out;

@@ -21,6 +21,9 @@ namespace fringe {
 // the worst outcome (PASS when there is none).
 // run: the run's facts, {"alignment", "signal"} as in the report (null without them); run-level
 // metrics read them, measured once with estimator "run".
+// has_truth false (a capture without theta_true): the evidence checks are the self-referenced
+// ones (docs/self-reference.md: self_ref_samples, self_ref_cycles, self_ref_valid_fraction
+// against the scoring minimums), and a limit on a figure that needs truth is not measured.
 nlohmann::json evaluate_limits(const Scenario& sc, const nlohmann::json& estimators, RunStatus status, Verdict& verdict,
-                               const nlohmann::json& run = nullptr);
+                               const nlohmann::json& run = nullptr, bool has_truth = true);
 }  // namespace fringe

@@ -25,10 +25,6 @@
 
 #include "server/engine/provenance.hpp"
 
-#ifndef FRINGE_VERSION
-#define FRINGE_VERSION "dev"
-#endif
-
 namespace fringe {
 
 using nlohmann::json;
@@ -44,14 +40,18 @@ std::string iso_now() {
 
 std::string new_run_id() { return new_uuid7(); }
 
-json unstarted_report(const Scenario& sc, const std::string& id, const std::string& started_at, const std::string& status,
-                      const std::string& verdict, const std::string& error, const json& provenance) {
-    json r = json{{"schema", "fringe.report"}, {"schema_version", 3}, {"fringe_version", FRINGE_VERSION}, {"id", id},
-                {"started_at", started_at}, {"finished_at", iso_now()}, {"wall_s", 0.0}, {"scenario", sc}, {"seed", sc.seed},
-                {"device", nullptr}, {"alignment", nullptr}, {"signal", nullptr}, {"status", status}, {"verdict", verdict}, {"error", error}, {"warnings", json::array()},
-                {"samples", {{"planned", sc.samples()}, {"processed", 0}}}, {"estimators", json::array()},
-                {"measurements", json::array()}, {"traces", json::object()}};
-    if (!provenance.is_null()) r["provenance"] = provenance;
+RunReport unstarted_report(const Scenario& sc, const std::string& id, const std::string& started_at, RunStatus status, Verdict verdict,
+                           const std::string& error, const json& provenance) {
+    RunReport r;
+    r.id = id;
+    r.started_at = started_at;
+    r.finished_at = iso_now();
+    r.scenario = sc;
+    r.status = status;
+    r.verdict = verdict;
+    r.error = error;
+    r.samples_planned = sc.samples();
+    r.provenance = provenance;
     return r;
 }
 
@@ -66,13 +66,15 @@ struct Lane {
     AnalyserSet analysers;
     struct Slot {
         std::vector<double> th, om;
-        std::vector<std::uint8_t> valid;
+        std::vector<std::uint8_t> valid;      // scored: the estimator vouched and truth is known
+        std::vector<std::uint8_t> own_valid;  // as the estimator vouched (self-referenced analysis)
         std::vector<double> err;  // theta_hat - theta_true, NaN where invalid (plot traces)
         LaneBlock b;              // what the analysers see (into this slot and the frames)
     } out[2];
     double estimator_s = 0;  // time inside the estimator
+    bool self_reference = false;  // keep the estimator's own flags for the self-referenced analyser
     std::function<void(std::size_t, const double*, const double*, const double*, const std::uint8_t*)> tap;  // RunOptions::estimates
-    Lane(const EstimatorSpec* s, const LaneContext& ctx) : spec(s), analysers(ctx) {}
+    Lane(const EstimatorSpec* s, const LaneContext& ctx) : spec(s), analysers(ctx), self_reference(ctx.self_reference) {}
 
     // The estimator on one block, into a slot (the analysers take it in the next step).
     void estimate(const Frames& f, int slot) {
@@ -94,6 +96,7 @@ struct Lane {
             estimator_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
         }
         if (tap) tap(m, f.t_s.data(), th.data(), om.data(), valid.data());
+        if (self_reference) o.own_valid.assign(valid.begin(), valid.end());
         // Valid where the truth is known too; then the error (branch-free passes that vectorise).
         std::uint8_t* vd = valid.data();
         const std::uint8_t* tk = f.truth_known.data();
@@ -109,6 +112,7 @@ struct Lane {
         b.theta_hat_rad = th.data();
         b.omega_hat_rad_s = e ? om.data() : nullptr;
         b.valid = valid.data();
+        b.estimator_valid = self_reference ? o.own_valid.data() : nullptr;
         o.err.resize(m);
         const double* tt = f.theta_true_rad.data();
         const double* hat = th.data();
@@ -170,57 +174,54 @@ private:
 
 // The scored lanes' report entries: metrics with their evidence, bounds from the signal as
 // delivered, and convention findings.
-json score_lanes(const Scenario& sc, const dev::DeviceInfo& dinfo, std::vector<std::unique_ptr<Lane>>& lanes, const json& dut_readout,
-                 json& warnings) {
+std::vector<EstimatorReport> score_lanes(const Scenario& sc, const dev::DeviceInfo& dinfo, std::vector<std::unique_ptr<Lane>>& lanes,
+                                         const json& dut_readout, std::vector<Finding>& warnings) {
     json basis;
     const EncoderProfile delivered = delivered_profile(sc.encoder, dinfo.converter, &basis);
-    json out = json::array();
+    std::vector<EstimatorReport> out;
     for (auto& lane : lanes) {
         const LaneResults res = lane->analysers.finish();
-        const ErrorMetrics m = res.error.value_or(ErrorMetrics{});
-        json ej;
-        ej["label"] = lane->spec->label;
-        ej["name"] = lane->spec->name;
-        ej["params"] = lane->spec->params;
-        ej["state"] = lane->e ? lane->e->state() : json();
-        ej["metrics"] = to_json(m, sc.encoder_known ? sc.encoder.lines_per_rev : 0);  // arcsec need lines_per_rev
+        EstimatorReport e;
+        e.label = lane->spec->label;
+        e.name = lane->spec->name;
+        e.params = lane->spec->params;
+        e.state = lane->e ? lane->e->state() : json();
+        e.metrics = res.error.value_or(ErrorMetrics{});
+        const ErrorMetrics& m = e.metrics;
+        e.lines_per_rev = sc.encoder_known ? sc.encoder.lines_per_rev : 0;  // arcsec need lines_per_rev
         // The DUT's ABZ readout: what the decoder counted is part of its metrics (limits name
         // abz_illegal_transitions, abz_index_errors), and an illegal transition is an error.
         if (!lane->e && dut_readout.is_object()) {
-            ej["metrics"]["abz"] = dut_readout;
+            e.abz = dut_readout;
             const auto illegal = dut_readout.value("illegal_transitions", std::uint64_t{0});
             if (illegal > 0)
-                warnings.push_back({{"severity", "error"}, {"code", "dut_illegal_transitions"}, {"field", "estimators.dut"},
-                                    {"message", "dut: " + std::to_string(illegal) + " illegal A/B transitions (both lines changed between two samples); "
-                                                "the position was invalid from each until the next index (" +
-                                                std::to_string(dut_readout.value("invalid_samples", std::uint64_t{0})) + " samples without a position)"}});
+                warnings.push_back({true, "dut_illegal_transitions", "estimators.dut",
+                                    "dut: " + std::to_string(illegal) + " illegal A/B transitions (both lines changed between two samples); "
+                                    "the position was invalid from each until the next index (" +
+                                        std::to_string(dut_readout.value("invalid_samples", std::uint64_t{0})) + " samples without a position)"});
             const auto index_errors = dut_readout.value("index_errors", std::uint64_t{0});
             if (index_errors > 0)
-                warnings.push_back({{"severity", "error"}, {"code", "dut_index_errors"}, {"field", "estimators.dut"},
-                                    {"message", "dut: the count was off at " + std::to_string(index_errors) + " index pulses (by up to " +
-                                                std::to_string(dut_readout.value("max_index_error_counts", 0LL)) + " counts) and was reset there"}});
+                warnings.push_back({true, "dut_index_errors", "estimators.dut",
+                                    "dut: the count was off at " + std::to_string(index_errors) + " index pulses (by up to " +
+                                        std::to_string(dut_readout.value("max_index_error_counts", 0LL)) + " counts) and was reset there"});
         }
-        ej["spectrum"] = res.spectrum;
-        if (!res.extra.empty()) ej["analysers"] = res.extra;
+        e.spectrum = res.spectrum;
+        e.analysers = res.extra;
         if (m.scored > 0 && lane->e && sc.encoder_known) {  // bounds need the signal model
-            ej["bounds"] = bounds_json(delivered, *lane->e, sc.sample_rate_hz, m.scored, m.rms_rad);
-            ej["bounds"]["signal_as_delivered"] = basis;
-        } else {
-            ej["bounds"] = nullptr;
+            e.bounds = bounds_json(delivered, *lane->e, sc.sample_rate_hz, m.scored, m.rms_rad);
+            e.bounds["signal_as_delivered"] = basis;
         }
-        json diag = json::array();
-        ej["metrics"]["convention_violations"] = res.conventions.size();
+        e.convention_violations = res.conventions.size();
         for (const auto& f : res.conventions) {
-            diag.push_back({{"code", f.code}, {"message", f.message}});
-            warnings.push_back({{"severity", "warning"}, {"code", f.code}, {"field", "estimators." + lane->spec->label}, {"message", lane->spec->label + ": " + f.message}});
+            e.diagnosis.push_back({f.code, f.message});
+            warnings.push_back({false, f.code, "estimators." + e.label, e.label + ": " + f.message});
         }
-        if (ej["bounds"].is_object() && ej["bounds"].value("efficiency_not_credible", json()).is_string()) {
-            const std::string msg = ej["bounds"]["efficiency_not_credible"].get<std::string>();
-            diag.push_back({{"code", "efficiency_not_credible"}, {"message", msg}});
-            warnings.push_back({{"severity", "warning"}, {"code", "efficiency_not_credible"}, {"field", "estimators." + lane->spec->label}, {"message", lane->spec->label + ": " + msg}});
+        if (e.bounds.is_object() && e.bounds.value("efficiency_not_credible", json()).is_string()) {
+            const std::string msg = e.bounds["efficiency_not_credible"].get<std::string>();
+            e.diagnosis.push_back({"efficiency_not_credible", msg});
+            warnings.push_back({false, "efficiency_not_credible", "estimators." + e.label, e.label + ": " + msg});
         }
-        ej["diagnosis"] = diag;
-        out.push_back(std::move(ej));
+        out.push_back(std::move(e));
     }
     return out;
 }
@@ -248,21 +249,16 @@ dev::DeviceInfo combined_info(const Scenario& sc, const dev::DeviceInfo& out, co
 
 }  // namespace
 
-json execute_run(const Scenario& sc, const RunOptions& o) { return execute_run(plan_run(sc), o); }
+RunReport execute_run(const Scenario& sc, const RunOptions& o) { return execute_run(plan_run(sc), o); }
 
-json execute_run(RunPlan plan, const RunOptions& o) {
-    const Scenario& sc = plan.scenario;
-    json warnings = plan.warnings;
-    json report;
-    report["schema"] = "fringe.report";
-    report["schema_version"] = 3;
-    report["fringe_version"] = FRINGE_VERSION;
-    report["id"] = o.run_id.empty() ? new_run_id() : o.run_id;
-    report["started_at"] = iso_now();
-    report["scenario"] = sc;
-    report["seed"] = sc.seed;
-    report["device"] = nullptr;
-    if (!o.provenance.is_null()) report["provenance"] = o.provenance;
+RunReport execute_run(RunPlan plan, const RunOptions& o) {
+    RunReport report;
+    report.scenario = std::move(plan.scenario);
+    const Scenario& sc = report.scenario;
+    std::vector<Finding> warnings = std::move(plan.warnings);
+    report.id = o.run_id.empty() ? new_run_id() : o.run_id;
+    report.started_at = iso_now();
+    report.provenance = o.provenance;
     RunStatus status = RunStatus::Done;
     std::string error;
     const auto wall0 = std::chrono::steady_clock::now();
@@ -278,6 +274,7 @@ json execute_run(RunPlan plan, const RunOptions& o) {
     const std::size_t segment = ErrorSpectrum::choose_segment(
         sc.sample_rate_hz, planned_electrical_hz(sc), static_cast<std::uint64_t>(std::max(0.0, (sc.duration_s - sc.settle_s) * sc.sample_rate_hz)));
     json alignment = nullptr;
+    bool has_truth = true;
     try {
         // Separate instruments: the generator (output) and the digitizer (input); the same URI
         // twice is one device. Faults name the scenario field.
@@ -303,7 +300,10 @@ json execute_run(RunPlan plan, const RunOptions& o) {
         for (auto* d : {device.get(), input_device.get()})
             if (d) d->set_cancel(o.cancel);  // a device waiting on a failing board sees a cancel
         for (const auto& f : preflight_device(sc, dinfo)) warnings.push_back(f);
-        const LaneContext lane_ctx{sc.sample_rate_hz, sc.settle_s, sc.scoring.max_harmonic, segment};
+        // A capture without truth: nothing can be scored against truth, so each lane's error is
+        // measured self-referenced (docs/self-reference.md) and the evidence is that analysis's.
+        has_truth = !(dinfo.replay && dinfo.settings.is_object() && dinfo.settings.value("has_truth", true) == false);
+        const LaneContext lane_ctx{sc.sample_rate_hz, sc.settle_s, sc.scoring.max_harmonic, segment, sc.scoring.self_reference || !has_truth};
         for (std::size_t i = 0; i < sc.estimators.size(); ++i) {
             const auto& spec = sc.estimators[i];
             auto lane = std::make_unique<Lane>(&spec, lane_ctx);
@@ -323,14 +323,14 @@ json execute_run(RunPlan plan, const RunOptions& o) {
         auto source = sc.instruments ? make_instrument_source(sc, *device, input_device ? *input_device : *device)
                                      : make_frame_source(sc, *device, dinfo, o.block);
         if (!sc.instruments) dinfo = device->info();  // started: converter figures at the run's rate
-        report["device"] = dinfo;
+        report.device = dinfo;
         if (input_device) {
-            report["device"]["output"] = out_info;
-            report["device"]["input"] = in_info;
+            report.device_output = out_info;
+            report.device_input = in_info;
         }
-        if (report.contains("provenance") && report["provenance"]["dut"]["serial"] == "") report["provenance"]["dut"]["serial"] = dinfo.board_id;
+        if (report.provenance.is_object() && report.provenance["dut"]["serial"] == "") report.provenance["dut"]["serial"] = dinfo.board_id;
         std::optional<Recorder> recorder;
-        if (!o.record_path.empty()) recorder.emplace(o.record_path, sc, dinfo, report["id"]);
+        if (!o.record_path.empty()) recorder.emplace(o.record_path, sc, dinfo, report.id);
         // The pipeline, one step per block: the source fills block k+1, the estimators take
         // block k (each lane a task of its own), and block k-1 goes to each lane's analysers
         // (each analyser a task), the recorder and the traces, all side by side. Each task
@@ -472,27 +472,27 @@ json execute_run(RunPlan plan, const RunOptions& o) {
     }
 
     if (o.estimator_s && !lanes.empty()) *o.estimator_s = lanes[0]->estimator_s;
-    json estimators;
     try {
-        estimators = score_lanes(sc, dinfo, lanes, dut_readout, warnings);
+        report.estimators = score_lanes(sc, dinfo, lanes, dut_readout, warnings);
     } catch (const std::exception& e) {
-        estimators = json::array();
+        report.estimators.clear();
         if (status == RunStatus::Done) status = RunStatus::Error;
         if (error.empty()) error = std::string("scoring failed: ") + e.what();
     }
     Verdict verdict;
-    report["alignment"] = alignment;
-    report["signal"] = signal.to_json();
-    report["measurements"] = evaluate_limits(sc, estimators, status, verdict, json{{"alignment", alignment}, {"signal", report["signal"]}});
-    report["status"] = to_string(status);
-    report["verdict"] = to_string(verdict);
-    report["error"] = error.empty() ? json() : json(error);
-    report["warnings"] = warnings;
-    report["samples"] = {{"planned", total}, {"processed", processed}};
-    report["estimators"] = estimators;
-    report["traces"] = traces ? traces->to_json() : json::object();
-    report["finished_at"] = iso_now();
-    report["wall_s"] = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
+    report.alignment = alignment;
+    report.signal = signal.to_json();
+    report.measurements = evaluate_limits(sc, estimators_json(report.estimators), status, verdict,
+                                          json{{"alignment", report.alignment}, {"signal", report.signal}}, has_truth);
+    report.status = status;
+    report.verdict = verdict;
+    report.error = error;
+    report.warnings = std::move(warnings);
+    report.samples_planned = total;
+    report.samples_processed = processed;
+    if (traces) report.traces = traces->to_json();
+    report.finished_at = iso_now();
+    report.wall_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall0).count();
     return report;
 }
 

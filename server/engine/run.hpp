@@ -1,12 +1,13 @@
 // The run engine: generate the encoder signals, play them through a device, capture, run the
-// estimators under test, score against truth, apply limits, and build the report
-// (schema "fringe.report", version 3). Streams in blocks: memory does not grow with the run
+// estimators under test, score against truth, apply limits, and build the report (report.hpp:
+// a RunReport, schema "fringe.report" version 3 once serialised). Streams in blocks: memory does not grow with the run
 // length (traces are decimated to a fixed number of points).
 #pragma once
 
 #include "server/engine/limits.hpp"
 #include "server/engine/plan.hpp"
 #include "server/engine/preflight.hpp"
+#include "server/engine/report.hpp"
 #include "server/engine/scenario.hpp"
 
 #include <nlohmann/json.hpp>
@@ -46,14 +47,15 @@ struct RunOptions {
 // throws: device faults, sample loss, estimator failure, cancellation and any unexpected
 // exception end the run with status "error" or "aborted" and a report of what was processed
 // until then.
-nlohmann::json execute_run(RunPlan plan, const RunOptions& o = {});
+// The report converts to JSON (report.hpp to_json): `json j = execute_run(plan);`.
+RunReport execute_run(RunPlan plan, const RunOptions& o = {});
 // plan_run, then the plan: throws plan_run's ConfigError.
-nlohmann::json execute_run(const Scenario& sc, const RunOptions& o = {});
+RunReport execute_run(const Scenario& sc, const RunOptions& o = {});
 
 // The report of a run that ended before it produced a sample (cancelled while queued, or the
-// engine could not start): the same keys as execute_run's, so every rendering works.
-nlohmann::json unstarted_report(const Scenario& sc, const std::string& id, const std::string& started_at, const std::string& status,
-                                const std::string& verdict, const std::string& error, const nlohmann::json& provenance = nullptr);
+// engine could not start): the same struct as execute_run's, so every rendering works.
+RunReport unstarted_report(const Scenario& sc, const std::string& id, const std::string& started_at, RunStatus status, Verdict verdict,
+                           const std::string& error, const nlohmann::json& provenance = nullptr);
 
 // Exit code for a report: 0 PASS/MARGINAL, 1 FAIL, 2 ERROR/ABORTED.
 int exit_code(const nlohmann::json& report);

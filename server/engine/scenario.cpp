@@ -101,6 +101,8 @@ const KeyTable& scenario_keys() {
         key_number("scoring.min_scored_cycles", "", d.scoring.min_scored_cycles, 0.0, 1e12, "evidence: electrical cycles of truth under the scored samples", false),
         key_number("scoring.min_valid_fraction", "", d.scoring.min_valid_fraction, 0.0, 1.0, "evidence: valid share of the samples after the settle time", false),
         key_integer("scoring.max_slipped_samples", "", d.scoring.max_slipped_samples, 0, 9007199254740992.0, "evidence: scored samples off by more than pi at most", false),
+        key_boolean("scoring.self_reference", d.scoring.self_reference,
+                    "also measure each estimator's error without truth, against a reference built from its own output (on for a capture without truth)", false),
     });
     return t;
 }
@@ -130,6 +132,17 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
     } catch (const ConfigError& e) {
         if (file.empty()) throw;
         throw ConfigError(e.field().empty() ? "encoder" : e.field(), std::string(e.what()) + " (in " + file + ")");
+    }
+    if (r.has("interface")) {
+        const json& itf = r.raw("interface");
+        if (!itf.is_string() && !itf.is_object()) throw ConfigError("interface", "expected an interface profile object or a file name");
+        std::string ifile;
+        try {
+            s.interface = interface_from_json(resolve_json_ref(itf, base_dir, &ifile), "interface");
+        } catch (const ConfigError& e) {
+            if (ifile.empty()) throw;
+            throw ConfigError(e.field().empty() ? "interface" : e.field(), std::string(e.what()) + " (in " + ifile + ")");
+        }
     }
     s.sample_rate_hz = k.number(r, "sample_rate_hz");
     s.duration_s = k.number(r, "duration_s");
@@ -161,6 +174,7 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
         s.scoring.min_scored_cycles = k.number(sr, "scoring.min_scored_cycles");
         s.scoring.min_valid_fraction = k.number(sr, "scoring.min_valid_fraction");
         s.scoring.max_slipped_samples = static_cast<std::uint64_t>(k.integer(sr, "scoring.max_slipped_samples"));
+        s.scoring.self_reference = k.boolean(sr, "scoring.self_reference");
         sr.finish();
     }
     if (r.has("estimators")) {
@@ -225,6 +239,7 @@ void to_json(json& j, const Scenario& s) {
              {"sample_rate_hz", s.sample_rate_hz}, {"duration_s", s.duration_s},
              {"t0_s", s.t0_s}, {"seed", s.seed}};
     if (!s.description.empty()) j["description"] = s.description;
+    if (s.interface) j["interface"] = *s.interface;
     if (s.instruments) {
         j["device"] = {{"output", s.instruments->output}, {"input", s.instruments->input}};
         if (!s.instruments->dut.empty()) j["device"]["dut"] = s.instruments->dut;
@@ -236,7 +251,7 @@ void to_json(json& j, const Scenario& s) {
     if (!s.dut_part.empty()) j["dut_part"] = s.dut_part;
     j["scoring"] = {{"max_harmonic", s.scoring.max_harmonic}, {"min_scored_samples", s.scoring.min_scored_samples},
                     {"min_scored_cycles", s.scoring.min_scored_cycles}, {"min_valid_fraction", s.scoring.min_valid_fraction},
-                    {"max_slipped_samples", s.scoring.max_slipped_samples}};
+                    {"max_slipped_samples", s.scoring.max_slipped_samples}, {"self_reference", s.scoring.self_reference}};
     auto est = json::array();
     for (const auto& e : s.estimators) {
         json x{{"name", e.name}, {"label", e.label}, {"params", e.params}};

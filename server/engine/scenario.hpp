@@ -3,6 +3,7 @@
 // and out-of-range values are errors naming the key.
 #pragma once
 
+#include "server/engine/interface_profile.hpp"
 #include "signal_gen/encoder.hpp"
 #include "signal_gen/motion.hpp"
 
@@ -39,6 +40,7 @@ struct ScoringRules {
     double min_scored_cycles = 3.0;         // electrical cycles of truth under the scored samples
     double min_valid_fraction = 0.95;       // valid share of the samples after the settle time
     std::uint64_t max_slipped_samples = 0;  // scored samples off by more than pi (cycle slips)
+    bool self_reference = false;            // also measure each lane's error without truth (docs/self-reference.md)
 };
 
 struct Scenario {
@@ -61,6 +63,9 @@ struct Scenario {
         std::string output, input, dut;
     };
     std::optional<Instruments> instruments;
+    // The interface profile the signals' quality is graded against (interface_profile.hpp);
+    // none: not graded.
+    std::optional<InterfaceProfile> interface;
     std::vector<EstimatorSpec> estimators;
     std::vector<Limit> limits;
     double settle_s = 0.1;

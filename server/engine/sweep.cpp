@@ -147,8 +147,8 @@ SweepResult sweep_result(const Sweep& s, const SweepRow& row, const json& rep) {
         }
         for (const auto& e : rep.value("estimators", json::array()))
             if (e["label"] == c.estimator) {
-                v = metric_value(c.metric, e["metrics"], e["bounds"]);
-                if (v) iv = metric_interval(c.metric, e["metrics"], *v);
+                v = lane_metric_value(c.metric, e);
+                if (v) iv = lane_metric_interval(c.metric, e, *v);
             }
         res.values.push_back(v);
         res.intervals.push_back(iv);

@@ -114,7 +114,7 @@ RunManager::CancelResult RunManager::cancel(const std::string& id) {
         job->snap.error = "cancelled while queued";
         ++job->snap.seq;
         job->snap.updated_unix_ms = unix_ms();
-        const json report = unstarted_report(job->sc, id, job->snap.created_at, "aborted", "ABORTED", "cancelled while queued", job->provenance);
+        const json report = unstarted_report(job->sc, id, job->snap.created_at, RunStatus::Aborted, Verdict::Aborted, "cancelled while queued", job->provenance);
         finished_order_.push_back(id);
         l.unlock();
         {
@@ -203,9 +203,9 @@ void RunManager::worker() {
             job->plan.reset();
             report = execute_run(std::move(plan), ro);
         } catch (const std::exception& e) {  // validation passed at submit; anything here is a bug or the environment
-            report = unstarted_report(job->sc, job->snap.id, job->snap.created_at, "error", "ERROR", e.what(), job->provenance);
+            report = unstarted_report(job->sc, job->snap.id, job->snap.created_at, RunStatus::Error, Verdict::Error, e.what(), job->provenance);
         } catch (...) {  // a worker never dies with a run
-            report = unstarted_report(job->sc, job->snap.id, job->snap.created_at, "error", "ERROR", "the run failed with an unknown exception", job->provenance);
+            report = unstarted_report(job->sc, job->snap.id, job->snap.created_at, RunStatus::Error, Verdict::Error, "the run failed with an unknown exception", job->provenance);
         }
         bool interrupted;
         {
@@ -220,7 +220,7 @@ void RunManager::worker() {
             const std::size_t bytes = report.dump(-1, ' ', false, json::error_handler_t::replace).size();
             if (bytes > max_report_bytes) {
                 const auto processed = report["samples"].value("processed", std::uint64_t{0});
-                report = unstarted_report(job->sc, job->snap.id, job->snap.created_at, "error", "ERROR",
+                report = unstarted_report(job->sc, job->snap.id, job->snap.created_at, RunStatus::Error, Verdict::Error,
                                           "the report is " + std::to_string(bytes) + " bytes; this service stores at most " +
                                               std::to_string(max_report_bytes) + " (--max-report-mb)", job->provenance);
                 report["samples"]["processed"] = processed;

@@ -118,6 +118,7 @@ json Service::sandbox_scenario(json j) const {
     const fs::path root = fs::path(cfg_.fixtures_dir).lexically_normal();
     const fs::path base = root / "scenarios";
     if (j.contains("encoder")) check_ref(j["encoder"], base, root, "scenario.encoder");
+    if (j.contains("interface")) check_ref(j["interface"], base, root, "scenario.interface");
     if (j.contains("motion") && j["motion"].is_object() && j["motion"].contains("file"))
         check_ref(j["motion"]["file"], base, root, "scenario.motion.file");
     if (j.contains("estimators") && j["estimators"].is_array())

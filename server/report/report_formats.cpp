@@ -767,7 +767,11 @@ std::string report_html(const json& r) {
           << (m["value"].is_number() ? num(m["value"]) : std::string("not measured"))
           << (interval(m.value("interval_95", json())).empty() ? std::string() : " <span class=\"iv\">(95 % " + interval(m["interval_95"]) + ")</span>")
           << "</td><td>" << xml_escape(m["unit"].get<std::string>()) << "</td><td>" << lim
-          << (m.value("implicit", false) ? " (evidence)" : "") << "</td><td class=\""
+          << (m.value("implicit", false) ? " (evidence)" : "")
+          << (m.value("interface", json()).is_string() && m.value("grade", json()).is_string()
+                  ? " (" + xml_escape(m["interface"].get<std::string>()) + ": " + xml_escape(m["grade"].get<std::string>()) + ")"
+                  : std::string())
+          << "</td><td class=\""
           << xml_escape(m["outcome"].get<std::string>()) << "\">" << xml_escape(m["outcome"].get<std::string>())
           << (m.contains("reason") ? ": " + xml_escape(m["reason"].get<std::string>()) : std::string()) << "</td></tr>\n";
     }

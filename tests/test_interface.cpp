@@ -1,0 +1,139 @@
+// Interface profiles (server/engine/interface_profile.hpp, docs/signal-quality.md): parsing and
+// its refusals, the fixtures, the bands' edges, and runs graded against 1 Vpp.
+#include "helpers.hpp"
+
+#include "server/engine/interface_profile.hpp"
+#include "server/engine/limits.hpp"
+#include "server/engine/run.hpp"
+#include "server/engine/scenario.hpp"
+#include "signal_gen/base/config.hpp"
+
+#include <catch2/catch.hpp>
+#include <nlohmann/json.hpp>
+
+using namespace fringe;
+using nlohmann::json;
+
+namespace {
+const std::string kScenarios = FRINGE_SOURCE_DIR "/fixtures/scenarios";
+
+json band_profile(json bands) { return json{{"name", "test"}, {"bands", std::move(bands)}}; }
+
+std::string refusal(const json& j) {
+    try {
+        interface_from_json(j, "interface");
+    } catch (const ConfigError& e) {
+        return e.field() + ": " + e.what();
+    }
+    return "";
+}
+
+// One measurement of the profile's band for `metric` on a run whose signal figures are `signal`.
+json graded(const json& bands, const json& signal) {
+    Scenario sc;
+    sc.interface = interface_from_json(band_profile(bands), "interface");
+    Verdict v;
+    const json out = evaluate_limits(sc, json::array(), RunStatus::Done, v, json{{"alignment", nullptr}, {"signal", signal}});
+    REQUIRE(out.size() == 1);
+    return out[0];
+}
+}  // namespace
+
+TEST_CASE("interface: a profile's refusals name the field", "[interface][config]") {
+    CHECK_THAT(refusal(json::array()), Catch::Contains("expected an interface profile object"));
+    CHECK_THAT(refusal(band_profile(json::object())), Catch::Contains("interface.bands"));
+    CHECK_THAT(refusal(band_profile({{"rms_rad", {{"spec", {0, 1}}}}})), Catch::Contains("not a signal-quality metric"));
+    CHECK_THAT(refusal(band_profile({{"signal_ab_ratio", {{"spec", {1.25, 0.8}}}}})), Catch::Contains("interface.bands.signal_ab_ratio.spec: lo is above hi"));
+    CHECK_THAT(refusal(band_profile({{"signal_ab_ratio", {{"spec", {nullptr, nullptr}}}}})), Catch::Contains("at least one side"));
+    CHECK_THAT(refusal(band_profile({{"signal_ab_ratio", {{"spec", {0.8}}}}})), Catch::Contains("expected [lo, hi]"));
+    CHECK_THAT(refusal(band_profile({{"signal_ab_ratio", {{"spec", {0.8, "x"}}}}})), Catch::Contains("finite number or null"));
+    CHECK_THAT(refusal(band_profile({{"signal_ab_ratio", {{"spec", {0.8, 1.25}}, {"mounting", {0.7, 1.1}}}}})),
+               Catch::Contains("mounting tolerance must lie inside"));
+    CHECK_THAT(refusal(band_profile({{"signal_sym_a", {{"spec", {nullptr, 0.065}}, {"mounting", {nullptr, 0.1}}}}})),
+               Catch::Contains("mounting tolerance must lie inside"));
+    CHECK_THAT(refusal(band_profile({{"signal_ab_ratio", {{"spec", {0.8, 1.25}}, {"extra", 1}}}})), Catch::Contains("extra"));
+    json unknown = band_profile({{"signal_ab_ratio", {{"spec", {0.8, 1.25}}}}});
+    unknown["colour"] = "green";
+    CHECK_THAT(refusal(unknown), Catch::Contains("colour"));
+    json unnamed = band_profile({{"signal_ab_ratio", {{"spec", {0.8, 1.25}}}}});
+    unnamed["name"] = "";
+    CHECK_THAT(refusal(unnamed), Catch::Contains("name"));
+}
+
+TEST_CASE("interface: the fixtures parse, a scenario names one by path and carries it inline", "[interface][config]") {
+    for (const char* f : {"1vpp.json", "11uapp-100k.json"}) {
+        INFO(f);
+        const auto p = interface_from_json(load_json_file(std::string(FRINGE_SOURCE_DIR "/fixtures/interfaces/") + f), "interface");
+        CHECK(p.bands.size() == 6);
+        CHECK_FALSE(p.source.empty());
+    }
+    json j = load_json_file(kScenarios + "/fig10c-loopback.json");
+    j["interface"] = "../interfaces/1vpp.json";
+    const Scenario sc = scenario_from_json(j, kScenarios);
+    REQUIRE(sc.interface);
+    CHECK(sc.interface->name == "1 Vpp");
+    const json inline_j = sc;  // as run: the profile inline
+    CHECK(inline_j["interface"]["bands"]["signal_ab_ratio"]["spec"] == json::array({0.8, 1.25}));
+    const Scenario again = scenario_from_json(inline_j, kScenarios);
+    REQUIRE(again.interface);
+    CHECK(json(*again.interface) == json(*sc.interface));
+    j["interface"] = "../interfaces/none.json";
+    CHECK_THROWS_AS(scenario_from_json(j, kScenarios), ConfigError);
+    j["interface"] = 3;
+    CHECK_THROWS_AS(scenario_from_json(j, kScenarios), ConfigError);
+}
+
+TEST_CASE("interface: the bands' edges: mounting PASS, specification MARGINAL, outside or not measured FAIL", "[interface][limits]") {
+    const json bands{{"signal_ab_ratio", {{"spec", {0.8, 1.25}}, {"mounting", {0.9, 1.1}}}}};
+    auto at = [&](double ratio) { return graded(bands, json{{"periods", 10}, {"ab_ratio", ratio}}); };
+    CHECK(at(1.0)["outcome"] == "PASS");
+    CHECK(at(1.1)["outcome"] == "PASS");  // the edges belong to the band
+    CHECK(at(0.9)["outcome"] == "PASS");
+    CHECK(at(1.1000001)["outcome"] == "MARGINAL");
+    CHECK(at(1.25)["outcome"] == "MARGINAL");
+    CHECK(at(0.8)["outcome"] == "MARGINAL");
+    CHECK(at(1.2500001)["outcome"] == "FAIL");
+    CHECK(at(0.7999999)["outcome"] == "FAIL");
+    CHECK(at(1.0)["grade"] == "within mounting tolerance");
+    CHECK(at(1.2)["grade"] == "within specification, outside mounting tolerance");
+    CHECK(at(2.0)["grade"] == "out of specification");
+    CHECK(at(1.0)["interface"] == "test");
+    CHECK(at(1.0)["band"]["mounting"] == json::array({0.9, 1.1}));
+    // Not measured (no whole period): FAIL with the reason, never a 0 that passes.
+    const json none = graded(bands, json{{"periods", 0}, {"note", "no whole electrical period"}});
+    CHECK(none["outcome"] == "FAIL");
+    CHECK(none["value"].is_null());
+    CHECK_THAT(none["reason"].get<std::string>(), Catch::Contains("no whole electrical period"));
+    // One-sided: SYM at most 0.065.
+    const json sym{{"signal_sym_a", {{"spec", {nullptr, 0.065}}}}};
+    CHECK(graded(sym, json{{"periods", 3}, {"a", {{"sym", 0.0}}}})["outcome"] == "PASS");
+    CHECK(graded(sym, json{{"periods", 3}, {"a", {{"sym", 0.07}}}})["outcome"] == "FAIL");
+}
+
+TEST_CASE("interface: runs graded against 1 Vpp: nominal PASS, 2 Vpp FAIL, an A/B ratio outside mounting MARGINAL", "[interface][run]") {
+    auto run = [](double vmax_v, double gain_mismatch) {
+        const json j{{"name", "graded"},
+                     {"encoder", {{"name", "e"}, {"model", "ideal"}, {"lines_per_rev", 1024}, {"vmax_v", vmax_v}, {"noise", {{"sigma_add_v", 2e-4}}},
+                                  {"lissajous", {{"gain_mismatch", gain_mismatch}}}}},
+                     {"motion", {{"kind", "constant"}, {"electrical_freq_hz", 200.0}}},
+                     {"sample_rate_hz", 50000}, {"duration_s", 0.3}, {"settle_s", 0.05}, {"seed", 2},
+                     {"device", "loopback:?dac_bits=16&adc_bits=16"}, {"interface", "../interfaces/1vpp.json"},
+                     {"estimators", json::array({json{{"name", "atan2"}}})}};
+        return json(execute_run(scenario_from_json(j, kScenarios)));
+    };
+    auto outcome = [](const json& r, const std::string& metric) {
+        for (const auto& m : r["measurements"])
+            if (m["metric"] == metric && m.contains("interface")) return m["outcome"].get<std::string>();
+        return std::string("absent");
+    };
+    const json nominal = run(0.5, 0.0);
+    CHECK(nominal["verdict"] == "PASS");
+    for (const char* m : {"signal_vpp_a_v", "signal_vpp_b_v", "signal_ab_ratio", "signal_phase_deg", "signal_tv_a_deg", "signal_tv_b_deg"})
+        CHECK(outcome(nominal, m) == "PASS");
+    const json big = run(1.0, 0.0);
+    CHECK(big["verdict"] == "FAIL");
+    CHECK(outcome(big, "signal_vpp_a_v") == "FAIL");
+    const json skewed = run(0.5, 0.15);  // A/B = 1.075 / 0.925 = 1.16
+    CHECK(outcome(skewed, "signal_ab_ratio") == "MARGINAL");
+    CHECK(skewed["verdict"] == "MARGINAL");
+}

@@ -1,0 +1,287 @@
+// Interpolation error without truth (server/analysis/self_reference.hpp, docs/self-reference.md):
+// closed forms on synthetic signals, then the self-referenced figures of atan2, pll2 and
+// ekf-ideal against the truth-scored ones on runs of several kinds, and a capture without truth.
+#include "helpers.hpp"
+
+#include "drivers/capture_file.hpp"
+#include "server/analysis/self_reference.hpp"
+#include "server/engine/capture_run.hpp"
+#include "server/engine/run.hpp"
+#include "server/engine/scenario.hpp"
+#include "signal_gen/fastmath.hpp"
+#include "signal_gen/generator.hpp"
+
+#include <catch2/catch.hpp>
+#include <nlohmann/json.hpp>
+
+#include <cmath>
+#include <random>
+#include <set>
+#include <vector>
+
+using namespace fringe;
+using nlohmann::json;
+using test::TempDir;
+
+namespace {
+
+// Signals of a smooth motion theta(t) = w t + a t^2 / 2 (rad) with white noise sigma_v on each
+// channel, amplitude 1 V, and an "estimator" that is the signals' own unwrapped phase plus a
+// chosen periodic error: its error against the true phase is that error plus the noise's
+// phase, sigma_v / 1 V rad rms (closed form).
+struct Synthetic {
+    std::vector<double> t, s, c, theta_hat, theta;
+    std::vector<std::uint8_t> valid;
+};
+
+Synthetic synthetic(std::size_t n, double fs, double w_rad_s, double a_rad_s2, double sigma_v, double a1, double b3, double lag_s = 0,
+                    unsigned seed = 5) {
+    Synthetic x;
+    std::mt19937_64 rng(seed);
+    std::normal_distribution<double> noise(0.0, sigma_v);
+    double unwrapped = 0, last = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+        const double t = static_cast<double>(i) / fs;
+        const double th = w_rad_s * t + 0.5 * a_rad_s2 * t * t;
+        const double sv = std::sin(th) + noise(rng), cv = std::cos(th) + noise(rng);
+        const double wr = std::atan2(sv, cv);
+        if (i == 0) unwrapped = wr;
+        else {
+            double d = wr - last;
+            d -= kTwoPi * std::round(d / kTwoPi);
+            unwrapped += d;
+        }
+        last = wr;
+        // A tracker late by lag_s reads the phase of lag_s ago (its error -omega(t) lag_s).
+        const double late = lag_s > 0 ? -(w_rad_s + a_rad_s2 * t) * lag_s : 0.0;
+        x.t.push_back(t);
+        x.s.push_back(sv);
+        x.c.push_back(cv);
+        x.theta.push_back(th);
+        x.theta_hat.push_back(unwrapped + late + a1 * std::cos(th) + b3 * std::sin(3 * th));
+        x.valid.push_back(1);
+    }
+    return x;
+}
+
+SelfReferenceResult analyse(const Synthetic& x, std::size_t block = 4096, SelfReferenceOptions o = {}) {
+    SelfReference sr(o);
+    for (std::size_t i = 0; i < x.t.size(); i += block) {
+        const std::size_t m = std::min(block, x.t.size() - i);
+        sr.add(m, &x.t[i], &x.s[i], &x.c[i], &x.theta_hat[i], &x.valid[i]);
+    }
+    return sr.finish();
+}
+
+}  // namespace
+
+TEST_CASE("self-reference: harmonics and rms of a known periodic error plus the noise's phase", "[selfref]") {
+    const double sigma_v = 1e-3, a1 = 2e-3, b3 = 1e-3;
+    const auto x = synthetic(200000, 100000, kTwoPi * 150, kTwoPi * 40, sigma_v, a1, b3);
+    const auto r = analyse(x);
+    REQUIRE(r.measured);
+    CHECK(r.windows >= 15);
+    REQUIRE(r.harmonics.size() == 8);
+    // a1 cos(theta): amplitude a1, phase 0; b3 sin(3 theta): amplitude b3, phase pi/2.
+    CHECK(std::fabs(r.harmonics[0].amplitude_rad - a1) < 4 * r.harmonics[0].u_rad + 1e-6);
+    CHECK(std::fabs(r.harmonics[0].phase_rad) < 0.02);
+    CHECK(std::fabs(r.harmonics[2].amplitude_rad - b3) < 4 * r.harmonics[2].u_rad + 1e-6);
+    CHECK(std::fabs(r.harmonics[2].phase_rad - kPi / 2) < 0.02);
+    for (int k : {1, 3, 4, 5, 6, 7}) CHECK(r.harmonics[static_cast<std::size_t>(k)].amplitude_rad < 4 * r.harmonics[static_cast<std::size_t>(k)].u_rad + 2e-6);
+    // rms about the mean: sqrt(a1^2/2 + b3^2/2 + (sigma_v / 1 V)^2).
+    const double expect = std::sqrt(a1 * a1 / 2 + b3 * b3 / 2 + sigma_v * sigma_v);
+    INFO("rms " << r.rms_rad << " +- " << r.rms_u_rad << " expected " << expect);
+    CHECK(std::fabs(r.rms_rad - expect) < std::max(4 * r.rms_u_rad, 0.02 * expect));
+    CHECK(std::fabs(r.residual_rms_rad - sigma_v) < 0.03 * sigma_v);
+    CHECK(r.rms_u_rad > 0);
+    CHECK(r.rms_u_rad < 0.05 * r.rms_rad);
+    // The reference's own noise: about sigma sqrt(6 / n_window), far below the noise.
+    CHECK(r.reference_noise_rad > 0);
+    CHECK(r.reference_noise_rad < 0.1 * sigma_v);
+    CHECK(std::fabs(r.reference_residual_rms_rad - sigma_v) < 0.05 * sigma_v);
+}
+
+TEST_CASE("self-reference: the mean is not observable, the block size does not matter", "[selfref]") {
+    auto x = synthetic(120000, 100000, kTwoPi * 200, 0, 5e-4, 1e-3, 0);
+    const auto r = analyse(x, 4096);
+    for (auto& v : x.theta_hat) v += 0.3;  // a constant offset: invisible
+    const auto shifted = analyse(x, 777);
+    REQUIRE(r.measured);
+    REQUIRE(shifted.measured);
+    CHECK(shifted.rms_rad == Approx(r.rms_rad).epsilon(1e-9));
+    CHECK(shifted.harmonics[0].amplitude_rad == Approx(r.harmonics[0].amplitude_rad).epsilon(1e-9));
+    CHECK(shifted.mean_vs_reference_rad - r.mean_vs_reference_rad == Approx(0.3).margin(1e-9));
+}
+
+TEST_CASE("self-reference: a tracker's lag that changes with the speed is seen (the reference has none)", "[selfref]") {
+    // Error -omega(t) d with omega = w + a t: over the windows used its spread about the mean is
+    // a d T / sqrt(12) for a uniform sweep of t over T (closed form for a ramp).
+    const double fs = 100000, w = kTwoPi * 100, acc = kTwoPi * 400, d = 2e-4;
+    const std::size_t n = 100000;
+    const auto x = synthetic(n, fs, w, acc, 1e-5, 0, 0, d);
+    const auto r = analyse(x);
+    REQUIRE(r.measured);
+    const double span_s = static_cast<double>(r.samples) / fs;
+    const double expect = acc * d * span_s / std::sqrt(12.0);
+    INFO("rms " << r.rms_rad << " expected about " << expect << " over " << span_s << " s");
+    CHECK(r.rms_rad == Approx(expect).epsilon(0.05));
+}
+
+TEST_CASE("self-reference: no motion, gaps, NaN and a short run are not measured, with the reason", "[selfref]") {
+    SECTION("standing still") {
+        auto x = synthetic(50000, 100000, 0, 0, 1e-3, 0, 0);
+        const auto r = analyse(x);
+        CHECK_FALSE(r.measured);
+        CHECK_THAT(r.why_not, Catch::Contains("no window"));
+        CHECK(r.windows == 0);
+        CHECK_FALSE(r.windows_skipped.empty());
+        const json j = to_json(r);
+        CHECK(j["measured"] == false);
+        CHECK_FALSE(j.contains("rms_rad"));  // never a 0 that could pass a limit
+    }
+    SECTION("every other sample invalid: no window spans a gap") {
+        auto x = synthetic(50000, 100000, kTwoPi * 200, 0, 1e-3, 0, 0);
+        for (std::size_t i = 0; i < x.valid.size(); i += 2) x.valid[i] = 0;
+        const auto r = analyse(x);
+        CHECK_FALSE(r.measured);
+    }
+    SECTION("NaN outputs end windows; the rest is measured") {
+        auto x = synthetic(200000, 100000, kTwoPi * 200, 0, 1e-3, 1e-3, 0);
+        for (std::size_t i = 50000; i < 50100; ++i) x.theta_hat[i] = std::nan("");
+        x.s[120000] = std::numeric_limits<double>::infinity();
+        const auto r = analyse(x);
+        REQUIRE(r.measured);
+        CHECK(r.samples < 200000 - 100);
+        CHECK(r.harmonics[0].amplitude_rad == Approx(1e-3).margin(4 * r.harmonics[0].u_rad + 1e-6));
+    }
+}
+
+namespace {
+json run_kind(const std::string& kind) {
+    json enc = std::string(FRINGE_SOURCE_DIR) + "/fixtures/encoders/ideal.json";
+    json motion = {{"kind", "constant"}, {"electrical_freq_hz", 180.0}};
+    std::string device = "loopback:?dac_bits=16&adc_bits=16";
+    if (kind == "paper") enc = std::string(FRINGE_SOURCE_DIR) + "/fixtures/encoders/paper-d2-analog.json";
+    if (kind == "lissajous")
+        enc = {{"name", "lissajous"}, {"model", "ideal"}, {"lines_per_rev", 1024}, {"vmax_v", 1.0}, {"noise", {{"sigma_add_v", 3e-4}}},
+               {"lissajous", {{"gain_mismatch", 0.03}, {"offset_sin_v", -0.01}, {"offset_cos_v", 0.007}, {"quadrature_error_rad", 0.015}}}};
+    if (kind == "adc10") device = "loopback:?dac_bits=16&adc_bits=10";
+    if (kind == "accelerating") motion = {{"kind", "ramp"}, {"velocity_rad_s", 0.4}, {"accel_rad_s2", 4.0}};
+    if (kind == "reversals") motion = {{"kind", "sine"}, {"amplitude_rad", 0.5}, {"freq_hz", 0.3}};
+    const json j{{"name", "selfref-" + kind}, {"encoder", enc}, {"motion", motion}, {"sample_rate_hz", 100000}, {"duration_s", 1.0},
+                 {"settle_s", 0.05}, {"seed", 23}, {"device", device}, {"scoring", {{"self_reference", true}}},
+                 {"estimators", json::array({json{{"name", "atan2"}}, json{{"name", "pll2"}}, json{{"name", "ekf-ideal"}}})}};
+    return execute_run(scenario_from_json(j, FRINGE_SOURCE_DIR "/fixtures/scenarios"));
+}
+}  // namespace
+
+TEST_CASE("self-reference: agrees with the truth-scored error on generated runs of several kinds", "[selfref][run]") {
+    for (const std::string kind : {"paper", "lissajous", "adc10", "accelerating", "reversals"}) {
+        const json r = run_kind(kind);
+        REQUIRE(r["status"] == "done");
+        for (const auto& e : r["estimators"]) {
+            INFO(kind << " " << e["label"]);
+            const json& sr = e["analysers"]["self_reference"];
+            REQUIRE(sr["measured"] == true);
+            CHECK(sr["self_referenced"] == true);
+            const double truth = e["metrics"]["std"]["rad"].get<double>();
+            const double self = sr["rms_rad"].get<double>(), u = sr["rms_u_rad"].get<double>();
+            INFO("truth std " << truth << " self-referenced " << self << " +- " << u);
+            CHECK(std::fabs(self - truth) <= std::max(0.1 * truth, 2 * u));
+            for (int k = 1; k <= 4; ++k) {
+                double truth_k = 0;
+                for (const auto& h : e["metrics"]["harmonics"])
+                    if (h["order"] == k) truth_k = h["amplitude"]["rad"].get<double>();
+                const json& hk = sr["harmonics"][static_cast<std::size_t>(k - 1)];
+                INFO(k << "x truth " << truth_k << " self-referenced " << hk["amplitude_rad"] << " +- " << hk["u_rad"]);
+                CHECK(std::fabs(hk["amplitude_rad"].get<double>() - truth_k) <= std::max(0.1 * truth_k, 3 * hk["u_rad"].get<double>()));
+            }
+        }
+    }
+}
+
+TEST_CASE("self-reference: a capture without truth is measured, and agrees with the same capture with truth", "[selfref][capture]") {
+    TempDir d;
+    const Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
+    const auto with = d.path / "with.fcap", without = d.path / "without.fcap";
+    {
+        Generator g(gen.encoder, gen.motion, gen.sample_rate_hz, gen.seed);
+        Block b;
+        b.resize(200000, false);
+        g.generate(0, b);
+        CaptureWriter w1(with.string(), CaptureColumns{true, true, false},
+                         json{{"sample_rate_hz", gen.sample_rate_hz}, {"t0_s", 0.0}, {"encoder", gen.encoder}});
+        w1.write(b);
+        w1.close();
+        CaptureWriter w2(without.string(), CaptureColumns{false, false, false}, json{{"sample_rate_hz", gen.sample_rate_hz}});
+        w2.write(b);
+        w2.close();
+    }
+    CaptureRunOptions o;
+    o.estimator = "atan2";
+    o.capture_path = without.string();
+    const json bare = run_capture(o);
+    o.capture_path = with.string();
+    o.encoder = gen.encoder;
+    const json scored = run_capture(o);
+    REQUIRE(bare["status"] == "done");
+    CHECK(bare["verdict"].is_null());
+    CHECK(bare["scenario"]["scoring"]["self_reference"] == true);
+    const json& sr = bare["estimators"][0]["analysers"]["self_reference"];
+    REQUIRE(sr["measured"] == true);
+    // With truth the run does not measure it unless asked; the truth-scored figure is the judge.
+    CHECK_FALSE(scored["estimators"][0].contains("analysers"));
+    const double truth = scored["estimators"][0]["metrics"]["std"]["rad"].get<double>();
+    INFO("truth std " << truth << " self-referenced " << sr["rms_rad"]);
+    CHECK(sr["rms_rad"].get<double>() == Approx(truth).epsilon(0.1));
+}
+
+TEST_CASE("self-reference: a run on a capture without truth is judged on the self-referenced figures, not FAILed for lack of truth", "[selfref][capture][run]") {
+    TempDir d;
+    const Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
+    const auto cap = d.path / "bare.fcap";
+    {
+        Generator g(gen.encoder, gen.motion, gen.sample_rate_hz, gen.seed);
+        Block b;
+        b.resize(150000, false);
+        g.generate(0, b);
+        CaptureWriter w(cap.string(), CaptureColumns{false, false, false}, json{{"sample_rate_hz", gen.sample_rate_hz}});
+        w.write(b);
+        w.close();
+    }
+    auto scenario = [&](json limits) {
+        json j{{"name", "bare-capture"}, {"encoder", gen.encoder}, {"motion", {{"kind", "constant"}, {"electrical_freq_hz", 100.0}}},
+               {"sample_rate_hz", gen.sample_rate_hz}, {"duration_s", 150000 / gen.sample_rate_hz}, {"settle_s", 0.05}, {"seed", 1},
+               {"device", "capture:" + cap.string()}, {"estimators", json::array({json{{"name", "atan2"}}})}, {"limits", std::move(limits)}};
+        return scenario_from_json(j, FRINGE_SOURCE_DIR "/fixtures/scenarios");
+    };
+    SECTION("a limit on the self-referenced rms: PASS on the evidence of the self-referenced windows") {
+        const json r = execute_run(scenario(json::array({json{{"estimator", "atan2"}, {"metric", "self_ref_rms_rad"}, {"max", 0.5}}})));
+        REQUIRE(r["status"] == "done");
+        CHECK(r["verdict"] == "PASS");
+        std::set<std::string> metrics;
+        for (const auto& m : r["measurements"]) {
+            metrics.insert(m["metric"].get<std::string>());
+            CHECK(m["outcome"] == "PASS");
+        }
+        CHECK(metrics == std::set<std::string>{"self_ref_samples", "self_ref_cycles", "self_ref_valid_fraction", "self_ref_rms_rad"});
+        CHECK(r["estimators"][0]["analysers"]["self_reference"]["measured"] == true);
+    }
+    SECTION("a limit the capture cannot measure (rms_rad needs truth) FAILs and says why") {
+        const json r = execute_run(scenario(json::array({json{{"estimator", "atan2"}, {"metric", "rms_rad"}, {"max", 0.5}}})));
+        REQUIRE(r["status"] == "done");
+        CHECK(r["verdict"] == "FAIL");
+        bool seen = false;
+        for (const auto& m : r["measurements"])
+            if (m["metric"] == "rms_rad") {
+                seen = true;
+                CHECK(m["outcome"] == "FAIL");
+                CHECK_THAT(m["reason"].get<std::string>(), Catch::Contains("no truth") && Catch::Contains("self_ref_"));
+            }
+        CHECK(seen);
+    }
+    SECTION("a self-referenced limit it fails") {
+        const json r = execute_run(scenario(json::array({json{{"estimator", "atan2"}, {"metric", "self_ref_rms_rad"}, {"max", 1e-9}}})));
+        CHECK(r["verdict"] == "FAIL");
+    }
+}
