@@ -341,9 +341,12 @@ private:
         // Each channel through its filters. A filter with no cutoff passes its input through
         // (y = x + 0, its state stays zero while the input is finite): skipped then, unless the
         // sign of a zero could reach the output (an ideal ADC) or an input is not finite.
-        bool finite = true;
-        for (int ch = 0; ch < 2; ++ch)
-            for (std::size_t i = 0; i < m; ++i) finite &= std::isfinite(h_[ch][i]);
+        std::size_t not_finite = 0;
+        for (int ch = 0; ch < 2; ++ch) {
+            const double* h = h_[ch].data();
+            for (std::size_t i = 0; i < m; ++i) not_finite += !((h[i] - h[i]) == 0.0);  // NaN unless finite (a pass that vectorises)
+        }
+        const bool finite = not_finite == 0;
         const bool direct = finite && !adc_.ideal() && recon_[0].passes() && aa_[0].passes() && recon_[1].passes() && aa_[1].passes();
         const double nv = noise_v_;
         for (int ch = 0; ch < 2; ++ch) {

@@ -354,3 +354,36 @@ TEST_CASE("spectrum: the frequency axis is bounded and keeps peaks", "[spectrum]
     CHECK(std::fabs(f - f0) <= fs / N);
     CHECK(peak_in(s, 3.9, 4.1, "order").first == Approx(a));
 }
+
+TEST_CASE("spectrum: the real-input FFT's power equals a direct DFT's", "[spectrum]") {
+    std::mt19937_64 rng(7);
+    std::normal_distribution<double> g(0.0, 1.0);
+    // powers of 4 and not (a radix-2 stage last), up to the segment lengths runs use
+    for (std::size_t n : {4u, 8u, 16u, 32u, 64u, 128u, 1024u, 8192u}) {
+        std::vector<double> x(n);
+        for (auto& v : x) v = g(rng);
+        x[n / 3] += 40.0;  // a spike: every bin carries power
+        RealPowerSpectrum fft(n);
+        std::vector<double> got(n / 2 + 1, 0.0);
+        fft.accumulate(x.data(), got.data());
+        fft.accumulate(x.data(), got.data());  // it accumulates: twice the power
+        double top = 0;
+        std::vector<double> want(n / 2 + 1);
+        for (std::size_t k = 0; k <= n / 2; ++k) {
+            long double re = 0, im = 0;
+            for (std::size_t i = 0; i < n; ++i) {
+                const long double a_rad = -2.0L * 3.14159265358979323846264338327950288L * static_cast<long double>((k * i) % n) / static_cast<long double>(n);
+                re += x[i] * std::cos(a_rad);
+                im += x[i] * std::sin(a_rad);
+            }
+            want[k] = static_cast<double>(2 * (re * re + im * im));
+            top = std::max(top, want[k]);
+        }
+        for (std::size_t k = 0; k <= n / 2; ++k) {
+            INFO("n = " << n << ", bin " << k);
+            CHECK(std::fabs(got[k] - want[k]) <= 1e-12 * top);
+        }
+    }
+    CHECK_THROWS(RealPowerSpectrum(12));
+    CHECK_THROWS(RealPowerSpectrum(2));
+}

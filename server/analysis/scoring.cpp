@@ -185,21 +185,35 @@ void Scorer::decide() {
 void Scorer::process(std::size_t n, const double* e_raw, const double* th_all, const std::uint8_t* ok) {
     // The scored errors (the 2*pi multiple removed) and their angles, compacted; e_ keeps the
     // full-length sequence for the sink, 0 where not scored.
-    if (sink_) e_.assign(n, 0.0);
+    // Every sample usable (the common case): the angles as they are, the errors in one pass.
     es_.resize(n);
-    th_.resize(n);
+    std::size_t usable = 0;
+#pragma omp simd reduction(+ : usable)
+    for (std::size_t i = 0; i < n; ++i) usable += ok[i] != 0;
     std::size_t ns = 0;
-    for (std::size_t i = 0; i < n; ++i) {
-        if (!ok[i]) continue;
-        const double e = e_raw[i] - offset_rad_;
-        if (sink_) e_[i] = e;
-        es_[ns] = e;
-        th_[ns] = th_all[i];
-        ++ns;
+    const double* th = th_all;
+    if (usable == n) {
+        double* es = es_.data();
+        const double off = offset_rad_;
+#pragma omp simd
+        for (std::size_t i = 0; i < n; ++i) es[i] = e_raw[i] - off;
+        if (sink_) e_.assign(es_.begin(), es_.begin() + static_cast<std::ptrdiff_t>(n));
+        ns = n;
+    } else {
+        if (sink_) e_.assign(n, 0.0);
+        th_.resize(n);
+        for (std::size_t i = 0; i < n; ++i) {
+            if (!ok[i]) continue;
+            const double e = e_raw[i] - offset_rad_;
+            if (sink_) e_[i] = e;
+            es_[ns] = e;
+            th_[ns] = th_all[i];
+            ++ns;
+        }
+        th = th_.data();
     }
     if (ns) {
         const double* es = es_.data();
-        const double* th = th_.data();
         double mb = 0, qb = 0;
         block_moments(es, ns, mb, qb);
         std::uint64_t scored = m_.scored;

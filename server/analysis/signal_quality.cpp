@@ -21,15 +21,23 @@ double wrap_deg(double d) {
     return d;
 }
 
-// cos and sin of 2 pi g / kGrid: the fitted shape's extremes are sought on this grid.
+// cos and sin of 2 pi g / kGrid: the fitted shape's extremes are sought on this grid; and
+// harmonic k's values there, ck[k - 1][j] = c[j k mod kGrid] (sk likewise), so the shape on the
+// grid is a pass over j per harmonic that vectorises.
 constexpr int kGrid = 128;
 struct GridTable {
     double c[kGrid], s[kGrid];
+    double ck[SignalQuality::kHarmonics][kGrid], sk[SignalQuality::kHarmonics][kGrid];
     GridTable() {
         for (int g = 0; g < kGrid; ++g) {
             c[g] = std::cos(kTwoPi * g / kGrid);
             s[g] = std::sin(kTwoPi * g / kGrid);
         }
+        for (int k = 1; k <= SignalQuality::kHarmonics; ++k)
+            for (int j = 0; j < kGrid; ++j) {
+                ck[k - 1][j] = c[(j * k) % kGrid];
+                sk[k - 1][j] = s[(j * k) % kGrid];
+            }
     }
 };
 const GridTable& grid() {
@@ -41,51 +49,74 @@ struct Coeffs {
     double c0 = 0, a[SignalQuality::kHarmonics + 1] = {}, b[SignalQuality::kHarmonics + 1] = {};
 };
 
-// Fourier series of one channel over one period, by the trapezoid rule on the period's points
-// (many points: the interpolated end points cost nothing); c1, s1: cos and sin of each point's
-// angle (the harmonics by the angle-addition recurrence).
-Coeffs coeffs_trapezoid(const std::vector<double>& c1v, const std::vector<double>& s1v, const std::vector<double>& w, const std::vector<double>& x) {
+// cos(k phi) and sin(k phi), k = 1..K, of each point by the angle-addition recurrence from its
+// cos and sin, once a period for both channels' series and shapes: harmonic k's row at
+// (k - 1) * n, each row a pass over the points that vectorises.
+void harmonic_table(const std::vector<double>& c1v, const std::vector<double>& s1v, std::vector<double>& ck_tab, std::vector<double>& sk_tab) {
     constexpr int K = SignalQuality::kHarmonics;
-    Coeffs f;
-    for (std::size_t i = 0; i < c1v.size(); ++i) {
-        const double c1 = c1v[i], s1 = s1v[i];
-        double ck = 1, sk = 0;
-        const double wx = w[i] * x[i];
-        f.c0 += wx;
-        for (int k = 1; k <= K; ++k) {
-            const double cn = ck * c1 - sk * s1, sn = sk * c1 + ck * s1;
-            ck = cn;
-            sk = sn;
-            f.a[k] += wx * ck;
-            f.b[k] += wx * sk;
+    const std::size_t n = c1v.size();
+    ck_tab.resize(n * K);
+    sk_tab.resize(n * K);
+    const double* c1 = c1v.data();
+    const double* s1 = s1v.data();
+    std::copy(c1, c1 + n, ck_tab.data());
+    std::copy(s1, s1 + n, sk_tab.data());
+    for (int k = 2; k <= K; ++k) {
+        const double* cp = ck_tab.data() + static_cast<std::size_t>(k - 2) * n;
+        const double* sp = sk_tab.data() + static_cast<std::size_t>(k - 2) * n;
+        double* cr = ck_tab.data() + static_cast<std::size_t>(k - 1) * n;
+        double* sr = sk_tab.data() + static_cast<std::size_t>(k - 1) * n;
+#pragma omp simd
+        for (std::size_t i = 0; i < n; ++i) {
+            cr[i] = cp[i] * c1[i] - sp[i] * s1[i];
+            sr[i] = sp[i] * c1[i] + cp[i] * s1[i];
         }
     }
-    f.c0 /= kTwoPi;
-    for (int k = 1; k <= K; ++k) {
-        f.a[k] /= kPi;
-        f.b[k] /= kPi;
+}
+
+// Fourier series of both channels over one period, by the trapezoid rule on the period's
+// points (many points: the interpolated end points cost nothing), from the harmonic table.
+void coeffs_trapezoid(const std::vector<double>& ck_tab, const std::vector<double>& sk_tab, const std::vector<double>& w,
+                      const std::vector<double>& xa, const std::vector<double>& xb, Coeffs& fa, Coeffs& fb) {
+    constexpr int K = SignalQuality::kHarmonics;
+    fa = Coeffs{};
+    fb = Coeffs{};
+    const std::size_t n = w.size();
+    for (std::size_t i = 0; i < n; ++i) {
+        const double wa = w[i] * xa[i], wb = w[i] * xb[i];
+        fa.c0 += wa;
+        fb.c0 += wb;
+        for (int k = 1; k <= K; ++k) {
+            const double ck = ck_tab[static_cast<std::size_t>(k - 1) * n + i], sk = sk_tab[static_cast<std::size_t>(k - 1) * n + i];
+            fa.a[k] += wa * ck;
+            fa.b[k] += wa * sk;
+            fb.a[k] += wb * ck;
+            fb.b[k] += wb * sk;
+        }
     }
-    return f;
+    for (Coeffs* f : {&fa, &fb}) {
+        f->c0 /= kTwoPi;
+        for (int k = 1; k <= K; ++k) {
+            f->a[k] /= kPi;
+            f->b[k] /= kPi;
+        }
+    }
 }
 
 // The same series by least squares on the samples alone (few points a period: the trapezoid
 // rule's interpolated end points and its uneven last interval would leak into the harmonics).
-void coeffs_least_squares(const std::vector<double>& c1v, const std::vector<double>& s1v, const std::vector<double>& xa,
+void coeffs_least_squares(const std::vector<double>& ck_tab, const std::vector<double>& sk_tab, const std::vector<double>& xa,
                           const std::vector<double>& xb, Coeffs& fa, Coeffs& fb) {
     constexpr int K = SignalQuality::kHarmonics, P = 2 * K + 1;
     Eigen::Matrix<double, P, P> ata = Eigen::Matrix<double, P, P>::Zero();
     Eigen::Matrix<double, P, 2> atb = Eigen::Matrix<double, P, 2>::Zero();
     Eigen::Matrix<double, P, 1> row;
-    for (std::size_t i = 1; i + 1 < c1v.size(); ++i) {  // the samples, not the interpolated ends
-        const double c1 = c1v[i], s1 = s1v[i];
-        double ck = 1, sk = 0;
+    const std::size_t n = xa.size();
+    for (std::size_t i = 1; i + 1 < n; ++i) {  // the samples, not the interpolated ends
         row(0) = 1;
         for (int k = 1; k <= K; ++k) {
-            const double cn = ck * c1 - sk * s1, sn = sk * c1 + ck * s1;
-            ck = cn;
-            sk = sn;
-            row(2 * k - 1) = ck;
-            row(2 * k) = sk;
+            row(2 * k - 1) = ck_tab[static_cast<std::size_t>(k - 1) * n + i];
+            row(2 * k) = sk_tab[static_cast<std::size_t>(k - 1) * n + i];
         }
         ata.selfadjointView<Eigen::Lower>().rankUpdate(row);
         atb.col(0) += row * xa[i];
@@ -103,7 +134,7 @@ void coeffs_least_squares(const std::vector<double>& c1v, const std::vector<doub
 }
 
 // A channel's figures from its series and its points.
-ChannelQuality channel_figures(const Coeffs& f, const std::vector<double>& phi, const std::vector<double>& c1v, const std::vector<double>& s1v,
+ChannelQuality channel_figures(const Coeffs& f, const std::vector<double>& phi, const std::vector<double>& ck_tab, const std::vector<double>& sk_tab,
                                const std::vector<double>& x) {
     constexpr int K = SignalQuality::kHarmonics;
     const std::size_t n = phi.size();
@@ -122,34 +153,23 @@ ChannelQuality channel_figures(const Coeffs& f, const std::vector<double>& phi, 
         h2 += hk * hk;
     }
     q.thd_percent = std::sqrt(h2);
-    // The shape at an angle given its cos and sin.
-    auto shape = [&](double c1, double s1) {
-        double v = c0, ck = 1, sk = 0;
-        for (int k = 1; k <= K; ++k) {
-            const double cn = ck * c1 - sk * s1, sn = sk * c1 + ck * s1;
-            ck = cn;
-            sk = sn;
-            v += a[k] * ck + b[k] * sk;
-        }
-        return v;
-    };
     // The fitted shape's extremes on a fine grid (the samples' own extremes grow with noise).
     const GridTable& g = grid();
     q.max_v = -std::numeric_limits<double>::infinity();
     q.min_v = std::numeric_limits<double>::infinity();
     double vals[kGrid];
+    for (int j = 0; j < kGrid; ++j) vals[j] = c0;
+    for (int k = 1; k <= K; ++k) {  // each grid value's terms in the order k = 1..K
+        const double ak = a[k], bk = b[k];
+        const double* ckj = g.ck[k - 1];
+        const double* skj = g.sk[k - 1];
+#pragma omp simd
+        for (int j = 0; j < kGrid; ++j) vals[j] += ak * ckj[j] + bk * skj[j];
+    }
     int jmax = 0, jmin = 0;
-    for (int j = 0; j < kGrid; ++j) {
-        double v = c0;
-        int idx = 0;
-        for (int k = 1; k <= K; ++k) {
-            idx += j;
-            if (idx >= kGrid) idx -= kGrid;
-            v += a[k] * g.c[idx] + b[k] * g.s[idx];
-        }
-        vals[j] = v;
-        if (v > vals[jmax]) jmax = j;
-        if (v < vals[jmin]) jmin = j;
+    for (int j = 1; j < kGrid; ++j) {
+        if (vals[j] > vals[jmax]) jmax = j;
+        if (vals[j] < vals[jmin]) jmin = j;
     }
     // The extreme between grid points: the parabola through the best point and its neighbours.
     auto refine = [&](int j) {
@@ -160,10 +180,21 @@ ChannelQuality channel_figures(const Coeffs& f, const std::vector<double>& phi, 
     q.min_v = refine(jmin);
     const double P = q.max_v, N = -q.min_v, M = q.max_v - q.min_v;
     q.sym = M > 0 ? std::fabs(P - N) / (2 * M) : 0.0;
-    // Noise: the samples about the shape (the interpolated end points are not samples).
+    // Noise: the samples about the shape (the interpolated end points are not samples). The
+    // shape at every point first, harmonic by harmonic (each point's terms in the order k = 1..K).
+    thread_local std::vector<double> shape;
+    shape.assign(n, c0);
+    for (int k = 1; k <= K; ++k) {
+        const double ak = a[k], bk = b[k];
+        const double* cr = ck_tab.data() + static_cast<std::size_t>(k - 1) * n;
+        const double* sr = sk_tab.data() + static_cast<std::size_t>(k - 1) * n;
+        double* v = shape.data();
+#pragma omp simd
+        for (std::size_t i = 0; i < n; ++i) v[i] += ak * cr[i] + bk * sr[i];
+    }
     double r2 = 0;
     for (std::size_t i = 1; i + 1 < n; ++i) {
-        const double d = x[i] - shape(c1v[i], s1v[i]);
+        const double d = x[i] - shape[i];
         r2 += d * d;
     }
     // 2K + 1 coefficients were fitted to these points: the residual has that many fewer degrees of freedom.
@@ -196,7 +227,10 @@ PeriodQuality SignalQuality::analyse_period(const std::vector<double>& t_s, cons
     p.radius_max_v = 0;
     {
         double r2_min = std::numeric_limits<double>::infinity(), r2_max = 0;
-        for (std::size_t i = 1; i + 1 < phi.size(); ++i) {
+        const std::size_t last = phi.size() > 0 ? phi.size() - 1 : 0;
+        // the samples are finite: their minimum and maximum in any order are the same
+#pragma omp simd reduction(min : r2_min) reduction(max : r2_max)
+        for (std::size_t i = 1; i < last; ++i) {
             const double r2 = a_v[i] * a_v[i] + b_v[i] * b_v[i];
             r2_min = std::min(r2_min, r2);
             r2_max = std::max(r2_max, r2);
@@ -218,6 +252,7 @@ PeriodQuality SignalQuality::analyse_period(const std::vector<double>& t_s, cons
     if (phi.size() > kFitPoints + 2) {
         const std::size_t stride = (phi.size() - 2 + kFitPoints - 1) / kFitPoints;
         std::vector<double> dt, dp, da, db;
+        for (auto* v : {&dt, &dp, &da, &db}) v->reserve(kFitPoints + 3);
         for (std::size_t i = 0; i + 1 < phi.size(); i += (i == 0 ? 1 : stride)) {
             dt.push_back(t_s[i]);
             dp.push_back(phi[i]);
@@ -264,15 +299,13 @@ PeriodQuality SignalQuality::analyse_period(const std::vector<double>& t_s, cons
         c1[i] = c1[i - 1] * rc - s1[i - 1] * rs;
         s1[i] = s1[i - 1] * rc + c1[i - 1] * rs;
     }
+    std::vector<double> ck_tab, sk_tab;
+    harmonic_table(c1, s1, ck_tab, sk_tab);
     Coeffs fa, fb;
-    if (n < kLeastSquaresBelow) {
-        coeffs_least_squares(c1, s1, a_v, b_v, fa, fb);
-    } else {
-        fa = coeffs_trapezoid(c1, s1, w, a_v);
-        fb = coeffs_trapezoid(c1, s1, w, b_v);
-    }
-    p.a = channel_figures(fa, phi, c1, s1, a_v);
-    p.b = channel_figures(fb, phi, c1, s1, b_v);
+    if (n < kLeastSquaresBelow) coeffs_least_squares(ck_tab, sk_tab, a_v, b_v, fa, fb);
+    else coeffs_trapezoid(ck_tab, sk_tab, w, a_v, b_v, fa, fb);
+    p.a = channel_figures(fa, phi, ck_tab, sk_tab, a_v);
+    p.b = channel_figures(fb, phi, ck_tab, sk_tab, b_v);
     p.ab_ratio = p.b.amplitude_v > 0 ? p.a.amplitude_v / p.b.amplitude_v : 0.0;
     p.phase_deg = wrap_deg((p.b.phase_rad - p.a.phase_rad) * 180.0 / kPi);
     p.freq_hz = p.t_end_s > p.t_start_s ? 1.0 / (p.t_end_s - p.t_start_s) : 0.0;
@@ -439,6 +472,32 @@ int quadrant(double a, double b) {
 
 void SignalQuality::add(const double* t_s, const double* a_v, const double* b_v, std::size_t n) {
     for (std::size_t i = 0; i < n; ++i) {
+        // Most samples are usable and in the quadrant of the one before: such a run is counted
+        // and kept in bulk (what the sample-by-sample path below does with each of them).
+        if (have_prev_) {
+            std::size_t j = i;
+            while (j < n && std::isfinite(t_s[j]) && std::fabs(a_v[j]) < kMaxAbsV && std::fabs(b_v[j]) < kMaxAbsV && quadrant(a_v[j], b_v[j]) == prev_q_) ++j;
+            if (j > i) {
+                samples_ += j - i;
+                if (open_ && !too_long_) {
+                    if (pt_.size() + (j - i) <= kMaxPeriodSamples) {
+                        pt_.insert(pt_.end(), t_s + i, t_s + j);
+                        pa_.insert(pa_.end(), a_v + i, a_v + j);
+                        pb_.insert(pb_.end(), b_v + i, b_v + j);
+                    } else {  // the sample that finds the period full marks it too long
+                        too_long_ = true;
+                        pt_.clear();
+                        pa_.clear();
+                        pb_.clear();
+                    }
+                }
+                prev_t_ = t_s[j - 1];
+                prev_a_ = a_v[j - 1];
+                prev_b_ = b_v[j - 1];
+                i = j;
+                if (i == n) break;
+            }
+        }
         const double t = t_s[i], a = a_v[i], b = b_v[i];
         // A sample beyond 1e100 V would overflow the squares of the fit: a gap, like a non-finite one.
         const bool usable = std::isfinite(t) && std::fabs(a) < kMaxAbsV && std::fabs(b) < kMaxAbsV;

@@ -2,13 +2,12 @@
 
 #include "signal_gen/base/constants.hpp"
 
-#include <unsupported/Eigen/FFT>
-
 #include <algorithm>
 #include <cmath>
 #include <complex>
 #include <cstdio>
 #include <cstdlib>
+#include <stdexcept>
 
 namespace fringe {
 
@@ -35,8 +34,117 @@ std::size_t pow2_ceil(double x) {
 }
 }  // namespace
 
+namespace {
+constexpr std::size_t kPad = 24;  // doubles between the scratch arrays: no 4 KiB aliasing between their streams
+}
+
+RealPowerSpectrum::RealPowerSpectrum(std::size_t n) : n_(n), m_(n / 2) {
+    if (n < 4 || (n & (n - 1)) != 0) throw std::invalid_argument("RealPowerSpectrum: n must be a power of two >= 4");
+    for (std::size_t len = m_; len >= 4; len /= 4) {
+        const std::size_t n1 = len / 4;
+        std::vector<double> t(6 * n1);
+        for (std::size_t p = 0; p < n1; ++p)
+            for (std::size_t k = 1; k <= 3; ++k) {
+                const double a_rad = -kTwoPi * static_cast<double>(k * p) / static_cast<double>(len);
+                t[(2 * k - 2) * n1 + p] = std::cos(a_rad);
+                t[(2 * k - 1) * n1 + p] = std::sin(a_rad);
+            }
+        tw_.push_back(std::move(t));
+    }
+    split_re_.resize(m_ + 1);
+    split_im_.resize(m_ + 1);
+    for (std::size_t k = 0; k <= m_; ++k) {
+        const double a_rad = -kTwoPi * static_cast<double>(k) / static_cast<double>(n_);
+        split_re_[k] = std::cos(a_rad);
+        split_im_[k] = std::sin(a_rad);
+    }
+    buf_.assign(4 * (m_ + kPad), 0.0);
+}
+
+void RealPowerSpectrum::accumulate(const double* x, double* power) {
+    const std::size_t m = m_;
+    double* zr = buf_.data();
+    double* zi = zr + m + kPad;
+    double* yr = zi + m + kPad;
+    double* yi = yr + m + kPad;
+    // z_k = x_2k + i x_2k+1
+#pragma omp simd
+    for (std::size_t k = 0; k < m; ++k) {
+        zr[k] = x[2 * k];
+        zi[k] = x[2 * k + 1];
+    }
+    // Stockham's decimation in frequency, from one buffer into the other. A radix-4 stage of
+    // sub-length len at stride s, for p < len/4 and q < s, with a..d = z[q + s (p + j len/4)]:
+    // y[q + s 4p] = (a + c) + (b + d), y[q + s (4p + 1)] = w^p ((a - c) - i (b - d)),
+    // y[q + s (4p + 2)] = w^2p ((a + c) - (b + d)), y[q + s (4p + 3)] = w^3p ((a - c) + i (b - d)).
+    std::size_t s = 1, len = m;
+    for (std::size_t stage = 0; len >= 4; len /= 4, s *= 4, ++stage) {
+        const std::size_t n1 = len / 4;
+        const double* t = tw_[stage].data();
+        auto butterfly = [&](std::size_t q, std::size_t p) __attribute__((always_inline)) {
+            const std::size_t i0 = q + s * p, i1 = i0 + s * n1, i2 = i1 + s * n1, i3 = i2 + s * n1;
+            const double apc_re = zr[i0] + zr[i2], apc_im = zi[i0] + zi[i2], amc_re = zr[i0] - zr[i2], amc_im = zi[i0] - zi[i2];
+            const double bpd_re = zr[i1] + zr[i3], bpd_im = zi[i1] + zi[i3];
+            const double jbmd_re = -(zi[i1] - zi[i3]), jbmd_im = zr[i1] - zr[i3];  // i (b - d)
+            const double w1r = t[p], w1i = t[n1 + p], w2r = t[2 * n1 + p], w2i = t[3 * n1 + p], w3r = t[4 * n1 + p], w3i = t[5 * n1 + p];
+            const std::size_t o = q + s * 4 * p;
+            yr[o] = apc_re + bpd_re;
+            yi[o] = apc_im + bpd_im;
+            double ur = amc_re - jbmd_re, ui = amc_im - jbmd_im;
+            yr[o + s] = w1r * ur - w1i * ui;
+            yi[o + s] = w1r * ui + w1i * ur;
+            ur = apc_re - bpd_re;
+            ui = apc_im - bpd_im;
+            yr[o + 2 * s] = w2r * ur - w2i * ui;
+            yi[o + 2 * s] = w2r * ui + w2i * ur;
+            ur = amc_re + jbmd_re;
+            ui = amc_im + jbmd_im;
+            yr[o + 3 * s] = w3r * ur - w3i * ui;
+            yi[o + 3 * s] = w3r * ui + w3i * ur;
+        };
+        if (s >= 8) {  // along q: contiguous
+            for (std::size_t p = 0; p < n1; ++p) {
+#pragma omp simd
+                for (std::size_t q = 0; q < s; ++q) butterfly(q, p);
+            }
+        } else {  // along p
+            for (std::size_t q = 0; q < s; ++q) {
+#pragma omp simd
+                for (std::size_t p = 0; p < n1; ++p) butterfly(q, p);
+            }
+        }
+        std::swap(zr, yr);
+        std::swap(zi, yi);
+    }
+    if (len == 2) {  // m not a power of 4: one radix-2 stage
+#pragma omp simd
+        for (std::size_t q = 0; q < s; ++q) {
+            const double ar = zr[q], ai = zi[q], br = zr[q + s], bi = zi[q + s];
+            yr[q] = ar + br;
+            yi[q] = ai + bi;
+            yr[q + s] = ar - br;
+            yi[q + s] = ai - bi;
+        }
+        std::swap(zr, yr);
+        std::swap(zi, yi);
+    }
+    // The split: E_k = (Z_k + conj Z_{m-k}) / 2, O_k = (Z_k - conj Z_{m-k}) / 2i, X_k = E_k + e^{-2 pi i k / n} O_k.
+    power[0] += (zr[0] + zi[0]) * (zr[0] + zi[0]);
+    power[m] += (zr[0] - zi[0]) * (zr[0] - zi[0]);
+    const double* cr = split_re_.data();
+    const double* ci = split_im_.data();
+#pragma omp simd
+    for (std::size_t k = 1; k < m; ++k) {
+        const double pr = zr[k], pi = zi[k], qr = zr[m - k], qi = -zi[m - k];  // Z_k and conj Z_{m-k}
+        const double er = 0.5 * (pr + qr), ei = 0.5 * (pi + qi);
+        const double or_ = 0.5 * (pi - qi), oi = -0.5 * (pr - qr);
+        const double xr = er + cr[k] * or_ - ci[k] * oi, xi = ei + cr[k] * oi + ci[k] * or_;
+        power[k] += xr * xr + xi * xi;
+    }
+}
+
 ErrorSpectrum::ErrorSpectrum(double sample_rate_hz, std::size_t segment_samples)
-    : fs_(sample_rate_hz), n_(pow2_floor(std::max(segment_samples, kMinSegment))) {
+    : fs_(sample_rate_hz), n_(pow2_floor(std::max(segment_samples, kMinSegment))), fft_(n_) {
     window_.resize(n_);
     for (std::size_t i = 0; i < n_; ++i) {
         window_[i] = 0.5 - 0.5 * std::cos(2 * kPi * static_cast<double>(i) / static_cast<double>(n_));  // periodic Hann
@@ -59,13 +167,28 @@ std::size_t ErrorSpectrum::choose_segment(double sample_rate_hz, double electric
 
 void ErrorSpectrum::add(std::size_t n, const double* e_rad, const std::uint8_t* ok) {
     const std::size_t mask = n_ - 1;
+    constexpr std::size_t kScan = 64;
     for (std::size_t i = 0; i < n;) {
-        // The run of usable samples from i, appended in pieces that complete segments.
+        // The run of usable samples from i (kScan at a time while all are usable, in a pass that
+        // vectorises), appended in pieces that complete segments.
         std::size_t j = i;
+        while (j + kScan <= n) {
+            std::size_t bad = 0;
+#pragma omp simd reduction(+ : bad)
+            for (std::size_t q = 0; q < kScan; ++q) {
+                const double e = e_rad[j + q];
+                bad += static_cast<std::size_t>(!((e - e) == 0.0) || (ok && !ok[j + q]));  // e - e: NaN unless finite
+            }
+            if (bad) break;
+            j += kScan;
+        }
         while (j < n && (!ok || ok[j]) && std::isfinite(e_rad[j])) ++j;
         for (std::size_t k = i; k < j;) {
             const std::size_t take = std::min(j - k, n_ - fill_);
-            for (std::size_t q = 0; q < take; ++q) buf_[(start_ + fill_ + q) & mask] = e_rad[k + q];
+            // into the ring from (start_ + fill_) mod n_: up to its end, then from its start
+            const std::size_t at = (start_ + fill_) & mask, first = std::min(take, n_ - at);
+            std::copy_n(e_rad + k, first, buf_.data() + at);
+            std::copy_n(e_rad + k + first, take - first, buf_.data());
             fill_ += take;
             k += take;
             if (fill_ == n_) {
@@ -91,11 +214,7 @@ void ErrorSpectrum::segment() {
     x_.resize(n_);
     for (std::size_t i = 0; i < first; ++i) x_[i] = (a[i] - mean) * window_[i];
     for (std::size_t i = 0; i < start_; ++i) x_[first + i] = (b[i] - mean) * window_[first + i];
-    static thread_local Eigen::FFT<double> fft;
-    fft.SetFlag(Eigen::FFT<double>::HalfSpectrum);  // bins 0..n/2 only: the input is real
-    fft.fwd(X_, x_);
-    // re^2 + im^2 (libstdc++'s std::norm goes through abs(), a hypot per bin)
-    for (std::size_t k = 0; k <= n_ / 2; ++k) power_[k] += X_[k].real() * X_[k].real() + X_[k].imag() * X_[k].imag();
+    fft_.accumulate(x_.data(), power_.data());
     ++segments_;
 }
 

@@ -11,6 +11,25 @@
 
 namespace fringe {
 
+// |X_k|^2 (k = 0..n/2) of the unscaled DFT of n real samples, n a power of two >= 4: the
+// half-length complex FFT of the even and odd samples taken as one complex sequence, then split
+// into the real input's bins. The complex FFT is Stockham's radix 4 (a radix-2 stage last when
+// n/2 is not a power of 4) on split real and imaginary parts: natural order in and out (no bit
+// reversal), each stage's butterflies a loop that vectorises; twiddles computed once, directly.
+class RealPowerSpectrum {
+public:
+    explicit RealPowerSpectrum(std::size_t n);
+    std::size_t size() const { return n_; }
+    // power[k] += |X_k|^2 for k = 0..n/2 of x[0..n)
+    void accumulate(const double* x, double* power);
+
+private:
+    std::size_t n_, m_;                    // m_ = n_ / 2 complex points
+    std::vector<std::vector<double>> tw_;  // per radix-4 stage of length len: w^p, w^2p, w^3p (re, im), w = exp(-2 pi i / len)
+    std::vector<double> split_re_, split_im_;  // exp(-2 pi i k / n_), k <= m_
+    std::vector<double> buf_;              // the sequence and a stage's output, re and im (scratch)
+};
+
 class ErrorSpectrum {
 public:
     static constexpr std::size_t kMaxSegment = 65536;
@@ -43,7 +62,7 @@ private:
     std::size_t start_ = 0, fill_ = 0;  // its oldest sample, and how many (< n_ between segments)
     std::vector<double> power_;         // sum over segments of |X_k|^2, k = 0..n_/2
     std::vector<double> x_;             // windowed segment (scratch)
-    std::vector<std::complex<double>> X_;  // its transform (scratch)
+    RealPowerSpectrum fft_;
     double s1_ = 0, s2_ = 0;            // sum of window, sum of window^2
 };
 

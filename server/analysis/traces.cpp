@@ -88,25 +88,45 @@ TraceRecorder::TraceRecorder(std::uint64_t total_samples, std::size_t points, st
 void TraceRecorder::add(std::size_t m, const double* t_s, const double* sin_v, const double* cos_v, const double* theta_true_rad,
                         const std::uint8_t* truth_known, const std::vector<const double*>& err_rad) {
     const std::size_t lanes = std::min(err_rad.size(), labels_.size());
-    // The true-angle bin of each sample that enters the folds (-1: not folded), once for all lanes.
-    // The bin of the true angle wrapped to [0, 2 pi) in a pass that vectorises (an unfolded
-    // sample's angle taken as 0, its bin -1), then the cycle sums in order.
+    // The true-angle bin of each sample that enters the folds (-1: not folded), once for all lanes:
+    // the true angle wrapped to [0, 2 pi) in a pass that vectorises (an unfolded sample's angle
+    // taken as 0, its bin -1).
     abin_.resize(m);
     std::int32_t* bin_of = abin_.data();
     const double nb = static_cast<double>(bins_), from = fold_from_s_;
-    for (std::size_t i = 0; i < m; ++i) {
-        const double th = theta_true_rad[i];
-        const bool fold = (!truth_known || truth_known[i]) && std::isfinite(th) && t_s[i] >= from;
-        const double turns = (fold ? th : 0.0) * (1 / kTwoPi);
-        const double b = std::trunc((turns - std::floor(turns)) * nb);
-        bin_of[i] = fold ? static_cast<std::int32_t>(b < nb ? b : nb - 1) : -1;
-    }
-    for (std::size_t i = 0; i < m; ++i) {
-        if (abin_[i] >= 0 && std::isfinite(sin_v[i]) && std::isfinite(cos_v[i])) {
-            const auto ab = static_cast<std::size_t>(abin_[i]);
-            cyc_sin_[ab] += sin_v[i];
-            cyc_cos_[ab] += cos_v[i];
-            ++cyc_n_[ab];
+    auto bins = [&](auto known) {
+#pragma omp simd
+        for (std::size_t i = 0; i < m; ++i) {
+            const double th = theta_true_rad[i];
+            const bool fold = known(i) && (th - th) == 0.0 && t_s[i] >= from;  // th - th: NaN unless finite
+            const double turns = (fold ? th : 0.0) * (1 / kTwoPi);
+            const double b = std::trunc((turns - std::floor(turns)) * nb);
+            bin_of[i] = fold ? static_cast<std::int32_t>(b < nb ? b : nb - 1) : -1;
+        }
+    };
+    if (truth_known) bins([&](std::size_t i) { return truth_known[i] != 0; });
+    else bins([](std::size_t) { return true; });
+    // The cycle sums in order, a bin's consecutive samples summed in registers (the same
+    // additions in the same order as one bin update a sample, without a store between them).
+    {
+        std::size_t i = 0;
+        while (i < m) {
+            const std::int32_t ab = bin_of[i];
+            if (ab < 0) { ++i; continue; }
+            const auto b = static_cast<std::size_t>(ab);
+            double cs = cyc_sin_[b], cc = cyc_cos_[b];
+            std::uint64_t cn = cyc_n_[b];
+            for (; i < m && bin_of[i] == ab; ++i) {
+                const double sv = sin_v[i], cv = cos_v[i];
+                if ((sv - sv) == 0.0 && (cv - cv) == 0.0) {
+                    cs += sv;
+                    cc += cv;
+                    ++cn;
+                }
+            }
+            cyc_sin_[b] = cs;
+            cyc_cos_[b] = cc;
+            cyc_n_[b] = cn;
         }
     }
     // Each lane's error wrapped, in a pass of its own.
@@ -117,7 +137,34 @@ void TraceRecorder::add(std::size_t m, const double* t_s, const double* sin_v, c
         double* w = wrapped_[j].data();
         for (std::size_t k = 0; k < m; ++k) w[k] = wrap_pi(e[k]);
     }
-    // Bucket by bucket: no division per sample.
+    // Each lane's folds by angle bin, a bin's consecutive samples in registers as above.
+    for (std::size_t j = 0; j < lanes; ++j) {
+        const double* e = err_rad[j];
+        const double* wr = wrapped_[j].data();
+        Fold& f = fold_[j];
+        std::size_t i = 0;
+        while (i < m) {
+            const std::int32_t ab = bin_of[i];
+            if (ab < 0) { ++i; continue; }
+            const auto b = static_cast<std::size_t>(ab);
+            double sum = f.sum[b], lo = f.lo[b], hi = f.hi[b];
+            std::uint64_t cnt = f.count[b];
+            for (; i < m && bin_of[i] == ab; ++i) {
+                if (!((e[i] - e[i]) == 0.0)) continue;  // invalid sample or unknown truth
+                const double w = wr[i];
+                sum += w;
+                ++cnt;
+                if (w < lo) lo = w;
+                if (w > hi) hi = w;
+            }
+            f.sum[b] = sum;
+            f.lo[b] = lo;
+            f.hi[b] = hi;
+            f.count[b] = cnt;
+        }
+    }
+    // Bucket by bucket: no division per sample. Minima and maxima in any order are the same.
+    constexpr double kInfV = std::numeric_limits<double>::infinity();
     for (std::size_t i = 0; i < m;) {
         const std::uint64_t idx = n_ + i;
         const auto b = static_cast<std::size_t>(std::min<std::uint64_t>(idx / bucket_samples_, buckets_ - 1));
@@ -127,10 +174,14 @@ void TraceRecorder::add(std::size_t m, const double* t_s, const double* sin_v, c
         if (b >= used_) used_ = b + 1;
         if (std::isnan(t_start_[b])) t_start_[b] = t_s[i];
         double slo = sin_.lo[b], shi = sin_.hi[b], clo = cos_.lo[b], chi = cos_.hi[b];
+#pragma omp simd reduction(min : slo, clo) reduction(max : shi, chi)
         for (std::size_t k = i; k < i + len; ++k) {
             const double sv = sin_v[k], cv = cos_v[k];
-            if (std::isfinite(sv)) { slo = std::min(slo, sv); shi = std::max(shi, sv); }
-            if (std::isfinite(cv)) { clo = std::min(clo, cv); chi = std::max(chi, cv); }
+            const bool sf = (sv - sv) == 0.0, cf = (cv - cv) == 0.0;
+            slo = std::min(slo, sf ? sv : kInfV);
+            shi = std::max(shi, sf ? sv : -kInfV);
+            clo = std::min(clo, cf ? cv : kInfV);
+            chi = std::max(chi, cf ? cv : -kInfV);
         }
         sin_.lo[b] = slo; sin_.hi[b] = shi; cos_.lo[b] = clo; cos_.hi[b] = chi;
         if (pt_offset_[b] >= off && pt_offset_[b] < off + len) {
@@ -140,20 +191,13 @@ void TraceRecorder::add(std::size_t m, const double* t_s, const double* sin_v, c
         for (std::size_t j = 0; j < lanes; ++j) {
             const double* e = err_rad[j];
             const double* wr = wrapped_[j].data();
-            Fold& f = fold_[j];
             double lo = err_[j].lo[b], hi = err_[j].hi[b];
+#pragma omp simd reduction(min : lo) reduction(max : hi)
             for (std::size_t k = i; k < i + len; ++k) {
-                if (!std::isfinite(e[k])) continue;  // invalid sample or unknown truth
-                const double w = wr[k];
-                lo = std::min(lo, w);
-                hi = std::max(hi, w);
-                if (abin_[k] >= 0) {
-                    const auto ab = static_cast<std::size_t>(abin_[k]);
-                    f.sum[ab] += w;
-                    ++f.count[ab];
-                    if (w < f.lo[ab]) f.lo[ab] = w;
-                    if (w > f.hi[ab]) f.hi[ab] = w;
-                }
+                const double ek = e[k], w = wr[k];
+                const bool ok = (ek - ek) == 0.0;  // invalid sample or unknown truth: NaN
+                lo = std::min(lo, ok ? w : kInfV);
+                hi = std::max(hi, ok ? w : -kInfV);
             }
             err_[j].lo[b] = lo;
             err_[j].hi[b] = hi;

@@ -2,7 +2,6 @@
 
 #include "server/analysis/align.hpp"
 #include "signal_gen/base/config.hpp"
-#include "signal_gen/base/ring.hpp"
 #include "signal_gen/fastmath.hpp"
 #include "signal_gen/generator.hpp"
 
@@ -86,9 +85,14 @@ public:
         : sc_(sc), dev_(d), gen_(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed, sc.t0_s),
           ahead_gen_(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed, sc.t0_s), block_(block), total_(sc.samples()) {
         // The first latency_samples input frames predate the signal and are not scored.
-        for (int k = 0; k < info.latency_samples; ++k) {
-            const double t = sc.t0_s + k / sc.sample_rate_hz, zero = 0;
-            pending_.push(1, &t, &zero, &zero, 0);
+        if (info.latency_samples > 0) {
+            Block lat;
+            lat.resize(static_cast<std::size_t>(info.latency_samples), false);
+            for (int k = 0; k < info.latency_samples; ++k) {
+                lat.t_s[static_cast<std::size_t>(k)] = sc.t0_s + k / sc.sample_rate_hz;
+                lat.theta_rad[static_cast<std::size_t>(k)] = lat.omega_rad_s[static_cast<std::size_t>(k)] = 0;
+            }
+            pending_.push(lat, 0);
         }
         dev_.start(sc.sample_rate_hz);
         started_ = true;
@@ -123,9 +127,10 @@ public:
         // dry while the host reads. Truth is queued as it is written.
         while (k_out_ < std::min<std::uint64_t>(total_, k_in_ + 4 * block_)) {
             const std::size_t nw = static_cast<std::size_t>(std::min<std::uint64_t>(block_, total_ - k_out_));
-            const Block* b = &b_;
+            Block* b = &b_;
             if (call > 0 && pre_first_[ready] == k_out_ && pre_[ready].size() == nw) {
                 b = &pre_[ready];
+                pre_first_[ready] = kNone;  // its buffers go to the truth queue below
             } else {
                 b_.resize(nw, sc_.encoder.index.enabled);
                 gen_.generate(k_out_, b_);
@@ -133,7 +138,7 @@ public:
             const auto w = dev_.write(b->sin_v, b->cos_v);
             if (w.status != dev::StreamStatus::Ok)
                 return {false, false, std::string("output ") + dev::to_string(w.status) + " at sample " + std::to_string(k_out_ + w.frames) + ": " + w.message};
-            pending_.push(nw, b->t_s.data(), b->theta_rad.data(), b->omega_rad_s.data(), 1);
+            pending_.push(*b, 1);
             k_out_ += nw;
             if (k_out_ == total_) dev_.end_of_output();
         }
@@ -161,21 +166,45 @@ public:
     }
 
 private:
-    // The truth of the frames written and not yet read, in order, a ring per column.
+    // The truth of the frames written and not yet read, in order: the written blocks themselves,
+    // kept until their frames are read (each value copied once, into the frames), their buffers
+    // then recycled for the blocks generated next.
     struct TruthFifo {
-        Ring<double> t, th, om;
-        Ring<std::uint8_t> known;
-        void push(std::size_t n, const double* t_s, const double* th_rad, const double* om_rad_s, std::uint8_t k) {
-            t.push(t_s, n);
-            th.push(th_rad, n);
-            om.push(om_rad_s, n);
-            known.push_fill(k, n);
+        struct Piece {
+            Block b;
+            std::size_t from = 0;  // frames of b already read
+            std::uint8_t known = 1;
+        };
+        std::deque<Piece> q;
+        std::vector<Block> spare;
+        // Takes b's buffers (b gets recycled ones, to be resized and filled by its next user).
+        void push(Block& b, std::uint8_t known) {
+            if (!b.size()) return;
+            Piece p;
+            if (!spare.empty()) {
+                p.b = std::move(spare.back());
+                spare.pop_back();
+            }
+            std::swap(p.b, b);
+            p.known = known;
+            q.push_back(std::move(p));
         }
         void pop(std::size_t n, Frames& out) {
-            t.pop(out.t_s.data(), n);
-            th.pop(out.theta_true_rad.data(), n);
-            om.pop(out.omega_true_rad_s.data(), n);
-            known.pop(out.truth_known.data(), n);
+            std::size_t got = 0;
+            while (got < n) {
+                Piece& p = q.front();
+                const std::size_t take = std::min(n - got, p.b.size() - p.from);
+                std::copy_n(p.b.t_s.data() + p.from, take, out.t_s.data() + got);
+                std::copy_n(p.b.theta_rad.data() + p.from, take, out.theta_true_rad.data() + got);
+                std::copy_n(p.b.omega_rad_s.data() + p.from, take, out.omega_true_rad_s.data() + got);
+                std::fill_n(out.truth_known.data() + got, take, p.known);
+                p.from += take;
+                got += take;
+                if (p.from == p.b.size()) {
+                    spare.push_back(std::move(p.b));
+                    q.pop_front();
+                }
+            }
         }
     };
     void fill_truth(Frames& out) {

@@ -97,7 +97,10 @@ struct Lane {
         }
         if (tap) tap(m, f.t_s.data(), th.data(), om.data(), valid.data());
         if (self_reference) o.own_valid.assign(valid.begin(), valid.end());
-        for (std::size_t i = 0; i < m; ++i) valid[i] = valid[i] && f.truth_known[i];
+        // Valid where the truth is known too; then the error (branch-free passes that vectorise).
+        std::uint8_t* vd = valid.data();
+        const std::uint8_t* tk = f.truth_known.data();
+        for (std::size_t i = 0; i < m; ++i) vd[i] = static_cast<std::uint8_t>((vd[i] != 0) & (tk[i] != 0));
         LaneBlock& b = o.b;
         b.n = m;
         b.t_s = f.t_s.data();
@@ -112,7 +115,12 @@ struct Lane {
         b.estimator_valid = self_reference ? o.own_valid.data() : nullptr;
         o.err.resize(m);
         const double* tt = f.theta_true_rad.data();
-        for (std::size_t i = 0; i < m; ++i) o.err[i] = valid[i] ? th[i] - tt[i] : std::numeric_limits<double>::quiet_NaN();
+        const double* hat = th.data();
+        double* er = o.err.data();
+        for (std::size_t i = 0; i < m; ++i) {
+            const double d = hat[i] - tt[i];
+            er[i] = vd[i] ? d : std::numeric_limits<double>::quiet_NaN();
+        }
     }
     // Analyser i on the block in a slot.
     void analyse(std::size_t i, int slot) { analysers.add(i, out[slot].b); }
