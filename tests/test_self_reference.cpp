@@ -111,6 +111,13 @@ TEST_CASE("self-reference: the mean is not observable, the block size does not m
     CHECK(shifted.rms_rad == Approx(r.rms_rad).epsilon(1e-9));
     CHECK(shifted.harmonics[0].amplitude_rad == Approx(r.harmonics[0].amplitude_rad).epsilon(1e-9));
     CHECK(shifted.mean_vs_reference_rad - r.mean_vs_reference_rad == Approx(0.3).margin(1e-9));
+    // An origin about pi away, with the error's mean wandering across +-pi between windows: no
+    // window may be put a turn away from the others.
+    for (std::size_t i = 0; i < x.theta_hat.size(); ++i)
+        x.theta_hat[i] += kPi - 0.3 + 0.05 * std::sin(kTwoPi * 3.0 * x.t[i]);
+    const auto near_pi = analyse(x, 4096);
+    REQUIRE(near_pi.measured);
+    CHECK(near_pi.rms_rad < 0.1);
 }
 
 TEST_CASE("self-reference: a tracker's lag that changes with the speed is seen (the reference has none)", "[selfref]") {

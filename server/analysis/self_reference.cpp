@@ -146,10 +146,14 @@ void SelfReference::close_window() {
     // The estimator's error against the reference, to the nearest whole turn.
     Eigen::VectorXd e(rows);
     for (Eigen::Index row = 0; row < rows; ++row) e(row) = y_[static_cast<std::size_t>(row)] - s(row);
-    e.array() -= kTwoPi * std::round(e.mean() / kTwoPi);
+    // Whole turns relative to the first window's mean (an estimator whose phase origin differs
+    // from the signals' by about pi must not flip a turn between windows).
     if (!have_e_ref_) {
+        e.array() -= kTwoPi * std::round(e.mean() / kTwoPi);
         e_ref_ = e.mean();
         have_e_ref_ = true;
+    } else {
+        e.array() -= kTwoPi * std::round((e.mean() - e_ref_) / kTwoPi);
     }
     e.array() -= e_ref_;
     Eigen::MatrixXd g(rows, 1 + 2 * k_max);
