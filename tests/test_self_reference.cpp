@@ -8,6 +8,7 @@
 #include "server/engine/capture_run.hpp"
 #include "server/engine/run.hpp"
 #include "server/engine/scenario.hpp"
+#include "server/report/report_formats.hpp"
 #include "signal_gen/fastmath.hpp"
 #include "signal_gen/generator.hpp"
 
@@ -273,6 +274,10 @@ TEST_CASE("self-reference: a run on a capture without truth is judged on the sel
         }
         CHECK(metrics == std::set<std::string>{"self_ref_samples", "self_ref_cycles", "self_ref_valid_fraction", "self_ref_rms_rad"});
         CHECK(r["estimators"][0]["analysers"]["self_reference"]["measured"] == true);
+        // The HTML says why there is no error spectrum: no truth, not a lack of scored samples.
+        const std::string html = report_html(r);
+        CHECK_THAT(html, Catch::Contains("this capture has no truth"));
+        CHECK_THAT(html, Catch::Contains("self_ref_rms_rad"));
     }
     SECTION("a limit the capture cannot measure (rms_rad needs truth) FAILs and says why") {
         const json r = execute_run(scenario(json::array({json{{"estimator", "atan2"}, {"metric", "rms_rad"}, {"max", 0.5}}})));

@@ -477,7 +477,10 @@ export function errorSpectrum(parent, estimators) {
   div.fringe = { kind: 'spectrum', series: specs.length };
   if (!specs.length) {
     const short = (estimators || []).find((e) => e.spectrum && e.spectrum.segments === 0);
-    note(div, short ? `no spectrum: no run of ${short.spectrum.segment_samples} contiguous scored samples` : 'no spectrum in this report');
+    // A capture without truth: the spectrum is of the error against truth, which it has none of.
+    const truthless = short && short.metrics && short.metrics.scored === 0 && short.analysers && short.analysers.self_reference;
+    note(div, truthless ? 'no spectrum: it is the spectrum of the error against truth, and this capture has no truth (theta_true); the self-referenced error is in the metrics (self_ref_*)'
+      : short ? `no spectrum: no run of ${short.spectrum.segment_samples} contiguous scored samples` : 'no spectrum in this report');
     return div;
   }
   const fe = (specs.find((x) => x.s.electrical_hz > 0) || {}).s?.electrical_hz || 0;

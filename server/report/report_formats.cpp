@@ -411,7 +411,12 @@ std::string svg_spectrum(const json& estimators) {
         if (!e.contains("spectrum") || !e["spectrum"].is_object()) continue;
         const auto& sp = e["spectrum"];
         if (sp["f_hz"].empty()) {
-            why = "no spectrum: no run of " + sp["segment_samples"].dump() + " contiguous scored samples";
+            // A capture without truth: the spectrum is of the error against truth, which it has none of.
+            const bool truthless = e.value("metrics", json::object()).value("scored", -1) == 0 &&
+                                   e.value("analysers", json::object()).contains("self_reference");
+            why = truthless ? "no spectrum: it is the spectrum of the error against truth, and this capture has no truth (theta_true); the "
+                              "self-referenced error is in the metrics (self_ref_*)"
+                            : "no spectrum: no run of " + sp["segment_samples"].dump() + " contiguous scored samples";
             continue;
         }
         with.push_back(&e);
