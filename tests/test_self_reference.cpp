@@ -16,6 +16,7 @@
 #include <nlohmann/json.hpp>
 
 #include <cmath>
+#include <filesystem>
 #include <random>
 #include <set>
 #include <vector>
@@ -208,23 +209,28 @@ TEST_CASE("self-reference: agrees with the truth-scored error on generated runs 
     }
 }
 
+namespace {
+// The paper fixture's signals, n samples, into a capture: with its truth and encoder, or as a
+// real encoder's t,sin,cos alone.
+void write_capture(const Scenario& gen, std::size_t n, const std::filesystem::path& path, bool with_truth) {
+    Generator g(gen.encoder, gen.motion, gen.sample_rate_hz, gen.seed);
+    Block b;
+    b.resize(n, false);
+    g.generate(0, b);
+    const json meta = with_truth ? json{{"sample_rate_hz", gen.sample_rate_hz}, {"t0_s", 0.0}, {"encoder", gen.encoder}}
+                                 : json{{"sample_rate_hz", gen.sample_rate_hz}};
+    CaptureWriter w(path.string(), CaptureColumns{with_truth, with_truth, false}, meta);
+    w.write(b);
+    w.close();
+}
+}  // namespace
+
 TEST_CASE("self-reference: a capture without truth is measured, and agrees with the same capture with truth", "[selfref][capture]") {
     TempDir d;
     const Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
     const auto with = d.path / "with.fcap", without = d.path / "without.fcap";
-    {
-        Generator g(gen.encoder, gen.motion, gen.sample_rate_hz, gen.seed);
-        Block b;
-        b.resize(200000, false);
-        g.generate(0, b);
-        CaptureWriter w1(with.string(), CaptureColumns{true, true, false},
-                         json{{"sample_rate_hz", gen.sample_rate_hz}, {"t0_s", 0.0}, {"encoder", gen.encoder}});
-        w1.write(b);
-        w1.close();
-        CaptureWriter w2(without.string(), CaptureColumns{false, false, false}, json{{"sample_rate_hz", gen.sample_rate_hz}});
-        w2.write(b);
-        w2.close();
-    }
+    write_capture(gen, 200000, with, true);
+    write_capture(gen, 200000, without, false);
     CaptureRunOptions o;
     o.estimator = "atan2";
     o.capture_path = without.string();
@@ -248,15 +254,7 @@ TEST_CASE("self-reference: a run on a capture without truth is judged on the sel
     TempDir d;
     const Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
     const auto cap = d.path / "bare.fcap";
-    {
-        Generator g(gen.encoder, gen.motion, gen.sample_rate_hz, gen.seed);
-        Block b;
-        b.resize(150000, false);
-        g.generate(0, b);
-        CaptureWriter w(cap.string(), CaptureColumns{false, false, false}, json{{"sample_rate_hz", gen.sample_rate_hz}});
-        w.write(b);
-        w.close();
-    }
+    write_capture(gen, 150000, cap, false);
     auto scenario = [&](json limits) {
         json j{{"name", "bare-capture"}, {"encoder", gen.encoder}, {"motion", {{"kind", "constant"}, {"electrical_freq_hz", 100.0}}},
                {"sample_rate_hz", gen.sample_rate_hz}, {"duration_s", 150000 / gen.sample_rate_hz}, {"settle_s", 0.05}, {"seed", 1},
@@ -302,15 +300,7 @@ TEST_CASE("capture without truth: the preflight's stand-in motion is the signals
     TempDir d;
     const Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
     const auto cap = d.path / "bare.fcap";
-    {
-        Generator g(gen.encoder, gen.motion, gen.sample_rate_hz, gen.seed);
-        Block b;
-        b.resize(60000, false);
-        g.generate(0, b);
-        CaptureWriter w(cap.string(), CaptureColumns{false, false, false}, json{{"sample_rate_hz", gen.sample_rate_hz}});
-        w.write(b);
-        w.close();
-    }
+    write_capture(gen, 60000, cap, false);
     CaptureRunOptions o;
     o.capture_path = cap.string();
     o.estimator = "atan2";

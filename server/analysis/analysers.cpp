@@ -41,7 +41,11 @@ private:
 // truth does), as it costs a least-squares fit of every sample.
 class SelfReferenced final : public Analyser {
 public:
-    explicit SelfReferenced(const LaneContext& c) : on_(c.self_reference), sr_(SelfReferenceOptions{8, 16, 4, 65536, c.settle_s}) {}
+    explicit SelfReferenced(const LaneContext& c) : on_(c.self_reference), sr_([&] {
+        SelfReferenceOptions o;  // the defaults, from the lane's settle time
+        o.settle_s = c.settle_s;
+        return o;
+    }()) {}
     void add(const LaneBlock& b) override {
         if (on_) sr_.add(b.n, b.t_s, b.sin_v, b.cos_v, b.theta_hat_rad, b.estimator_valid ? b.estimator_valid : b.valid);
     }

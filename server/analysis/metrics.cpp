@@ -1,6 +1,7 @@
 #include "server/analysis/metrics.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdlib>
 
@@ -220,77 +221,68 @@ std::vector<MetricInfo> build_catalog() {
     // The error without truth (self_reference.hpp, docs/self-reference.md): against a reference
     // built from the signals themselves, labelled self-referenced wherever it is shown.
     const std::string self_lanes = "every lane of a capture without truth, or of a run with scoring.self_reference";
-    auto self_ref = [](const json& e, std::string* why) -> json {
+    // The lane's self-referenced analysis (null, and why, when the run did not make one or,
+    // measured_only, when it measured nothing); a figure's 95 % interval is +- 1.96 u.
+    auto self_ref = [](const json& e, std::string* why, bool measured_only) -> json {
         const json sr = sub(sub(e, "analysers"), "self_reference");
         if (!sr.is_object()) {
-            if (why) *why = "not measured: the run had truth and did not ask for it (scoring.self_reference)";
+            none(why, "not measured: the run had truth and did not ask for it (scoring.self_reference)");
             return json();
         }
-        if (sr.value("measured", false) != true) {
-            if (why) *why = sr.value("why_not", json()).is_string() ? sr["why_not"].get<std::string>() : std::string("not measured");
+        if (measured_only && sr.value("measured", false) != true) {
+            none(why, sr.value("why_not", json()).is_string() ? sr["why_not"].get<std::string>() : std::string("not measured"));
             return json();
         }
         return sr;
     };
-    {
-        MetricInfo m = M("self_ref_rms_rad", "rad", "rms error about its mean, self-referenced (no truth: against the signals' own lag-free phase)",
-                         self_lanes, "normal law, the standard uncertainty from the fit with correlated residuals (docs/self-reference.md)",
-                         "self-ref rms", [self_ref](const json& e, std::string* why) -> Value {
-                             const json sr = self_ref(e, why);
-                             if (sr.is_null()) return std::nullopt;
-                             return number(sr.value("rms_rad", json()), why, "not measured");
-                         },
-                         [self_ref](const json& e, double value) -> Interval {
-                             const json sr = self_ref(e, nullptr);
-                             if (!sr.is_object() || !sr.value("rms_u_rad", json()).is_number()) return std::nullopt;
-                             const double u = sr["rms_u_rad"].get<double>();
-                             return std::make_pair(std::max(0.0, value - 1.96 * u), value + 1.96 * u);
-                         });
-        v.push_back(std::move(m));
-    }
+    auto harmonic_of = [](const json& sr, int k) -> json {
+        for (const auto& h : sr.value("harmonics", json::array()))
+            if (h.value("order", 0) == k) return h;
+        return json();
+    };
+    auto normal95 = [](double value, const json& u) -> Interval {
+        if (!u.is_number()) return std::nullopt;
+        return std::make_pair(std::max(0.0, value - 1.96 * u.get<double>()), value + 1.96 * u.get<double>());
+    };
+    v.push_back(M("self_ref_rms_rad", "rad", "rms error about its mean, self-referenced (no truth: against the signals' own lag-free phase)",
+                  self_lanes, "normal law, the standard uncertainty from the fit with correlated residuals (docs/self-reference.md)", "self-ref rms",
+                  [self_ref](const json& e, std::string* why) -> Value {
+                      const json sr = self_ref(e, why, true);
+                      return sr.is_null() ? std::nullopt : number(sr.value("rms_rad", json()), why, "not measured");
+                  },
+                  [self_ref, normal95](const json& e, double value) {
+                      return normal95(value, sub(self_ref(e, nullptr, true), "rms_u_rad"));
+                  }));
     // Evidence of a run without truth: what the self-referenced figures rest on.
-    auto self_field = [](const char* key) {
-        return [key](const json& e, std::string* why) -> Value {
-            const json sr = sub(sub(e, "analysers"), "self_reference");
-            if (!sr.is_object()) return none(why, "not measured: the run had truth and did not ask for it (scoring.self_reference)");
-            return number(sr.value(key, json()), why, "not counted");
+    auto self_field = [self_ref](const char* key) {
+        return [self_ref, key](const json& e, std::string* why) -> Value {
+            const json sr = self_ref(e, why, false);
+            return sr.is_null() ? std::nullopt : number(sr.value(key, json()), why, "not counted");
         };
     };
-    {
-        MetricInfo a = M("self_ref_samples", "samples", "samples in the self-referenced windows (evidence without truth)", self_lanes,
-                         "none: an exact count", "", self_field("samples"));
-        MetricInfo b = M("self_ref_cycles", "cycles", "electrical periods swept by the self-referenced windows (evidence without truth)", self_lanes,
-                         "none: counted from the signals", "", self_field("cycles"));
-        MetricInfo c = M("self_ref_valid_fraction", "", "share of the samples after the settle time the estimator vouched for (evidence without truth)",
-                         self_lanes, "none: an exact ratio", "", self_field("valid_fraction"));
-        for (MetricInfo* x : {&a, &b, &c}) {
-            x->group = "evidence";
-            v.push_back(std::move(*x));
-        }
-    }
-    for (int k = 1; k <= 4; ++k) {
-        MetricInfo m = M("self_ref_harmonic_" + std::to_string(k) + "x_rad", "rad",
-                         std::to_string(k) + "x harmonic of the error against the electrical angle, self-referenced", self_lanes,
-                         "normal law of the fitted amplitude (docs/self-reference.md)", "",
-                         [self_ref, k](const json& e, std::string* why) -> Value {
-                             const json sr = self_ref(e, why);
-                             if (sr.is_null()) return std::nullopt;
-                             for (const auto& h : sr.value("harmonics", json::array()))
-                                 if (h.value("order", 0) == k) return number(h.value("amplitude_rad", json()), why, "not fitted");
-                             return none(why, "not fitted");
-                         },
-                         [self_ref, k](const json& e, double value) -> Interval {
-                             const json sr = self_ref(e, nullptr);
-                             if (!sr.is_object()) return std::nullopt;
-                             for (const auto& h : sr.value("harmonics", json::array()))
-                                 if (h.value("order", 0) == k && h.value("u_rad", json()).is_number()) {
-                                     const double u = h["u_rad"].get<double>();
-                                     return std::make_pair(std::max(0.0, value - 1.96 * u), value + 1.96 * u);
-                                 }
-                             return std::nullopt;
-                         });
+    using Row = std::array<const char*, 5>;  // name, unit, meaning, uncertainty, key
+    const Row evidence_rows[] = {
+        {"self_ref_samples", "samples", "samples in the self-referenced windows (evidence without truth)", "none: an exact count", "samples"},
+        {"self_ref_cycles", "cycles", "electrical periods swept by the self-referenced windows (evidence without truth)",
+         "none: counted from the signals", "cycles"},
+        {"self_ref_valid_fraction", "", "share of the samples after the settle time the estimator vouched for (evidence without truth)",
+         "none: an exact ratio", "valid_fraction"}};
+    for (const auto& [name, unit, desc, unc, key] : evidence_rows) {
+        MetricInfo m = M(name, unit, desc, self_lanes, unc, "", self_field(key));
+        m.group = "evidence";
         v.push_back(std::move(m));
     }
+    for (int k = 1; k <= 4; ++k)
+        v.push_back(M("self_ref_harmonic_" + std::to_string(k) + "x_rad", "rad",
+                      std::to_string(k) + "x harmonic of the error against the electrical angle, self-referenced", self_lanes,
+                      "normal law of the fitted amplitude (docs/self-reference.md)", "",
+                      [self_ref, harmonic_of, k](const json& e, std::string* why) -> Value {
+                          const json sr = self_ref(e, why, true);
+                          return sr.is_null() ? std::nullopt : number(sub(harmonic_of(sr, k), "amplitude_rad"), why, "not fitted");
+                      },
+                      [self_ref, harmonic_of, normal95, k](const json& e, double value) {
+                          return normal95(value, sub(harmonic_of(self_ref(e, nullptr, true), k), "u_rad"));
+                      }));
     // The run's truth alignment (output and input instruments on their own clocks).
     const std::string aligned = "the run, once (estimator \"run\"), when its device plays and records on its own clock (docs/alignment.md)";
     auto R = [&](std::string name, std::string unit, std::string desc, const char* key) {

@@ -135,12 +135,13 @@ void SelfReference::close_window() {
         const double mean = eu.segment(static_cast<Eigen::Index>(s0), kBatch).mean();
         ref_batch += mean * mean;
     }
+    const double ref_batched_sq = eu.head(static_cast<Eigen::Index>(nb * kBatch)).squaredNorm();
     ref_batch_sq_ += ref_batch;
-    ref_resid_sq_ += eu.head(static_cast<Eigen::Index>(nb * kBatch)).squaredNorm();
+    ref_resid_sq_ += ref_batched_sq;
     // The reference's own error from the signals' noise: the quintic's share of the window,
     // about var(eu) tau kPoly / n a sample (tau: this window's correlation time).
     const double var_u = ref_sq / std::max(1.0, static_cast<double>(n) - p_);
-    const double tau_u = correlation_time(ref_batch, eu.head(static_cast<Eigen::Index>(nb * kBatch)).squaredNorm(), nb);
+    const double tau_u = correlation_time(ref_batch, ref_batched_sq, nb);
     ref_var_sum_ += var_u * tau_u * kPoly;
 
     // The estimator's error against the reference, to the nearest whole turn.

@@ -21,8 +21,10 @@ std::string fmt_g(double v) {
 json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus status, Verdict& verdict, const json& run, bool has_truth) {
     json out = json::array();
     verdict = Verdict::Pass;
+    // band: an interface profile's band (interface_profile.hpp): the limit is its specification,
+    // and a value outside its mounting tolerance is MARGINAL instead of a marginal fraction.
     auto measure = [&](const std::string& label, const std::string& metric, std::optional<double> max, std::optional<double> min,
-                       double marginal, bool implicit, const json& ej) {
+                       double marginal, bool implicit, const json& ej, const InterfaceBand* band = nullptr) {
         const auto mi = find_metric(metric);
         std::string why;
         const auto v = mi && mi->run_level ? run_metric_value(metric, run, &why)
@@ -32,7 +34,16 @@ json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus statu
         json lim = json::object();
         if (max) lim["max"] = *max;
         if (min) lim["min"] = *min;
-        lim["marginal_fraction"] = marginal;
+        auto range = [](const std::optional<double>& lo, const std::optional<double>& hi) {
+            return json::array({lo ? json(*lo) : json(), hi ? json(*hi) : json()});
+        };
+        if (band) {
+            mj["interface"] = sc.interface->name;
+            mj["band"] = {{"spec", range(band->spec_lo, band->spec_hi)}};
+            if (band->has_mounting) mj["band"]["mounting"] = range(band->mount_lo, band->mount_hi);
+        } else {
+            lim["marginal_fraction"] = marginal;
+        }
         mj["limit"] = lim;
         Verdict o = Verdict::Pass;
         if (status != RunStatus::Done) o = Verdict::Error;
@@ -42,7 +53,9 @@ json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus statu
                 why = "the capture has no truth (theta_true), so " + metric + " cannot be measured; the self_ref_* metrics measure the error without it";
             mj["reason"] = "not measured: " + why;
         } else if ((max && *v > *max) || (min && *v < *min)) o = Verdict::Fail;
-        else if (max && *v > *max - marginal * std::fabs(*max)) o = Verdict::Marginal;
+        else if (band) {
+            if (band->has_mounting && ((band->mount_lo && *v < *band->mount_lo) || (band->mount_hi && *v > *band->mount_hi))) o = Verdict::Marginal;
+        } else if (max && *v > *max - marginal * std::fabs(*max)) o = Verdict::Marginal;
         else if (min && *v < *min + marginal * std::fabs(*min)) o = Verdict::Marginal;
         // Every error figure has a 95 % interval: a limit inside it is no confident decision.
         if (v && status == RunStatus::Done && !implicit) {
@@ -56,6 +69,12 @@ json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus statu
                 }
             }
         }
+        if (band && status == RunStatus::Done)
+            mj["grade"] = !v                        ? "not measured"
+                          : o == Verdict::Fail     ? "out of specification"
+                          : o == Verdict::Marginal ? "within specification, outside mounting tolerance"
+                          : band->has_mounting     ? "within mounting tolerance"
+                                                   : "within specification";
         mj["outcome"] = to_string(o);
         verdict = worse(verdict, o);
         out.push_back(std::move(mj));
@@ -91,42 +110,7 @@ json evaluate_limits(const Scenario& sc, const json& estimators, RunStatus statu
     // The signals graded against the scenario's interface profile: within the mounting tolerance
     // PASS, within the specification only MARGINAL, outside it or not measured FAIL.
     if (sc.interface)
-        for (const auto& b : sc.interface->bands) {
-            const auto mi = find_metric(b.metric);
-            std::string why;
-            const auto v = run_metric_value(b.metric, run, &why);
-            auto pair = [](const std::optional<double>& lo, const std::optional<double>& hi) {
-                return json::array({lo ? json(*lo) : json(), hi ? json(*hi) : json()});
-            };
-            json mj{{"estimator", "run"}, {"metric", b.metric}, {"unit", mi ? mi->unit : ""}, {"value", v ? json(*v) : json()},
-                    {"interface", sc.interface->name}, {"band", {{"spec", pair(b.spec_lo, b.spec_hi)}}}};
-            if (b.has_mounting) mj["band"]["mounting"] = pair(b.mount_lo, b.mount_hi);
-            json lim = json::object();
-            if (b.spec_lo) lim["min"] = *b.spec_lo;
-            if (b.spec_hi) lim["max"] = *b.spec_hi;
-            mj["limit"] = lim;
-            auto within = [&](const std::optional<double>& lo, const std::optional<double>& hi) { return (!lo || *v >= *lo) && (!hi || *v <= *hi); };
-            Verdict o = Verdict::Pass;
-            std::string grade;
-            if (status != RunStatus::Done) o = Verdict::Error;
-            else if (!v) {
-                o = Verdict::Fail;
-                mj["reason"] = "not measured: " + why;
-                grade = "not measured";
-            } else if (!within(b.spec_lo, b.spec_hi)) {
-                o = Verdict::Fail;
-                grade = "out of specification";
-            } else if (b.has_mounting && !within(b.mount_lo, b.mount_hi)) {
-                o = Verdict::Marginal;
-                grade = "within specification, outside mounting tolerance";
-            } else {
-                grade = b.has_mounting ? "within mounting tolerance" : "within specification";
-            }
-            if (!grade.empty()) mj["grade"] = grade;
-            mj["outcome"] = to_string(o);
-            verdict = worse(verdict, o);
-            out.push_back(std::move(mj));
-        }
+        for (const auto& b : sc.interface->bands) measure("run", b.metric, b.spec_hi, b.spec_lo, 0.0, false, json::object(), &b);
     if (status == RunStatus::Error) verdict = Verdict::Error;
     if (status == RunStatus::Aborted || status == RunStatus::Interrupted) verdict = Verdict::Aborted;
     return out;

@@ -124,26 +124,20 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
     const KeyTable& k = scenario_keys();
     s.name = bounded(k.string(r, "name"), "name", kMaxNameChars);
     s.description = bounded(k.string(r, "description"), "description", kMaxDescriptionChars);
-    const json& enc = r.raw("encoder");
-    if (!enc.is_string() && !enc.is_object()) throw ConfigError("encoder", "expected a profile object or a file name");
-    std::string file;
-    try {
-        s.encoder = encoder_from_json(resolve_json_ref(enc, base_dir, &file), "encoder");
-    } catch (const ConfigError& e) {
-        if (file.empty()) throw;
-        throw ConfigError(e.field().empty() ? "encoder" : e.field(), std::string(e.what()) + " (in " + file + ")");
-    }
-    if (r.has("interface")) {
-        const json& itf = r.raw("interface");
-        if (!itf.is_string() && !itf.is_object()) throw ConfigError("interface", "expected an interface profile object or a file name");
-        std::string ifile;
+    // A profile given inline or as a file relative to the scenario: a fault inside a file names it.
+    auto referenced = [&](const char* field, const char* what, auto parse) {
+        const json& ref = r.raw(field);
+        if (!ref.is_string() && !ref.is_object()) throw ConfigError(field, std::string("expected ") + what + " object or a file name");
+        std::string file;
         try {
-            s.interface = interface_from_json(resolve_json_ref(itf, base_dir, &ifile), "interface");
+            return parse(resolve_json_ref(ref, base_dir, &file), field);
         } catch (const ConfigError& e) {
-            if (ifile.empty()) throw;
-            throw ConfigError(e.field().empty() ? "interface" : e.field(), std::string(e.what()) + " (in " + ifile + ")");
+            if (file.empty()) throw;
+            throw ConfigError(e.field().empty() ? field : e.field(), e.message() + " (in " + file + ")");
         }
-    }
+    };
+    s.encoder = referenced("encoder", "a profile", encoder_from_json);
+    if (r.has("interface")) s.interface = referenced("interface", "an interface profile", interface_from_json);
     s.sample_rate_hz = k.number(r, "sample_rate_hz");
     s.duration_s = k.number(r, "duration_s");
     s.t0_s = k.number(r, "t0_s");
