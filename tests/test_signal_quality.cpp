@@ -205,3 +205,46 @@ TEST_CASE("signal quality: signals beyond range or near zero are refused or meas
     CHECK(qt.to_json()["radius_min_v"].get<double>() == Approx(1e-300).epsilon(1e-6));
     CHECK(qt.mean().ab_ratio == Approx(1).epsilon(1e-4));
 }
+
+TEST_CASE("signal quality: the Lissajous bins are the ellipse's points, forwards and backwards alike", "[signal]") {
+    // Bin k covers the electrical angle [k, k + 1) 2 pi / N from A rising through 0 with B > 0
+    // (with an offset o on A, that is theta0 = -asin(o / amp_a)): at constant speed its mean
+    // point is the ellipse at the bin's middle angle (to the sinc of the bin's width,
+    // 1 - (pi/N)^2 / 6 ~ 1e-4 for N = 128), and its radius spans the ellipse's radius over the bin.
+    Sig s;
+    s.amp_a = 0.55;
+    s.amp_b = 0.45;
+    s.off_a = 0.02;
+    const double f = 41;
+    for (const double dir : {1.0, -1.0}) {
+        const auto j = analyse(s, [&](double t) { return dir * kTwoPi * f * t + 0.7; }, 40000, 1.0).to_json()["lissajous"];
+        const std::size_t nb = j["bins"].get<std::size_t>();
+        REQUIRE(nb == SignalQuality::kLissajousBins);
+        REQUIRE(j["a_v"].size() == nb);
+        const double sinc = std::sin(kPi / static_cast<double>(nb)) / (kPi / static_cast<double>(nb));
+        const double theta0_rad = -std::asin(s.off_a / s.amp_a);
+        for (std::size_t k = 0; k < nb; ++k) {
+            INFO("direction " << dir << ", bin " << k);
+            REQUIRE(j["samples"][k].get<std::size_t>() > 0);
+            const double mid_rad = theta0_rad + kTwoPi * (static_cast<double>(k) + 0.5) / static_cast<double>(nb);
+            CHECK(j["a_v"][k].get<double>() == Approx(s.amp_a * sinc * std::sin(mid_rad) + s.off_a).margin(2e-4));
+            CHECK(j["b_v"][k].get<double>() == Approx(s.amp_b * sinc * std::cos(mid_rad)).margin(2e-4));
+            // The ellipse's radius within the bin's angles bounds the bin's radii.
+            double r_lo = 1e9, r_hi = 0;
+            for (int i = 0; i <= 64; ++i) {
+                const double th = theta0_rad + kTwoPi * (static_cast<double>(k) + i / 64.0) / static_cast<double>(nb);
+                const double r = std::hypot(s.amp_a * std::sin(th) + s.off_a, s.amp_b * std::cos(th));
+                r_lo = std::min(r_lo, r);
+                r_hi = std::max(r_hi, r);
+            }
+            CHECK(j["r_min_v"][k].get<double>() >= r_lo - 1e-6);  // the reference sampled at 65 angles, the crossings interpolated
+            CHECK(j["r_max_v"][k].get<double>() <= r_hi + 1e-6);
+            CHECK(j["r_max_v"][k].get<double>() - j["r_min_v"][k].get<double>() <= r_hi - r_lo + 2e-6);
+        }
+    }
+    SECTION("no period: empty bins are null, never 0") {
+        const auto j = analyse(Sig{}, [](double t) { return 0.1 * t; }, 1000, 1.0).to_json();
+        CHECK(j["periods"].get<int>() == 0);
+        CHECK_FALSE(j.contains("lissajous"));
+    }
+}

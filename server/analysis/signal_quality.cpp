@@ -363,6 +363,7 @@ void SignalQuality::close_period(double t, double a, double b) {
         ++skipped_;
         return;
     }
+    bin_lissajous(phi);
     if (!have_worst_) {
         worst_lo_ = worst_hi_ = p;
         radius_min_v_ = p.radius_min_v;
@@ -422,6 +423,23 @@ void SignalQuality::close_period(double t, double a, double b) {
     mean_.phase_deg = sum_.phase_deg / static_cast<double>(periods_);
     mean_.freq_hz = sum_.freq_hz / static_cast<double>(periods_);
     record(p);
+}
+
+void SignalQuality::bin_lissajous(const std::vector<double>& phi_rad) {
+    const double scale = static_cast<double>(kLissajousBins) / kTwoPi;
+    const std::size_t n = phi_rad.size();
+    for (std::size_t i = 1; i + 1 < n; ++i) {  // the first and last points are the crossings, not samples
+        double u = phi_rad[i] * scale;           // backwards, phi runs 0..-2 pi: its angle is 2 pi + phi
+        if (u < 0) u += static_cast<double>(kLissajousBins);
+        const std::size_t k = std::min(kLissajousBins - 1, static_cast<std::size_t>(u));
+        LissajousBin& bin = lissajous_[k];
+        const double a = pa_[i], b = pb_[i], r2 = a * a + b * b;
+        bin.sum_a_v += a;
+        bin.sum_b_v += b;
+        bin.r2_min = std::min(bin.r2_min, r2);
+        bin.r2_max = std::max(bin.r2_max, r2);
+        ++bin.count;
+    }
 }
 
 void SignalQuality::record(const PeriodQuality& p) {
@@ -617,6 +635,17 @@ json SignalQuality::to_json() const {
     };
     for (const auto& r : records_) push(r);
     if (pending_.count > 0) push(pending_);
+    json liss{{"bins", kLissajousBins}, {"a_v", json::array()}, {"b_v", json::array()}, {"r_min_v", json::array()}, {"r_max_v", json::array()},
+              {"samples", json::array()}};
+    for (const auto& bin : lissajous_) {
+        const bool any = bin.count > 0;
+        const double n = static_cast<double>(bin.count);
+        liss["a_v"].push_back(any ? json(bin.sum_a_v / n) : json());
+        liss["b_v"].push_back(any ? json(bin.sum_b_v / n) : json());
+        liss["r_min_v"].push_back(any ? json(std::sqrt(bin.r2_min)) : json());
+        liss["r_max_v"].push_back(any ? json(std::sqrt(bin.r2_max)) : json());
+        liss["samples"].push_back(bin.count);
+    }
     return {{"periods", periods_},
             {"skipped_periods", skipped_},
             {"skipped_unsteady_periods", skipped_unsteady_},
@@ -632,6 +661,7 @@ json SignalQuality::to_json() const {
             {"radius_min_v", radius_min_v_},
             {"radius_max_v", radius_max_v_},
             {"recording", rec},
+            {"lissajous", liss},
             {"method", "each electrical period between crossings of atan2(A, B) through a multiple of 2 pi; angle linear in time within a "
                        "period; Fourier series to the 8th harmonic by the trapezoid rule; figures are means over the periods"}};
 }

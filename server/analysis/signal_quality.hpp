@@ -48,6 +48,7 @@ struct PeriodQuality {
 class SignalQuality {
 public:
     static constexpr std::size_t kMaxRecords = 2048;     // per-period buckets kept
+    static constexpr std::size_t kLissajousBins = 128;   // electrical-angle bins of the Lissajous figure
     static constexpr std::size_t kMaxPeriodSamples = 1u << 17;  // a longer period is skipped (counted)
     static constexpr int kHarmonics = 8;
     static constexpr std::size_t kMinPeriodSamples = 24;  // 17 coefficients and some noise left
@@ -102,6 +103,15 @@ private:
     std::vector<Record> records_;
     std::size_t per_record_ = 1;  // periods per bucket (doubles when full)
     Record pending_{};
+    // The Lissajous figure of the analysed periods: each sample binned by its electrical angle
+    // within its period (bin k covers [k, k + 1) 2 pi / kLissajousBins from A rising through 0
+    // with B > 0), the bin's mean A and B and the least and greatest radius sqrt(A^2 + B^2).
+    void bin_lissajous(const std::vector<double>& phi_rad);
+    struct LissajousBin {
+        double sum_a_v = 0, sum_b_v = 0, r2_min = std::numeric_limits<double>::infinity(), r2_max = 0;
+        std::size_t count = 0;
+    };
+    std::vector<LissajousBin> lissajous_ = std::vector<LissajousBin>(kLissajousBins);
 };
 
 }  // namespace fringe
