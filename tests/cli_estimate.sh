@@ -51,6 +51,20 @@ cut -d, -f1-3 "$dir/cap.csv" > "$dir/notruth.csv"
 [ "$(wc -l < "$dir/e2.csv")" -eq 30001 ] || fail "no-truth rows"
 $PY -c 'import json,sys; r=json.load(open(sys.argv[1])); assert r["capture"]["has_truth"] is False and r["verdict"] is None and r["measurements"] == [] and "no theta_true" in r["capture"]["not_scored"] and r["estimators"][0]["metrics"]["scored"] == 0' "$dir/n.json"
 
+# without truth, graded against an interface profile: the bands are the measurements and the verdict
+"$FRINGE" estimate "$dir/notruth.csv" --estimator atan2 --interface "$SRC/fixtures/interfaces/1vpp.json" --report "$dir/ni.json" > "$dir/ni.txt"
+grep -q "signal bands .*graded against 1 Vpp" "$dir/ni.txt" && grep -q "^verdict [A-Z]*: the signals graded against 1 Vpp" "$dir/ni.txt" && grep -q "A/B .*\[.*|.*\] *spec 0.8..1.25, mounting 0.9..1.1: " "$dir/ni.txt" || fail "the signal bands block"
+$PY - "$dir/ni.json" <<'PY'
+import json, sys
+r = json.load(open(sys.argv[1]))
+ms = r["measurements"]
+assert len(ms) == 6 and all(m["estimator"] == "run" and m["interface"] == "1 Vpp" for m in ms), ms
+worst = "FAIL" if any(m["outcome"] == "FAIL" for m in ms) else "MARGINAL" if any(m["outcome"] == "MARGINAL" for m in ms) else "PASS"
+assert r["verdict"] == worst and "interface profile" in r["capture"]["not_scored"], (r["verdict"], worst)
+PY
+printf '{"name": "x", "bands": {"signal_vpp_a_v": {"spec": [2, 1]}}}' > "$dir/badif.json"
+expect_error "interface.bands.signal_vpp_a_v.*badif.json" "$FRINGE" estimate "$dir/notruth.csv" --estimator atan2 --interface "$dir/badif.json"
+
 # bad input: exit 2, the problem named
 expect_error "unknown estimator 'ekf-magic'" "$FRINGE" estimate "$dir/cap.csv" --estimator ekf-magic -o "$dir/x.csv"
 expect_error "params.natural_freq_hz" "$FRINGE" estimate "$dir/cap.csv" --estimator pll2 --param natural_freq_hz=-3 -o "$dir/x.csv"

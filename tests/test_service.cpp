@@ -9,6 +9,7 @@
 #include "server/engine/schema_info.hpp"
 #include "server/http/service.hpp"
 #include "signal_gen/base/config.hpp"
+#include "signal_gen/base/constants.hpp"
 
 #include <catch2/catch.hpp>
 #include <nlohmann/json.hpp>
@@ -22,8 +23,11 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <random>
 #include <thread>
 
@@ -1129,4 +1133,67 @@ TEST_CASE("service: the run queue is capped: 429 queue_full with Retry-After", "
     CHECK(again.status == 201);
     CHECK(s.handle(req("POST", "/api/v1/runs/" + first + "/cancel")).status == 202);
     s.shutdown();
+}
+
+TEST_CASE("service: a capture without truth evaluated against an interface profile is graded, by name or inline", "[service][interface]") {
+    TempDir d;
+    Service s(config(d));
+    // 1.0 Vpp ideal quadrature (0.5 V peak), 50 electrical Hz at 20 kHz for 0.5 s: no truth column.
+    std::string csv = "t,sin,cos\n";
+    for (int i = 0; i < 10000; ++i) {
+        const double t = i / 20000.0, th = kTwoPi * 50.0 * t;
+        char line[96];
+        std::snprintf(line, sizeof line, "%.8g,%.9g,%.9g\n", t, 0.5 * std::sin(th), 0.5 * std::cos(th));
+        csv += line;
+    }
+    auto up = s.handle(req("POST", "/api/v1/captures", csv));
+    REQUIRE(up.status == 201);
+    const std::string id = body_of(up)["id"];
+    CHECK(body_of(up)["has_truth"] == false);
+    const std::string url = "/api/v1/captures/" + id + "/evaluate";
+    auto grades = [](const json& rep) {
+        std::map<std::string, std::string> g;
+        for (const auto& m : rep["measurements"]) g[m["metric"].get<std::string>()] = m["outcome"].get<std::string>();
+        return g;
+    };
+    // The fixtures' profiles are listed by file name with the name they give themselves.
+    const json fx = body_of(s.handle(req("GET", "/api/v1/fixtures")));
+    bool listed = false;
+    for (const auto& f : fx["interfaces"]) listed |= f["name"] == "1vpp" && f["title"] == "1 Vpp";
+    CHECK(listed);
+    SECTION("1 Vpp by name: every band within mounting, verdict PASS, only the bands measured") {
+        auto ev = s.handle(req("POST", url, R"({"estimator":"atan2","interface":"1vpp"})"));
+        REQUIRE(ev.status == 200);
+        const json rep = body_of(ev);
+        CHECK(rep["verdict"] == "PASS");
+        const auto g = grades(rep);
+        CHECK(g.size() == 6);
+        for (const auto& [metric, outcome] : g) {
+            INFO(metric);
+            CHECK(outcome == "PASS");
+        }
+        CHECK(rep["capture"]["not_scored"].get<std::string>().find("interface profile") != std::string::npos);
+        CHECK(rep["scenario"]["interface"]["name"] == "1 Vpp");
+    }
+    SECTION("an inline profile whose amplitude band the signals miss: FAIL") {
+        auto ev = s.handle(req("POST", url, R"({"estimator":"atan2","interface":{"name":"2 Vpp","bands":{"signal_vpp_a_v":{"spec":[1.6,2.4]}}}})"));
+        REQUIRE(ev.status == 200);
+        const json rep = body_of(ev);
+        CHECK(rep["verdict"] == "FAIL");
+        CHECK(grades(rep) == std::map<std::string, std::string>{{"signal_vpp_a_v", "FAIL"}});
+    }
+    SECTION("without a profile: no verdict") {
+        const json rep = body_of(s.handle(req("POST", url, R"({"estimator":"atan2"})")));
+        CHECK(rep["verdict"].is_null());
+        CHECK(rep["measurements"].empty());
+    }
+    SECTION("refusals name the field") {
+        for (const char* body : {R"({"estimator":"atan2","interface":"../interfaces/1vpp"})", R"({"estimator":"atan2","interface":"nope"})",
+                                 R"({"estimator":"atan2","interface":3})", R"({"estimator":"atan2","interface":{"name":"x","bands":{"rms_rad":{"spec":[0,1]}}}})"}) {
+            INFO(body);
+            auto r = s.handle(req("POST", url, body));
+            CHECK(r.status == 400);
+            CHECK(body_of(r)["error"]["field"].get<std::string>().rfind("interface", 0) == 0);
+        }
+    }
 }

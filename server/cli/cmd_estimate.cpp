@@ -19,7 +19,7 @@ namespace {
 using nlohmann::json;
 
 struct EstimateOptions {
-    std::string capture, estimator, encoder, output, report, channels;
+    std::string capture, estimator, encoder, output, report, channels, interface;
     std::vector<std::string> params;
     int dut_interpolation = 0;  // 0: no ABZ readout
     long long dut_index_count = 0;
@@ -91,12 +91,13 @@ int run_estimate(const EstimateOptions& o) {
     // written there would be read as the capture's metadata next time.
     const bool has_sidecar = capture_format_for(o.capture) != CaptureFormat::Binary;
     refuse_overwrite({{"output", o.output}, {"report", o.report}},
-                     {{"capture", o.capture}, {"capture's sidecar", has_sidecar ? sidecar_path(o.capture) : ""}, {"encoder profile", o.encoder}});
+                     {{"capture", o.capture}, {"capture's sidecar", has_sidecar ? sidecar_path(o.capture) : ""}, {"encoder profile", o.encoder}, {"interface profile", o.interface}});
     CaptureRunOptions e;
     e.capture_path = o.capture;
     e.estimator = o.estimator;
     e.params = est::parse_param_assignments(est::find(o.estimator).params, o.params);
     if (!o.encoder.empty()) e.encoder = load_encoder(o.encoder);
+    if (!o.interface.empty()) e.interface = load_interface(o.interface);
     e.settle_s = o.settle_s;
     e.estimates_path = o.output;
     if (!o.channels.empty()) e.capture.channels = parse_channel_map(o.channels);
@@ -198,6 +199,9 @@ int run_estimate(const EstimateOptions& o) {
         }
         if (const std::string n = state_notes(lane.value("state", json())); !n.empty() && !notes_shown) std::printf("%s: %s\n", o.estimator.c_str(), term_escape(n).c_str());
         print_signal_summary(r);
+        if (r["verdict"].is_string() && !cap.value("has_truth", true))
+            std::printf("verdict %s: the signals graded against %s (the estimator's error is self-referenced and has no limit)\n",
+                        r["verdict"].get<std::string>().c_str(), term_escape(r["scenario"]["interface"].value("name", std::string("the interface profile"))).c_str());
         for (const auto& d : r["estimators"]) {
             if (d.value("label", "") != "dut" || d.value("name", "") != "dut") continue;
             const auto& ro = d["metrics"]["abz"];
@@ -233,6 +237,10 @@ Command add_estimate(CLI::App& app) {
     es->add_option("--dut-offset-rad", o->dut_offset_rad, "With --dut-interpolation: electrical angle of count 0's lower edge");
     es->add_option("--estimator", o->estimator, "Estimator name (see --list)");
     es->add_option("--encoder", o->encoder, "Encoder profile JSON the estimator is told (default: the capture's metadata)")->check(CLI::ExistingFile);
+    es->add_option("--interface", o->interface,
+                   "Interface profile JSON to grade the signals against (e.g. fixtures/interfaces/1vpp.json; docs/signal-quality.md): its bands are the report's "
+                   "measurements and verdict, with or without truth")
+        ->check(CLI::ExistingFile);
     es->add_option("--param", o->params, "Estimator parameter key=value (repeatable)");
     es->add_option("-o,--output", o->output, "Estimates CSV to write: t,theta_rad,omega_rad_s,valid (without -o and --report: the summary only)");
     es->add_option("--report", o->report, "Report JSON to write (scores and bounds when the capture has truth)");

@@ -159,6 +159,69 @@ void print_signal_summary(const json& r) {
         std::printf("  %-20s %s (%s periods)\n", "signal", line.c_str(), sq.value("periods", json()).dump().c_str());
     else if (sq.is_object() && sq.value("note", json()).is_string())
         std::printf("  %-20s not analysed: %s\n", "signal", term_escape(sq["note"].get<std::string>()).c_str());
+    print_signal_bands(r);
+}
+
+namespace {
+std::string band_number(const json& v, const char* open) {
+    if (!v.is_number()) return open;
+    char b[32];
+    std::snprintf(b, sizeof b, "%.4g", v.get<double>());
+    return b;
+}
+
+// A text gauge of a value against its bands, 25 characters between [ and ]: '=' the mounting
+// tolerance, '~' the rest of the specification, '.' outside it; '|' the value ('<' or '>' at an
+// end when it is off the scale). The scale spans the specification and a third of it either side.
+std::string band_gauge(const json& value, const json& band) {
+    const json spec = band.value("spec", json()), mount = band.value("mounting", json());
+    if (!spec.is_array() || spec.size() != 2 || !spec[0].is_number() || !spec[1].is_number()) return "";
+    const double lo = spec[0].get<double>(), hi = spec[1].get<double>(), w = hi - lo;
+    if (!(w > 0)) return "";
+    constexpr int kCells = 25;
+    const double x0 = lo - w / 3, x1 = hi + w / 3, dx = (x1 - x0) / kCells;
+    std::string g(kCells, '.');
+    for (int i = 0; i < kCells; ++i) {
+        const double x = x0 + (i + 0.5) * dx;
+        if (x >= lo && x <= hi) g[i] = '~';
+        if (mount.is_array() && mount.size() == 2 && (!mount[0].is_number() || x >= mount[0].get<double>()) &&
+            (!mount[1].is_number() || x <= mount[1].get<double>()) && x >= lo && x <= hi)
+            g[i] = '=';
+    }
+    if (value.is_number()) {
+        const double v = value.get<double>();
+        if (v < x0) g[0] = '<';
+        else if (v >= x1) g[kCells - 1] = '>';
+        else g[std::min(kCells - 1, static_cast<int>((v - x0) / dx))] = '|';
+    }
+    return "[" + g + "]";
+}
+}  // namespace
+
+// The signals graded against the scenario's interface profile: one line a band, with a gauge.
+void print_signal_bands(const json& r) {
+    const json ms = r.value("measurements", json::array());
+    bool header = false;
+    for (const auto& m : ms) {
+        if (m.value("estimator", "") != "run" || !m.value("interface", json()).is_string()) continue;
+        if (!header) {
+            std::printf("  %-20s graded against %s: '=' mounting tolerance, '~' specification, '|' the value\n", "signal bands",
+                        term_escape(m["interface"].get<std::string>()).c_str());
+            header = true;
+        }
+        const std::string metric = m.value("metric", "");
+        const auto mi = find_metric(metric);
+        const std::string label = mi && !mi->column.empty() ? mi->column : metric;
+        const json band = m.value("band", json::object());
+        const json spec = band.value("spec", json()), mount = band.value("mounting", json());
+        std::string bands;
+        if (spec.is_array() && spec.size() == 2) bands = "spec " + band_number(spec[0], "-inf") + ".." + band_number(spec[1], "inf");
+        if (mount.is_array() && mount.size() == 2) bands += ", mounting " + band_number(mount[0], "-inf") + ".." + band_number(mount[1], "inf");
+        const std::string unit = m.value("unit", "");
+        const std::string val = m["value"].is_number() ? band_number(m["value"], "") + (unit.empty() ? "" : " " + unit) : "not measured";
+        std::printf("    %-18s %-14s %s  %s: %s\n", term_escape(label).c_str(), val.c_str(), band_gauge(m["value"], band).c_str(), bands.c_str(),
+                    term_escape(m.value("grade", std::string("-"))).c_str());
+    }
 }
 
 // Every string here comes from a report: a scenario file, a client or a device wrote it.

@@ -73,5 +73,7 @@ std::string interval_text(const nlohmann::json& interval);
 void print_run_summary(const nlohmann::json& report, const std::string& name, bool all_metrics = false);
 // The report's signal quality as one summary line (docs/signal-quality.md).
 void print_signal_summary(const nlohmann::json& report);
+// The signals graded against the scenario's interface profile (its bands in the measurements), with a text gauge each.
+void print_signal_bands(const nlohmann::json& report);
 
 }  // namespace fringe::cli

@@ -131,6 +131,7 @@ CapturePlan plan_capture_run(const CaptureRunOptions& o) {
     sc.device = uri;
     // Without truth the error is measured against the estimator's own self-referenced phase.
     if (!truth) sc.scoring.self_reference = true;
+    sc.interface = o.interface;
 
     p.facts = {{"path", o.capture_path}, {"samples", n}, {"sample_rate_hz", fs}, {"has_truth", truth},
                {"encoder_source", o.encoder ? "profile file" : (from_capture ? "capture metadata" : "none")}};
@@ -169,9 +170,26 @@ RunReport run_capture(const CaptureRunOptions& o) {
         // Nothing could be scored, by design: no verdict rather than the evidence checks' FAIL,
         // and no warning about scores that do not exist (ekf-auto's learning, from a motion
         // the capture does not state).
-        facts["not_scored"] = "the capture has no theta_true column: estimates only; nothing was scored, so the run has no verdict";
-        r.verdict.reset();
-        r.measurements = json::array();
+        // The signals' grades against an interface profile need no truth: they stay, and are
+        // the verdict (the signals', said so); the estimator's self-referenced error has no limit.
+        json graded = json::array();
+        for (const auto& m : r.measurements)
+            if (m.value("estimator", "") == "run" && m.contains("interface")) graded.push_back(m);
+        r.measurements = std::move(graded);
+        if (r.measurements.empty()) {
+            facts["not_scored"] = "the capture has no theta_true column: estimates only; nothing was scored, so the run has no verdict";
+            r.verdict.reset();
+        } else {
+            facts["not_scored"] = "the capture has no theta_true column: the estimator's error is self-referenced and has no limit; the verdict "
+                                  "grades the signals against the interface profile only";
+            Verdict v = Verdict::Pass;
+            for (const auto& m : r.measurements) {
+                const std::string outcome = m.value("outcome", "");
+                if (outcome == "FAIL") v = Verdict::Fail;
+                else if (outcome == "MARGINAL" && v == Verdict::Pass) v = Verdict::Marginal;
+            }
+            r.verdict = v;
+        }
         std::erase_if(r.warnings, [](const Finding& w) { return w.code == "scores_learning"; });
     }
     r.capture = std::move(facts);

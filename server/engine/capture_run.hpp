@@ -34,6 +34,9 @@ struct CaptureRunOptions {
     // The DUT's ABZ readout (docs/abz.md): the capture driver decodes the capture's a/b/z lines
     // and the run scores them as the lane "dut" beside the estimator.
     std::optional<AbzConfig> abz;
+    // The interface profile the signals are graded against (docs/signal-quality.md): its bands
+    // are the capture run's measurements, with or without truth.
+    std::optional<InterfaceProfile> interface;
 };
 
 // The run a capture is: its plan (plan_run of the scenario built from the capture), and what

@@ -84,6 +84,14 @@ json resolve_json_ref(const json& j, const std::string& base_dir, std::string* f
 
 EncoderProfile load_encoder(const std::string& path) { return encoder_from_json(load_json_file(path), "encoder"); }
 
+InterfaceProfile load_interface(const std::string& path) {
+    try {
+        return interface_from_json(load_json_file(path), "interface");
+    } catch (const ConfigError& e) {
+        throw ConfigError(e.field().empty() ? "interface" : e.field(), e.message() + " (in " + path + ")");
+    }
+}
+
 const KeyTable& scenario_keys() {
     static const Scenario d;
     static const KeyTable t({

@@ -84,6 +84,8 @@ struct Scenario {
 Scenario scenario_from_json(const nlohmann::json& j, const std::string& base_dir);
 Scenario load_scenario(const std::string& path);
 EncoderProfile load_encoder(const std::string& path);
+// An interface profile file (fixtures/interfaces/*.json); a fault names the file.
+InterfaceProfile load_interface(const std::string& path);
 nlohmann::json load_json_file(const std::string& path);  // throws ConfigError with the parse position
 // A JSON value that is either inline or a file name (relative to base_dir): the object.
 // file_out (optional) receives the resolved path, or "" when inline.

@@ -566,7 +566,24 @@ HttpResponse Service::fixtures() {
         for (const auto& e : fs::directory_iterator(edir))
             if (e.path().extension() == ".json") encoders.push_back(e.path().stem().string());
     std::sort(encoders.begin(), encoders.end());
-    return json_ok({{"fixtures", list}, {"encoders", encoders}});
+    // Interface profiles, by file name, with the name they give themselves.
+    json interfaces = json::array();
+    const fs::path idir = fs::path(cfg_.fixtures_dir) / "interfaces";
+    std::vector<fs::path> ifiles;
+    if (fs::is_directory(idir))
+        for (const auto& e : fs::directory_iterator(idir))
+            if (e.path().extension() == ".json") ifiles.push_back(e.path());
+    std::sort(ifiles.begin(), ifiles.end());
+    for (const auto& p : ifiles) {
+        json f{{"name", p.stem().string()}};
+        try {
+            f["title"] = load_interface(p.string()).name;
+        } catch (const std::exception& e) {
+            f["problem"] = public_text(e.what());
+        }
+        interfaces.push_back(std::move(f));
+    }
+    return json_ok({{"fixtures", list}, {"encoders", encoders}, {"interfaces", interfaces}});
 }
 
 HttpResponse Service::fixture(const std::string& name) {

@@ -155,7 +155,7 @@ HttpResponse Service::evaluate(const HttpRequest& req, const std::string& id) {
     const std::string cap = capture_path(id);
     if (cap.empty()) return json_error(404, "not_found", "no uploaded capture " + id, "id");
     const json body = parse_body(req.body);
-    only_keys(body, {"estimator", "params", "encoder", "settle_s"}, "");
+    only_keys(body, {"estimator", "params", "encoder", "settle_s", "interface"}, "");
     CaptureRunOptions o;
     o.capture_path = cap;
     o.capture.max_expanded_bytes = cfg_.max_upload_expanded_bytes;  // it was checked against this at upload
@@ -180,6 +180,19 @@ HttpResponse Service::evaluate(const HttpRequest& req, const std::string& id) {
             o.encoder = load_encoder(p.string());
         } else {
             o.encoder = encoder_from_json(enc, "encoder");
+        }
+    }
+    if (body.contains("interface")) {  // a profile of fixtures/interfaces (GET /api/v1/fixtures lists them), or one inline
+        const json& itf = body["interface"];
+        if (itf.is_string()) {
+            const std::string name = itf.get<std::string>();
+            const fs::path p = fs::path(cfg_.fixtures_dir) / "interfaces" / (name + ".json");
+            if (!valid_id(name) || !fs::is_regular_file(p)) throw ConfigError("interface", "no interface profile named '" + name + "' (GET /api/v1/fixtures lists them)");
+            o.interface = load_interface(p.string());
+        } else if (itf.is_object()) {
+            o.interface = interface_from_json(itf, "interface");
+        } else {
+            throw ConfigError("interface", "expected an interface profile's name or an object");
         }
     }
     // The run's report; a run that failed part way (the estimator's process died) is a report
