@@ -23,6 +23,10 @@ function svg(tag, attrs = {}, ...children) {
 // The figures every signal page shows, in this order; a profile's other band metrics follow.
 const FIGURES = ['signal_vpp_a_v', 'signal_vpp_b_v', 'signal_ab_ratio', 'signal_phase_deg', 'signal_tv_a_deg', 'signal_tv_b_deg'];
 
+// Names for the figures the metric table gives no column.
+const SHORT = { signal_sym_a: 'SYM A', signal_sym_b: 'SYM B', signal_phase_error_deg: 'phase error', signal_offset_a_percent: 'offset A',
+  signal_offset_b_percent: 'offset B' };
+
 // Where a value lies, as the tester's colours: a region's kind is the grade a value inside it
 // gets (server/engine/limits.cpp). Without a mounting band the whole specification passes.
 export const REGION = {
@@ -118,7 +122,7 @@ function gauge(parent, { metric, label, unit, value, band, measurement, profileN
   div.append(h('div', { class: 'gauge-head' }, h('span', { class: 'gauge-name', title: metric }, label),
     h('span', { class: 'gauge-value num', style: outcome ? `color:${OUTCOME_COLOR[outcome] || ''}` : null }, value == null ? 'not measured' : withUnit(value, unit))), g,
   h('div', { class: `gauge-grade${outcome ? ` o-${outcome}` : ''}`, 'data-grade': grade || '' },
-    measurement ? [grade || outcome, measurement.interface || profileName ? h('span', { class: 'muted' }, ` (${measurement.interface || profileName})`) : '']
+    measurement ? h('span', { title: `graded against ${measurement.interface || profileName}` }, grade || outcome)
       : h('span', { class: 'muted' }, band ? 'not graded' : 'no band: value only')));
   div.fringe = { kind: 'gauge', metric, unit, value: finite(value) ? value : null, outcome, grade, band: band || null, domain: [lo, hi],
     scale_px: [x0, x1], regions, marker_px: markerX };
@@ -221,7 +225,14 @@ function lissajousSvg(parent, sg, profile) {
   });
   div.append(g);
   const words = [];
-  if (hasBins) words.push(`line: mean A and B in each of ${L.bins} electrical-angle bins; shaded: the samples' radius from smallest to largest in each bin`);
+  if (hasBins) {
+    let widest = null;
+    for (let i = 0; i < L.bins; i++) {
+      const lo = (L.r_min_v || [])[i], hi = (L.r_max_v || [])[i];
+      if (finite(lo) && finite(hi) && (widest == null || hi - lo > widest)) widest = hi - lo;
+    }
+    words.push(`line: mean A and B in each of ${L.bins} electrical-angle bins; shaded: the samples' radius from smallest to largest in each bin${widest == null ? '' : ` (at most ${withUnit(widest, 'V')} wide)`}`);
+  }
   else words.push('this report has no per-angle bins: no mean curve or spread');
   if (rings.length) words.push(`rings: ${profile.name} amplitude band as radius Vpp / 2 (dashed: specification ${rings.filter((r) => r.band === 'spec').map((r) => sig(r.vpp_v)).join(' and ')} Vpp; solid: mounting ${rings.filter((r) => r.band === 'mounting').map((r) => sig(r.vpp_v)).join(' and ') || 'none'} Vpp)`);
   else if (profile) words.push(`the interface profile ${profile.name} names no amplitude band: no tolerance rings`);
@@ -358,7 +369,7 @@ export function signalPage(section, r, mt) {
   for (const metric of metrics) {
     const mm = byName[metric] || {}, meas = graded.get(metric) || null;
     const v = meas ? meas.value : mm.values && mm.values.run ? mm.values.run.value : null;
-    gauge(gauges, { metric, label: mm.column || metric, unit: meas ? meas.unit : mm.unit, value: finite(v) ? v : null, band: bandOf(profile, metric),
+    gauge(gauges, { metric, label: mm.column || SHORT[metric] || metric, unit: meas ? meas.unit : mm.unit, value: finite(v) ? v : null, band: bandOf(profile, metric) || (meas && meas.band) || null,
       measurement: meas, profileName: profile && profile.name });
   }
   if (!profile) gauges.after(h('p', { class: 'muted plot-note', id: 'signal-gauge-note' }, 'No interface profile: the gauges show the values only, without bands.'));
