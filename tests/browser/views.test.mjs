@@ -399,10 +399,11 @@ try {
       return { w: b.width, h: b.height, dashed: !!c.getAttribute('stroke-dasharray'), cls: c.getAttribute('class') };
     });
     const mean = d.querySelector('path.liss-mean').getBoundingClientRect();
+    const spreadBox = d.querySelector('path.liss-spread') && d.querySelector('path.liss-spread').getBoundingClientRect();
     const cv = d.fringe.curve;
     const ext = (a) => Math.max(...a) - Math.min(...a);
     return { vb: [vb.width, vb.height], box: [box.width, box.height], pxPerV, rings, mean: [mean.width, mean.height], dataExt: [ext(cv.x_v), ext(cv.y_v)], points: cv.x_v.length,
-      closed: cv.closed, spread: !!d.querySelector('path.liss-spread'), labels: [...d.querySelectorAll('.liss-ring-label')].map((t) => t.textContent),
+      closed: cv.closed, spread: spreadBox && [spreadBox.width, spreadBox.height], labels: [...d.querySelectorAll('.liss-ring-label')].map((t) => t.textContent),
       note: d.querySelector('.plot-note').textContent };
   });
   const pv = liss.pxPerV[0];
@@ -412,6 +413,13 @@ try {
     && Math.abs(liss.mean[0] / liss.dataExt[0] / pv - 1) < 0.01 && Math.abs(liss.mean[1] / liss.dataExt[1] / pv - 1) < 0.01
     && liss.points === binsWithData && liss.spread,
   `the signal Lissajous is 1:1: ${liss.box.map((v) => v.toFixed(1)).join(' x ')} px, the mean curve (${liss.points} bins) ${(liss.mean[0] / liss.dataExt[0]).toFixed(2)} px/V across and ${(liss.mean[1] / liss.dataExt[1]).toFixed(2)} px/V up at ${pv.toFixed(2)} px/V`);
+  // The spread's outer edge: r_max along each bin's direction (that of its mean point).
+  const Lj = repG.signal.lissajous;
+  // Exact geometry (the path's box, not pixels): r_min in its place, a few mV less, would show.
+  const outer = Lj.r_max_v.map((r, i) => (r == null || Lj.a_v[i] == null ? null : [r * Math.cos(Math.atan2(Lj.a_v[i], Lj.b_v[i])), r * Math.sin(Math.atan2(Lj.a_v[i], Lj.b_v[i]))])).filter(Boolean);
+  const oext = [0, 1].map((k) => Math.max(...outer.map((q) => q[k])) - Math.min(...outer.map((q) => q[k])));
+  check(liss.spread && [0, 1].every((k) => Math.abs(liss.spread[k] / pv - oext[k]) < 1e-4 * oext[k] + 0.05 / pv),
+    `the spread band reaches r_max along each bin's direction (${liss.spread && liss.spread.map((v) => (v / pv).toFixed(4)).join(' x ')} V drawn, ${oext.map((v) => v.toFixed(4)).join(' x ')} V in the report)`);
   check(liss.rings.length === 4 && liss.rings.every((r) => Math.abs(r.w - r.h) < 0.5) && [0.3, 0.4, 0.55, 0.6].every((v, i) => Math.abs(ringV[i] - v) < 0.005)
     && liss.rings.filter((r) => r.dashed).every((r) => /ring-spec/.test(r.cls)) && liss.rings.filter((r) => r.dashed).length === 2
     && ['0.6 Vpp', '0.8 Vpp', '1.1 Vpp', '1.2 Vpp'].every((t) => liss.labels.includes(t)),
@@ -440,6 +448,12 @@ try {
   }
   check(tBad.length === 0 && trends.length >= 4, `the per-period trends draw all ${rec.first_period.length} recorded points and the band edges as lines${tBad.length ? `: ${tBad.join(' | ')}` : ''}`);
   await (await page.$('#signal-page')).screenshot({ path: join(artifacts, 'views-signal-1280.png') });
+  // Unticking "band edges in view" zooms to the periods: no edge drawn, the range the data's.
+  await page.click('#trend-vpp .bands-toggle');
+  const zoom = await page.$eval('#trend-vpp', (d) => ({ drawn: d.fringe.bands_drawn, y: [d.fringe.u.scales.y.min, d.fringe.u.scales.y.max] }));
+  const vpps = [...rec.vpp_a_v, ...rec.vpp_b_v];
+  check(zoom.drawn.length === 0 && zoom.y[0] > 1.2 && zoom.y[0] <= Math.min(...vpps) && zoom.y[1] >= Math.max(...vpps),
+    `unticking the band edges zooms the amplitude trend to the periods (${zoom.y.map((v) => v.toFixed(4)).join('..')} V)`);
 
   // Without an interface profile: no rings, gauges without bands, and the page says so.
   await page.goto(`${url}#/run/${SN.id}`);
