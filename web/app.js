@@ -6,6 +6,7 @@ import * as plots from './plots.js';
 import { h, showError, errorText, scroller } from './dom.js';
 import { sig, withUnit, limitText } from './format.js';
 import { newRun } from './editor.js';
+import { signalPage } from './signal.js';
 
 const view = document.getElementById('view');
 let cleanup = [];  // closers for the current view (event streams, timers)
@@ -203,7 +204,7 @@ function estimatorsTable(mt) {
 function signalTable(mt) {
   const cols = mt.metrics.filter((m) => m.column && m.scope === 'run' && m.group === 'signal');
   if (!cols.length) return '';
-  return h('div', {}, h('h2', {}, 'Signal quality'), scroller(h('table', { id: 'signal' },
+  return h('div', {}, scroller(h('table', { id: 'signal' },
     h('thead', {}, h('tr', {}, cols.map((m) => h('th', { title: `${m.name}: ${m.description}` }, ...heading(m))))),
     h('tbody', {}, h('tr', {}, cols.map((m) => valueCell(m, m.values.run)))))));
 }
@@ -240,6 +241,9 @@ async function report(id, into) {
   } catch (e) { into.replaceChildren(showError(e)); return; }
   const base = `/api/v1/runs/${encodeURIComponent(id)}`;
   const plotBox = h('div', { class: 'plots', id: 'plots' });
+  // The signal page: the figures graded against the interface profile, the Lissajous and the
+  // per-period recording (signal.js), drawn once the section is on the page.
+  const signals = h('section', { id: 'signal-page' }, h('h2', {}, 'Signals'), signalTable(mt));
   into.replaceChildren(
     h('p', {}, verdictBadge(r.verdict, 'banner'), ' ', h('span', { id: 'verdict-text' }, `${r.scenario.name} · ${r.status} · seed ${r.seed} · ${r.samples ? r.samples.processed : 0} samples · device ${r.device ? r.device.uri : '-'}`)),
     r.error ? h('p', { class: 'error' }, r.error) : '',
@@ -250,8 +254,11 @@ async function report(id, into) {
       h('a', { href: `${base}/report.html?download=1`, download: '', id: 'dl-html' }, 'HTML'),
       h('a', { href: `#/compare/${id}` }, 'compare with…')),
     h('h2', {}, 'Measurements'), measurementsTable(r),
-    h('h2', {}, 'Estimators'), estimatorsTable(mt), signalTable(mt), allMetricsTable(mt), harmonicsTable(r),
+    h('h2', {}, 'Estimators'), estimatorsTable(mt), signals, allMetricsTable(mt), harmonicsTable(r),
     h('h2', {}, 'Plots'), plotBox);
+  try {
+    signalPage(signals, r, mt);
+  } catch (e) { signals.append(showError(e)); }
   const t = tr.traces || {};
   const empty = !t.t_s || !t.t_s.length;
   if (empty) { plotBox.append(h('p', { class: 'muted' }, 'no traces (the run processed no samples)')); return; }

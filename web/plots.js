@@ -34,6 +34,7 @@ function width(parent) {
   const w = parent.clientWidth || 1100;
   return Math.round(Math.max(260, Math.min(620, w >= 1150 ? w / 2 - 40 : w - 24)));
 }
+export const plotWidth = width;
 
 // A checkbox in the plot's tool row that redraws it.
 function toggle(div, text, checked, onchange, cls) {

@@ -5,6 +5,9 @@
 // value, limit and outcome on screen, the run list's scenario and verdict on screen, the limits
 // editor's min and max on screen, a blank New-run start, no fixture text in a user's scenario,
 // the loopback's own_clock settings hidden until own_clock is 1, and the footer's run count.
+// The signal page: gauges graded as the report grades the figures against an interface profile,
+// a 1:1 Lissajous with the profile's tolerance rings, the per-period trends with the band edges,
+// and what it says without a profile or without a whole period.
 // Geometry is measured from the DOM and from what was drawn on the canvases.
 // usage: node tests/browser/views.test.mjs FRINGE_BINARY
 import { spawn } from 'node:child_process';
@@ -323,6 +326,167 @@ try {
     check(scrollW <= w, `${at}: New run fits (${scrollW} px)`);
     if (!ctx) await c.close();
   }
+
+  // ---- the signal page: graded against an interface profile, and without one -----------------
+  // fig10c's signals are about 2.19 Vpp: against 1 Vpp the amplitudes are out of specification
+  // while A/B, phase and TV lie within the mounting tolerance. The profile rides inline.
+  const profile = JSON.parse(readFileSync(new URL('../../fixtures/interfaces/1vpp.json', import.meta.url), 'utf8'));
+  const SG = await runScenario({ ...structuredClone(fixture), name: 'graded-1vpp', duration_s: 0.3, seed: 7, interface: profile });
+  const SN = await runScenario({ ...structuredClone(fixture), name: 'ungraded', duration_s: 0.3, seed: 8 });
+  const SZ = await runScenario({ ...structuredClone(fixture), name: 'no-period', duration_s: 0.3, seed: 9, interface: profile,
+    motion: { kind: 'constant', electrical_freq_hz: 2 } });
+  const repG = await api('GET', `runs/${SG.id}/report.json`);
+  const graded = repG.measurements.filter((m) => m.estimator === 'run' && m.interface);
+  const gradeOf = (metric) => (graded.find((m) => m.metric === metric) || {}).grade;
+  check(graded.length === 6 && ['signal_vpp_a_v', 'signal_vpp_b_v'].every((m) => gradeOf(m) === 'out of specification')
+    && ['signal_ab_ratio', 'signal_phase_deg', 'signal_tv_a_deg', 'signal_tv_b_deg'].every((m) => gradeOf(m) === 'within mounting tolerance')
+    && repG.signal.lissajous && repG.signal.lissajous.bins > 0 && repG.signal.recording.first_period.length > 10,
+  `the graded run: ${graded.map((m) => `${m.metric} ${m.grade}`).join('; ')}; ${repG.signal.lissajous && repG.signal.lissajous.bins} Lissajous bins, ${repG.signal.recording.first_period.length} recorded points`);
+
+  await page.goto(`${url}#/run/${SG.id}`);
+  await page.waitForFunction(() => document.querySelectorAll('#signal-page .signal-trend canvas').length >= 4 && document.querySelector('#signal-lissajous svg'));
+  await page.waitForTimeout(300);
+  // Gauges: each graded figure's grade as the report says, the value's marker over the region of
+  // that grade (green mounting, yellow specification, grey outside), the regions' edges at the band's numbers.
+  const gauges = await page.$$eval('#signal-gauges .gauge', (ds) => ds.map((d) => {
+    const svgEl = d.querySelector('svg'), vb = svgEl.viewBox.baseVal;
+    const marker = d.querySelector('.g-marker');
+    const mx = marker ? parseFloat(marker.getAttribute('x1')) : null;
+    const regions = [...d.querySelectorAll('rect.g-region')].map((r) => ({ kind: r.dataset.kind, x: parseFloat(r.getAttribute('x')), w: parseFloat(r.getAttribute('width')),
+      fill: getComputedStyle(r).fill }));
+    const under = mx == null ? null : regions.find((r) => mx >= r.x - 1e-9 && mx <= r.x + r.w + 1e-9);
+    return { metric: d.dataset.metric, grade: d.querySelector('.gauge-grade').textContent, gradeColor: getComputedStyle(d.querySelector('.gauge-grade')).color,
+      markerColor: marker && getComputedStyle(marker).stroke, mx, under, regions, vbw: vb.width, domain: d.fringe.domain, scale: d.fringe.scale_px, value: d.fringe.value };
+  }));
+  const rgb = (c) => (c.match(/\d+(\.\d+)?/g) || []).slice(0, 3).map(Number);
+  const hue = (c) => {
+    const [r, g, b] = rgb(c);
+    if (Math.max(r, g, b) - Math.min(r, g, b) < 30) return 'grey';
+    if (r > b + 60 && g > b + 60 && Math.abs(r - g) < 80) return 'yellow';
+    if (g > r + 20 && g > b) return 'green';
+    if (r > g + 60 && r > b + 60) return 'red';
+    return c;
+  };
+  const REGION_OF = { 'within mounting tolerance': ['mounting', 'green'], 'within specification, outside mounting tolerance': ['spec', 'yellow'], 'out of specification': ['out', 'grey'] };
+  const bad = [];
+  for (const m of graded) {
+    const g = gauges.find((x) => x.metric === m.metric);
+    if (!g) { bad.push(`${m.metric}: no gauge`); continue; }
+    const [kind, colour] = REGION_OF[m.grade];
+    if (!g.grade.startsWith(m.grade)) bad.push(`${m.metric}: grade "${g.grade}"`);
+    if (g.value !== m.value) bad.push(`${m.metric}: value ${g.value} != ${m.value}`);
+    if (!g.under || g.under.kind !== kind || hue(g.under.fill) !== colour) bad.push(`${m.metric}: marker over ${g.under && g.under.kind} ${g.under && g.under.fill}`);
+    if (hue(g.markerColor) !== (m.outcome === 'FAIL' ? 'red' : 'green') || hue(g.gradeColor) !== (m.outcome === 'FAIL' ? 'red' : 'green')) bad.push(`${m.metric}: marker ${g.markerColor}, grade ${g.gradeColor}`);
+    // Left to right: out, spec, mounting, spec, out; the boundaries at spec lo, mounting lo, mounting hi, spec hi.
+    const toV = (x) => g.domain[0] + ((x - g.scale[0]) / (g.scale[1] - g.scale[0])) * (g.domain[1] - g.domain[0]);
+    const kinds = g.regions.map((r) => r.kind).join(',');
+    const cuts = g.regions.slice(1).map((r) => toV(r.x));
+    const want = [m.band.spec[0], m.band.mounting[0], m.band.mounting[1], m.band.spec[1]];
+    if (kinds !== 'out,spec,mounting,spec,out' || cuts.some((v, i) => Math.abs(v - want[i]) > 1e-6 * Math.max(1, Math.abs(want[i])))
+      || g.regions.some((r) => hue(r.fill) !== { out: 'grey', spec: 'yellow', mounting: 'green' }[r.kind]))
+      bad.push(`${m.metric}: regions ${kinds} cut at ${cuts.map((v) => v.toFixed(3)).join(' ')} (band ${want.join(' ')}) in ${g.regions.map((r) => hue(r.fill)).join(',')}`);
+  }
+  check(bad.length === 0 && gauges.length === 6, `the ${gauges.length} gauges show the report's grades, each value over its grade's colour, the bands at their edges${bad.length ? `: ${bad.join(' | ')}` : ''}`);
+
+  // The Lissajous 1:1: a square drawing, every ring a circle on screen at the same pixels per volt
+  // as the mean curve in x and in y; rings at Vpp / 2 of the 1 Vpp amplitude band, dashed for the specification.
+  const liss = await page.$eval('#signal-lissajous', (d) => {
+    const svgEl = d.querySelector('svg'), box = svgEl.getBoundingClientRect(), vb = svgEl.viewBox.baseVal;
+    const s = box.width / vb.width;  // screen px per viewBox unit
+    const pxPerV = d.fringe.px_per_v.map((k) => k * s);
+    const rings = [...d.querySelectorAll('circle.liss-ring')].map((c) => {
+      const b = c.getBoundingClientRect();
+      return { w: b.width, h: b.height, dashed: !!c.getAttribute('stroke-dasharray'), cls: c.getAttribute('class') };
+    });
+    const mean = d.querySelector('path.liss-mean').getBoundingClientRect();
+    const spreadBox = d.querySelector('path.liss-spread') && d.querySelector('path.liss-spread').getBoundingClientRect();
+    const cv = d.fringe.curve;
+    const ext = (a) => Math.max(...a) - Math.min(...a);
+    return { vb: [vb.width, vb.height], box: [box.width, box.height], pxPerV, rings, mean: [mean.width, mean.height], dataExt: [ext(cv.x_v), ext(cv.y_v)], points: cv.x_v.length,
+      closed: cv.closed, spread: spreadBox && [spreadBox.width, spreadBox.height], labels: [...d.querySelectorAll('.liss-ring-label')].map((t) => t.textContent),
+      note: d.querySelector('.plot-note').textContent };
+  });
+  const pv = liss.pxPerV[0];
+  const ringV = liss.rings.map((r) => r.w / 2 / pv).sort((a, b) => a - b);
+  const binsWithData = repG.signal.lissajous.a_v.filter((v, i) => v != null && repG.signal.lissajous.b_v[i] != null).length;
+  check(liss.vb[0] === liss.vb[1] && Math.abs(liss.box[0] - liss.box[1]) < 0.5 && liss.pxPerV[0] === liss.pxPerV[1]
+    && Math.abs(liss.mean[0] / liss.dataExt[0] / pv - 1) < 0.01 && Math.abs(liss.mean[1] / liss.dataExt[1] / pv - 1) < 0.01
+    && liss.points === binsWithData && liss.spread,
+  `the signal Lissajous is 1:1: ${liss.box.map((v) => v.toFixed(1)).join(' x ')} px, the mean curve (${liss.points} bins) ${(liss.mean[0] / liss.dataExt[0]).toFixed(2)} px/V across and ${(liss.mean[1] / liss.dataExt[1]).toFixed(2)} px/V up at ${pv.toFixed(2)} px/V`);
+  // The spread's outer edge: r_max along each bin's direction (that of its mean point).
+  const Lj = repG.signal.lissajous;
+  // Exact geometry (the path's box, not pixels): r_min in its place, a few mV less, would show.
+  const outer = Lj.r_max_v.map((r, i) => (r == null || Lj.a_v[i] == null ? null : [r * Math.cos(Math.atan2(Lj.a_v[i], Lj.b_v[i])), r * Math.sin(Math.atan2(Lj.a_v[i], Lj.b_v[i]))])).filter(Boolean);
+  const oext = [0, 1].map((k) => Math.max(...outer.map((q) => q[k])) - Math.min(...outer.map((q) => q[k])));
+  check(liss.spread && [0, 1].every((k) => Math.abs(liss.spread[k] / pv - oext[k]) < 1e-4 * oext[k] + 0.05 / pv),
+    `the spread band reaches r_max along each bin's direction (${liss.spread && liss.spread.map((v) => (v / pv).toFixed(4)).join(' x ')} V drawn, ${oext.map((v) => v.toFixed(4)).join(' x ')} V in the report)`);
+  check(liss.rings.length === 4 && liss.rings.every((r) => Math.abs(r.w - r.h) < 0.5) && [0.3, 0.4, 0.55, 0.6].every((v, i) => Math.abs(ringV[i] - v) < 0.005)
+    && liss.rings.filter((r) => r.dashed).every((r) => /ring-spec/.test(r.cls)) && liss.rings.filter((r) => r.dashed).length === 2
+    && ['0.6 Vpp', '0.8 Vpp', '1.1 Vpp', '1.2 Vpp'].every((t) => liss.labels.includes(t)),
+  `tolerance rings at ${ringV.map((v) => v.toFixed(3)).join(', ')} V (dashed: specification), labelled ${liss.labels.join(', ')}`);
+
+  // Per-period trends: every recorded point, the band edges drawn as horizontal lines where they are.
+  const rec = repG.signal.recording;
+  const trends = await page.$$eval('#signal-page .signal-trend', (ds) => ds.map((d) => {
+    const u = d.fringe.u, c = d.querySelector('canvas');
+    const lines = (c.__strokes || []).filter((s) => s.style === '#9a6700' || s.style === '#1a7f37').filter((s) => s.pts.length === 2 && s.pts[0][2] === s.pts[1][2]).map((s) => s.pts[0][2]);
+    const edges = (d.fringe.bands || []).map((b) => ({ y: b.y, px: u.valToPos(b.y, 'y', true) }));
+    const data = (c.__strokes || []).filter((s) => s.style === '#0969da').reduce((n, s) => Math.max(n, s.pts.length), 0);
+    return { id: d.id, n: u.data[0].length, x0: u.data[0][0], xl: u.data[0][u.data[0].length - 1], y0: u.data[1][0], lines, edges, drawn: d.fringe.bands_drawn, data };
+  }));
+  const wantEdges = { 'trend-vpp': [0.6, 0.8, 1.1, 1.2], 'trend-ratio': [0.8, 0.9, 1.1, 1.25], 'trend-phase': [80, 85, 95, 100], 'trend-tv': [-15, -7.5, 7.5, 15] };
+  const first = { 'trend-vpp': 'vpp_a_v', 'trend-ratio': 'ab_ratio', 'trend-phase': 'phase_deg', 'trend-tv': 'tv_a_deg' };
+  const tBad = [];
+  for (const [id, edges] of Object.entries(wantEdges)) {
+    const t = trends.find((x) => x.id === id);
+    if (!t) { tBad.push(`${id} missing`); continue; }
+    const n = rec.first_period.length;
+    if (t.n !== n || t.x0 !== rec.first_period[0] || t.xl !== rec.first_period[n - 1] || t.y0 !== rec[first[id]][0] || t.data < n) tBad.push(`${id}: ${t.n} points (data stroke ${t.data}) for ${n}`);
+    const drawn = [...t.drawn].sort((a, b) => a - b);
+    const stroked = edges.every((y) => { const e = t.edges.find((q) => q.y === y); return e && t.lines.some((py) => Math.abs(py - e.px) < 1); });
+    if (drawn.join() !== edges.join() || !stroked) tBad.push(`${id}: edges ${drawn.join(' ')} (stroked at ${t.lines.map((v) => v.toFixed(0)).join(' ')})`);
+  }
+  check(tBad.length === 0 && trends.length >= 4, `the per-period trends draw all ${rec.first_period.length} recorded points and the band edges as lines${tBad.length ? `: ${tBad.join(' | ')}` : ''}`);
+  await (await page.$('#signal-page')).screenshot({ path: join(artifacts, 'views-signal-1280.png') });
+  // Unticking "band edges in view" zooms to the periods: no edge drawn, the range the data's.
+  await page.click('#trend-vpp .bands-toggle');
+  const zoom = await page.$eval('#trend-vpp', (d) => ({ drawn: d.fringe.bands_drawn, y: [d.fringe.u.scales.y.min, d.fringe.u.scales.y.max] }));
+  const vpps = [...rec.vpp_a_v, ...rec.vpp_b_v];
+  check(zoom.drawn.length === 0 && zoom.y[0] > 1.2 && zoom.y[0] <= Math.min(...vpps) && zoom.y[1] >= Math.max(...vpps),
+    `unticking the band edges zooms the amplitude trend to the periods (${zoom.y.map((v) => v.toFixed(4)).join('..')} V)`);
+
+  // Without an interface profile: no rings, gauges without bands, and the page says so.
+  await page.goto(`${url}#/run/${SN.id}`);
+  await page.waitForFunction(() => document.querySelectorAll('#signal-page .signal-trend canvas').length >= 4 && document.querySelector('#signal-lissajous svg'));
+  const plain = await page.evaluate(() => ({
+    rings: document.querySelectorAll('#signal-lissajous circle.liss-ring').length, note: document.querySelector('#signal-lissajous .plot-note').textContent,
+    regions: document.querySelectorAll('#signal-gauges rect.g-region').length, gauges: document.querySelectorAll('#signal-gauges .gauge').length,
+    gaugeNote: (document.querySelector('#signal-gauge-note') || {}).textContent || '', curve: document.querySelector('#signal-lissajous').fringe.curve,
+    bands: [...document.querySelectorAll('#signal-page .signal-trend')].flatMap((d) => d.fringe.bands_drawn),
+  }));
+  check(plain.rings === 0 && /no interface profile: no tolerance rings/.test(plain.note) && plain.regions === 0 && plain.gauges === 6
+    && /no interface profile/i.test(plain.gaugeNote) && plain.curve && plain.curve.x_v.length > 0 && plain.bands.length === 0,
+  `a run without an interface profile: no rings ("${plain.note.split('. ').pop()}"), ${plain.gauges} gauges without bands ("${plain.gaugeNote}")`);
+
+  // No whole period: the analyser's note, and no empty drawing.
+  await page.goto(`${url}#/run/${SZ.id}`);
+  await page.waitForSelector('#signal-note');
+  const repZ = await api('GET', `runs/${SZ.id}/report.json`);
+  const none = await page.evaluate(() => ({ note: document.querySelector('#signal-note').textContent, drawn: document.querySelectorAll('#signal-page svg, #signal-page canvas').length }));
+  check(repZ.signal.periods === 0 && none.note.includes(repZ.signal.note) && none.drawn === 0, `no whole period: the page says "${none.note}" and draws nothing`);
+
+  // On a phone: the gauges and the Lissajous fit the screen, the Lissajous stays square.
+  const phone = await browser.newContext({ viewport: { width: 390, height: 844 }, deviceScaleFactor: 1 });
+  await phone.addInitScript((t) => localStorage.setItem('fringe.token', t), token);
+  const pp = await phone.newPage();
+  pp.on('pageerror', (e) => errors.push(e.message));
+  await pp.goto(`${url}#/run/${SG.id}`);
+  await pp.waitForFunction(() => document.querySelectorAll('#signal-page .signal-trend canvas').length >= 4);
+  const fit = await boxesIn(pp, '#signal-gauges .gauge, #signal-lissajous svg, #signal-page .signal-trend canvas');
+  const sq = await pp.$eval('#signal-lissajous svg', (s) => { const b = s.getBoundingClientRect(); return [b.width, b.height]; });
+  check(inside(fit) && Math.abs(sq[0] - sq[1]) < 0.5, `390 px: the signal page's ${fit.length} gauges and plots fit the screen, the Lissajous ${sq.map((v) => v.toFixed(0)).join(' x ')} px`);
+  await (await pp.$('#signal-page')).screenshot({ path: join(artifacts, 'views-signal-390.png') });
+  await phone.close();
 
   // The offline HTML: square Lissajous plot area, the settle span and the limit lines, the
   // harmonics legend above the bars, no harmonic marker above Nyquist.
