@@ -3,6 +3,7 @@
 #include "helpers.hpp"
 
 #include "server/engine/interface_profile.hpp"
+#include "server/report/report_formats.hpp"
 #include "server/engine/limits.hpp"
 #include "server/engine/run.hpp"
 #include "server/engine/scenario.hpp"
@@ -136,4 +137,62 @@ TEST_CASE("interface: runs graded against 1 Vpp: nominal PASS, 2 Vpp FAIL, an A/
     const json skewed = run(0.5, 0.15);  // A/B = 1.075 / 0.925 = 1.16
     CHECK(outcome(skewed, "signal_ab_ratio") == "MARGINAL");
     CHECK(skewed["verdict"] == "MARGINAL");
+}
+
+TEST_CASE("interface: the HTML report's signal section: a gauge a band with its grade, the 1:1 Lissajous with rings, the trends against the bands", "[interface][report]") {
+    auto run = [](double vmax_v, bool with_interface, double duration_s = 0.3) {
+        json j{{"name", "graded"},
+               {"encoder", {{"name", "e"}, {"model", "ideal"}, {"lines_per_rev", 1024}, {"vmax_v", vmax_v}, {"noise", {{"sigma_add_v", 2e-4}}}}},
+               {"motion", {{"kind", "constant"}, {"electrical_freq_hz", 200.0}}},
+               {"sample_rate_hz", 50000}, {"duration_s", duration_s}, {"settle_s", 0.0}, {"seed", 2},
+               {"device", "loopback:?dac_bits=16&adc_bits=16"},
+               {"estimators", json::array({json{{"name", "atan2"}}})}};
+        if (with_interface) j["interface"] = "../interfaces/1vpp.json";
+        return json(execute_run(scenario_from_json(j, kScenarios)));
+    };
+    auto count = [](const std::string& s, const std::string& what) {
+        std::size_t n = 0;
+        for (auto p = s.find(what); p != std::string::npos; p = s.find(what, p + 1)) ++n;
+        return n;
+    };
+    const json graded_run = run(1.0, true);  // 2 Vpp: amplitude out of specification, the rest within mounting
+    const std::string html = report_html(graded_run);
+    REQUIRE(html.find("<div id=\"signal-page\">") != std::string::npos);
+    CHECK(html.find("Graded against <b>1 Vpp</b>") != std::string::npos);
+    // One gauge a band, its outcome the measurement's.
+    std::size_t bands = 0;
+    for (const auto& m : graded_run["measurements"]) {
+        if (!m.contains("interface")) continue;
+        ++bands;
+        INFO(m.dump());
+        CHECK(html.find("class=\"gauge\" data-metric=\"" + m["metric"].get<std::string>() + "\" data-outcome=\"" + m["outcome"].get<std::string>() + "\"") !=
+              std::string::npos);
+    }
+    CHECK(bands == 6);
+    CHECK(count(html, "class=\"gauge\"") == 6);
+    CHECK(html.find("data-metric=\"signal_vpp_a_v\" data-outcome=\"FAIL\"") != std::string::npos);
+    CHECK(html.find("data-metric=\"signal_phase_deg\" data-outcome=\"PASS\"") != std::string::npos);
+    // The Lissajous is square (1:1) and has the four rings of 0.6/0.8/1.1/1.2 Vpp.
+    const auto lp = html.find("<svg id=\"plot-signal-lissajous\"");
+    REQUIRE(lp != std::string::npos);
+    const std::string liss = html.substr(lp, html.find("</svg>", lp) - lp);
+    CHECK(liss.find("width=\"420\" height=\"" + std::to_string(static_cast<int>(420 - 70 - 12 + 46 + 40)) + "\"") != std::string::npos);
+    CHECK(count(liss, "stroke=\"#bf8700\"") >= 2);  // two specification rings (and the legend)
+    CHECK(count(liss, "<polyline") == 4 + 3);      // four rings, the spread's two edges, the mean
+    for (const char* id : {"plot-signal-vpp", "plot-signal-ratio", "plot-signal-phase", "plot-signal-tv"})
+        CHECK(html.find(std::string("<svg id=\"") + id + "\"") != std::string::npos);
+    CHECK(html.find("spec 1.2") != std::string::npos);  // the band's edge on the amplitude trend
+    SECTION("without a profile: not graded, no rings, said so") {
+        const std::string plain = report_html(run(0.5, false));
+        CHECK(plain.find("No interface profile: the figures are not graded") != std::string::npos);
+        CHECK(plain.find("class=\"gauge\"") == std::string::npos);
+        CHECK(plain.find("no tolerance rings") != std::string::npos);
+    }
+    SECTION("no whole period: the analyser's note, nothing drawn, every band not measured") {
+        const json short_run = run(0.5, true, 0.004);  // 0.8 of a period
+        const std::string s = report_html(short_run);
+        CHECK(s.find("id=\"signal-note\">Signals not analysed: ") != std::string::npos);
+        CHECK(s.find("plot-signal-lissajous") == std::string::npos);
+        CHECK(short_run["verdict"] != "PASS");
+    }
 }

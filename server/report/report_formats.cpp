@@ -6,6 +6,7 @@
 #include "signal_gen/base/constants.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
@@ -663,6 +664,205 @@ std::string cell_interval(const MetricCell& c) {
 }  // namespace
 
 // The estimators' summary (the table's summary columns) and every metric of every lane.
+// The signals graded against the interface profile, as an encoder tester shows them
+// (docs/signal-quality.md): a gauge a band, the Lissajous of the run's angle bins drawn 1:1
+// with the amplitude band as tolerance rings (radius Vpp / 2), and the per-period recording
+// against the period index with the band edges.
+std::string signal_section_html(const json& r) {
+    const json sq = r.value("signal", json());
+    if (!sq.is_object()) return "";
+    std::ostringstream h;
+    h << "<h2>Signals</h2><div id=\"signal-page\">\n";
+    std::vector<json> graded;
+    for (const auto& m : r.value("measurements", json::array()))
+        if (m.value("estimator", "") == "run" && m.value("interface", json()).is_string()) graded.push_back(m);
+    if (graded.empty()) h << "<p class=\"muted\" id=\"signal-interface\">No interface profile: the figures are not graded (a scenario's \"interface\", or --interface).</p>\n";
+    else h << "<p id=\"signal-interface\">Graded against <b>" << xml_escape(graded[0]["interface"].get<std::string>()) << "</b>: green within the mounting tolerance, yellow within the specification only, grey outside it.</p>\n";
+    if (sq.value("periods", 0) == 0) {
+        h << "<p id=\"signal-note\">Signals not analysed: " << xml_escape(sq.value("note", std::string("no whole electrical period"))) << "</p></div>\n";
+        return h.str();
+    }
+    // Gauges: the scale spans the specification and a third of it either side.
+    auto pair = [](const json& band, const char* key, double& lo, double& hi) {
+        const json v = band.value(key, json());
+        if (!v.is_array() || v.size() != 2) return false;
+        lo = v[0].is_number() ? v[0].get<double>() : -INFINITY;
+        hi = v[1].is_number() ? v[1].get<double>() : INFINITY;
+        return true;
+    };
+    h << "<div class=\"gauges\">";
+    for (const auto& m : graded) {
+        const json band = m.value("band", json::object());
+        double slo = 0, shi = 0, mlo = 0, mhi = 0;
+        const bool has_spec = pair(band, "spec", slo, shi), has_mount = pair(band, "mounting", mlo, mhi);
+        const bool has_value = m["value"].is_number();
+        const double v = has_value ? m["value"].get<double>() : NAN;
+        // A one-sided band: the scale runs from the value or 0 to twice the edge.
+        double lo = std::isfinite(slo) ? slo : std::min(0.0, std::isfinite(v) ? v : 0.0), hi = std::isfinite(shi) ? shi : 2 * std::fabs(slo) + 1e-12;
+        if (!(hi > lo)) hi = lo + 1;
+        const double w = hi - lo, x0 = lo - w / 3, x1 = hi + w / 3;
+        constexpr double W = 360, gx = 8, gw = W - 16, gy = 24, gh = 12;
+        auto X = [&](double x) { return gx + gw * std::clamp((x - x0) / (x1 - x0), 0.0, 1.0); };
+        const std::string metric = m.value("metric", "");
+        const auto mi = find_metric(metric);
+        // A figure without a summary column (signal_sym_a): its name without the prefix.
+        auto label_of = [](std::string n) {
+            if (n.rfind("signal_", 0) == 0) n = n.substr(7);
+            std::replace(n.begin(), n.end(), '_', ' ');
+            return n;
+        };
+        const std::string unit = m.value("unit", "");
+        const std::string outcome = m.value("outcome", "");
+        h << "<svg class=\"gauge\" data-metric=\"" << xml_escape(metric) << "\" data-outcome=\"" << xml_escape(outcome) << "\" xmlns=\"http://www.w3.org/2000/svg\" width=\"" << W
+          << "\" height=\"60\" viewBox=\"0 0 " << W << " 60\"><text x=\"" << gx << "\" y=\"14\" font-size=\"12\" font-weight=\"bold\">"
+          << xml_escape(mi && !mi->column.empty() ? mi->column : label_of(metric)) << "</text><text x=\"" << W - gx << "\" y=\"14\" font-size=\"12\" text-anchor=\"end\">"
+          << (has_value ? fmt_num(v) + (unit.empty() ? "" : " " + xml_escape(unit)) : std::string("not measured")) << ": " << xml_escape(m.value("grade", std::string()))
+          << "</text><rect class=\"out\" x=\"" << gx << "\" y=\"" << gy << "\" width=\"" << gw << "\" height=\"" << gh << "\" fill=\"#d0d7de\"/>";
+        if (has_spec)
+            h << "<rect class=\"spec\" x=\"" << X(slo) << "\" y=\"" << gy << "\" width=\"" << X(shi) - X(slo) << "\" height=\"" << gh << "\" fill=\"#f2cc60\"/>";
+        if (has_mount)
+            h << "<rect class=\"mounting\" x=\"" << X(std::max(mlo, slo)) << "\" y=\"" << gy << "\" width=\"" << X(std::min(mhi, shi)) - X(std::max(mlo, slo))
+              << "\" height=\"" << gh << "\" fill=\"#4ac26b\"/>";
+        if (has_value) {
+            const char* col = outcome == "PASS" ? "#1a7f37" : outcome == "MARGINAL" ? "#9a6700" : "#cf222e";
+            h << "<path class=\"value\" d=\"M" << X(v) << "," << gy - 4 << " l-5,-6 h10 z M" << X(v) << "," << gy << " v" << gh << "\" stroke=\"" << col
+              << "\" stroke-width=\"2\" fill=\"" << col << "\"/>";
+        }
+        for (double e : {slo, shi})
+            if (std::isfinite(e)) h << "<text x=\"" << X(e) << "\" y=\"" << gy + gh + 12 << "\" font-size=\"10\" text-anchor=\"middle\">" << fmt_num(e) << "</text>";
+        h << "</svg>";
+    }
+    h << "</div>\n<div class=\"plots\">";
+    // The Lissajous from the angle bins, 1:1, with the amplitude band's rings.
+    const json liss = sq.value("lissajous", json());
+    std::vector<std::pair<double, std::string>> rings;  // radius V, label
+    for (const auto& m : graded) {
+        const std::string metric = m.value("metric", "");
+        if (metric != "signal_vpp_a_v" && !(metric == "signal_vpp_b_v" && rings.empty())) continue;
+        rings.clear();
+        const json band = m.value("band", json::object());
+        for (const char* key : {"spec", "mounting"}) {
+            const json v = band.value(key, json());
+            if (v.is_array())
+                for (const auto& e : v)
+                    if (e.is_number() && e.get<double>() > 0) rings.push_back({e.get<double>() / 2, std::string(key) + " " + fmt_num(e.get<double>()) + " Vpp"});
+        }
+    }
+    if (liss.is_object()) {
+        Axis x{"B (V)"}, y{"A (V)"};
+        double a = 1e-9;
+        for (const char* k : {"r_max_v"})
+            for (const auto& v : liss.value(k, json::array()))
+                if (v.is_number()) a = std::max(a, v.get<double>());
+        for (const auto& [rad, text] : rings) a = std::max(a, rad);
+        a *= 1.08;
+        x.lo = y.lo = -a;
+        x.hi = y.hi = a;
+        SvgPlot p("plot-signal-lissajous", "Lissajous of the analysed periods (1:1)", x, y, 420, SvgPlot::square_height(420));
+        // The spread: each bin's least and greatest radius along its mean point's direction.
+        const json& ma = liss["a_v"];
+        const json& mb = liss["b_v"];
+        json ox = json::array(), oy = json::array(), ix = json::array(), iy = json::array();
+        for (std::size_t k = 0; k < ma.size() && k < mb.size(); ++k) {
+            if (!ma[k].is_number() || !mb[k].is_number() || !liss["r_min_v"][k].is_number()) {
+                for (json* j : {&ox, &oy, &ix, &iy}) j->push_back(nullptr);
+                continue;
+            }
+            const double ang = std::atan2(ma[k].get<double>(), mb[k].get<double>());
+            const double r0 = liss["r_min_v"][k].get<double>(), r1 = liss["r_max_v"][k].get<double>();
+            ox.push_back(r1 * std::cos(ang));
+            oy.push_back(r1 * std::sin(ang));
+            ix.push_back(r0 * std::cos(ang));
+            iy.push_back(r0 * std::sin(ang));
+        }
+        for (const auto& [rad, text] : rings) {
+            json cx = json::array(), cy = json::array();
+            for (int i = 0; i <= 128; ++i) {
+                cx.push_back(rad * std::cos(kTwoPi * i / 128.0));
+                cy.push_back(rad * std::sin(kTwoPi * i / 128.0));
+            }
+            p.line(cx, cy, text.rfind("spec", 0) == 0 ? "#bf8700" : "#1a7f37", false, 1.0);
+        }
+        p.line(ox, oy, "#8c959f", true, 0.8);
+        p.line(ix, iy, "#8c959f", true, 0.8);
+        p.line(mb, ma, kColours[0], true, 1.6);
+        p.legend("mean", kColours[0]);
+        p.legend("radius min..max", "#8c959f");
+        if (!rings.empty()) {
+            p.legend("spec", "#bf8700");
+            p.legend("mounting", "#1a7f37");
+        } else {
+            p.note("no interface profile: no tolerance rings");
+        }
+        h << p.str();
+    }
+    // The per-period recording against the period index, the bands' edges as lines.
+    const json rec = sq.value("recording", json());
+    if (rec.is_object() && rec.value("first_period", json::array()).size() > 0) {
+        auto band_of = [&](const std::string& metric) {
+            for (const auto& m : graded)
+                if (m.value("metric", "") == metric) return m.value("band", json::object());
+            return json::object();
+        };
+        struct Trend {
+            const char* id;
+            const char* title;
+            const char* ylabel;
+            std::vector<std::array<const char*, 3>> series;  // recording key, band metric, legend
+        };
+        const Trend trends[] = {{"plot-signal-vpp", "Amplitude per period", "Vpp (V)", {{"vpp_a_v", "signal_vpp_a_v", "A"}, {"vpp_b_v", "signal_vpp_b_v", "B"}}},
+                                {"plot-signal-ratio", "A/B ratio per period", "A/B", {{"ab_ratio", "signal_ab_ratio", "A/B"}}},
+                                {"plot-signal-phase", "Phase between A and B per period", "phase (deg)", {{"phase_deg", "signal_phase_deg", "B - A"}}},
+                                {"plot-signal-tv", "On/off ratio TV per period", "TV (deg)", {{"tv_a_deg", "signal_tv_a_deg", "A"}, {"tv_b_deg", "signal_tv_b_deg", "B"}}}};
+        const json& xs = rec["first_period"];
+        for (const auto& t : trends) {
+            Axis x{"period index"}, y{t.ylabel};
+            x.see_all(xs);
+            for (const auto& [key, metric, name] : t.series) {
+                y.see_all(rec.value(key, json::array()));
+                // The band's edges are in view: a trend is read against its limits.
+                const json band = band_of(metric);
+                for (const char* k : {"spec", "mounting"}) y.see_all(band.value(k, json::array()));
+            }
+            x.finish(0);
+            if (x.hi <= x.lo) x.hi = x.lo + 1;
+            // At least 1 % of the level (or 0.1 of a unit about 0) tall: three-digit ticks stay distinct.
+            if (y.hi >= y.lo) {
+                const double least = std::max(0.01 * std::max(std::fabs(y.lo), std::fabs(y.hi)), 0.1 * (y.lo <= 0 && y.hi >= 0 ? 1.0 : 0.0));
+                if (y.hi - y.lo < least) {
+                    const double mid = 0.5 * (y.lo + y.hi);
+                    y.lo = mid - least / 2;
+                    y.hi = mid + least / 2;
+                }
+            }
+            y.finish();
+            SvgPlot p(t.id, t.title, x, y);
+            std::size_t i = 0;
+            std::vector<std::string> drawn;
+            for (const auto& [key, metric, name] : t.series) {
+                const json band = band_of(metric);
+                for (const char* k : {"spec", "mounting"}) {
+                    const json v = band.value(k, json());
+                    if (!v.is_array()) continue;
+                    for (const auto& e : v)
+                        if (e.is_number() && std::find(drawn.begin(), drawn.end(), std::string(k) + e.dump()) == drawn.end()) {
+                            drawn.push_back(std::string(k) + e.dump());
+                            p.hline(e.get<double>(), std::string(k) + " " + fmt_num(e.get<double>()), std::string(k) == "spec" ? "#bf8700" : "#1a7f37");
+                        }
+                }
+                p.line(xs, rec.value(key, json::array()), kColours[i], false, 1.3);
+                p.legend(name, kColours[i]);
+                ++i;
+            }
+            h << p.str();
+        }
+        if (rec.value("periods_per_point", 1) > 1)
+            h << "<p class=\"muted\">Each point is the mean of " << rec["periods_per_point"].dump() << " periods (the recording keeps at most 2048 points).</p>";
+    }
+    h << "</div></div>\n";
+    return h.str();
+}
+
 std::string metric_tables_html(const json& r) {
     std::ostringstream h;
     const auto cells = report_metrics(r);
@@ -702,6 +902,7 @@ std::string metric_tables_html(const json& r) {
         for (const auto* m : sig) h << td(find(m, "run"), false);
         h << "</tr>\n</table></div>\n";
     }
+    h << signal_section_html(r);
     h << "<h2>All metrics</h2><div class=\"table-wrap\"><table id=\"metrics\"><tr><th>metric</th><th>unit</th>";
     for (const auto& l : lanes) h << "<th>" << xml_escape(l) << "</th>";
     h << "<th>run</th><th>meaning</th></tr>\n";
