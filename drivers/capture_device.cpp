@@ -110,6 +110,22 @@ private:
 
 }  // namespace
 
+}  // namespace fringe::dev
+
+namespace fringe {
+CaptureOptions capture_options_from_uri(const nlohmann::json& s) {
+    CaptureOptions opts;
+    // A replay streams one block at a time: the limit bounds time, not memory. Uploaded
+    // captures were held to the service's own limit when they arrived.
+    opts.max_expanded_bytes = static_cast<std::uint64_t>(std::min(s.value("max_expanded_mb", 4096.0), 1.6e7) * 1048576.0);
+    for (const char* col : {"sin", "cos", "theta_true", "omega_true", "index", "a", "b", "z"})
+        if (s.contains(col) && s[col].is_string()) opts.channels[col] = s[col].get<std::string>();
+    return opts;
+}
+}  // namespace fringe
+
+namespace fringe::dev {
+
 void register_capture(std::vector<DriverInfo>& r) {
     DriverInfo d;
     d.scheme = "capture";
@@ -127,12 +143,7 @@ void register_capture(std::vector<DriverInfo>& r) {
     d.settings.push_back({"offset_rad", "rad", ParamType::Number, 0.0, -1e3, 1e3, {}, "electrical angle of count 0's lower edge (docs/abz.md)"});
     d.open = [](const std::string& uri, const std::string& path, const nlohmann::json& s) -> std::unique_ptr<Device> {
         if (path.empty()) throw ConfigError("device", "capture needs a file: capture:/path/to/x.fcap");
-        CaptureOptions opts;
-        // A replay streams one block at a time: the limit bounds time, not memory. Uploaded
-        // captures were held to the service's own limit when they arrived.
-        opts.max_expanded_bytes = static_cast<std::uint64_t>(std::min(s.value("max_expanded_mb", 4096.0), 1.6e7) * 1048576.0);
-        for (const char* col : {"sin", "cos", "theta_true", "omega_true", "index", "a", "b", "z"})
-            if (s.contains(col) && s[col].is_string()) opts.channels[col] = s[col].get<std::string>();
+        const CaptureOptions opts = capture_options_from_uri(s);
         try {
             return std::make_unique<CaptureSource>(uri, path, opts, s);
         } catch (const CaptureError& e) {

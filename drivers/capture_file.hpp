@@ -85,6 +85,8 @@ struct CaptureOptions {
     // declared size. .fcap and CSV are not compressed: their size on disk is their data.
     std::uint64_t max_expanded_bytes = kCaptureDefaultMaxExpandedBytes;
 };
+// The options a capture: device URI's settings give (its column channels, max_expanded_mb).
+CaptureOptions capture_options_from_uri(const nlohmann::json& settings);
 // "sin=CH1,cos=CH2" (a CLI option, a URI setting) to a channel map; throws CaptureError.
 std::map<std::string, std::string> parse_channel_map(const std::string& text);
 

@@ -314,3 +314,38 @@ TEST_CASE("capture without truth: the preflight's stand-in motion is the signals
     const double expect_rad_s = std::fabs(phi[1] - phi[0]) / settle;  // mechanical
     CHECK(p.run.scenario.motion.velocity_rad_s == Approx(expect_rad_s).epsilon(0.02));
 }
+
+TEST_CASE("a capture: run's preflight takes the motion from the capture, not from the scenario's motion", "[selfref][capture][preflight]") {
+    // The scenario says 10x the capture's speed (a form started from another fixture): the
+    // preflight's samples per cycle and ekf-auto's settle travel are the capture's.
+    TempDir d;
+    const Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
+    for (const bool truth : {true, false}) {
+        INFO((truth ? "with truth" : "without truth"));
+        const auto cap = d.path / (truth ? "with.fcap" : "bare.fcap");
+        write_capture(gen, 60000, cap, truth);
+        std::vector<double> t{0.0, 0.1}, phi(2), om(2), al(2);
+        gen.motion.evaluate(t.data(), 2, phi.data(), om.data(), al.data());
+        const double capture_el_hz = std::fabs(phi[1] - phi[0]) / 0.1 * gen.encoder.lines_per_rev / kTwoPi;
+        json j{{"name", "capture-motion"}, {"encoder", gen.encoder}, {"motion", {{"kind", "constant"}, {"electrical_freq_hz", 10 * capture_el_hz}}},
+               {"sample_rate_hz", gen.sample_rate_hz}, {"duration_s", 60000 / gen.sample_rate_hz}, {"settle_s", 0.1}, {"seed", 1},
+               {"device", "capture:" + cap.string()}, {"estimators", json::array({json{{"name", "ekf-auto"}}})}};
+        const RunPlan p = plan_run(scenario_from_json(j, FRINGE_SOURCE_DIR "/fixtures/scenarios"));
+        CHECK(p.scenario.motion_from_capture);
+        CHECK(p.samples_per_cycle == Approx(gen.sample_rate_hz / capture_el_hz).epsilon(0.02));
+        // ekf-auto's settle travel: the capture's cycles in 0.1 s (below its ~50), not ten times as many.
+        bool learning = false;
+        for (const auto& w : p.warnings)
+            if (w.code == "scores_learning") {
+                learning = true;
+                char cycles[64];
+                std::snprintf(cycles, sizeof cycles, "covers %.3g electrical cycles", 0.1 * capture_el_hz);
+                CHECK_THAT(w.message, Catch::Contains(cycles));
+            }
+        CHECK(learning == (0.1 * capture_el_hz < 50));
+        // A capture that cannot be read leaves the scenario's motion: the run's device names the fault.
+        j["device"] = "capture:" + (d.path / "missing.fcap").string();
+        const RunPlan q = plan_run(scenario_from_json(j, FRINGE_SOURCE_DIR "/fixtures/scenarios"));
+        CHECK_FALSE(q.scenario.motion_from_capture);
+    }
+}

@@ -30,26 +30,22 @@ void check_uri_text(const std::string& s, const std::string& field, const std::s
 
 }  // namespace
 
-CapturePlan plan_capture_run(const CaptureRunOptions& o) {
-    if (o.capture_path.find('?') != std::string::npos)
-        throw ConfigError("capture", "the path '" + o.capture_path + "' contains '?', which a capture: device URI cannot carry; rename the file");
-    // Read the capture once: its length (the run's planned samples), the first time stamp and
-    // the truth's travel. Every fault of the file is found here, before anything is written.
-    CaptureReader reader(o.capture_path, o.capture);
+CaptureScan scan_capture(const std::string& path, const CaptureOptions& options, double settle_s, std::size_t block) {
+    CaptureReader reader(path, options);
     CaptureData d;
-    const bool truth = reader.columns().theta_true;
-    std::uint64_t n = 0;
-    double t_first = 0, th_prev = 0, settle_travel_rad = 0, travel_rad = 0;
+    CaptureScan sc;
+    sc.has_truth = reader.columns().theta_true;
+    sc.has_abz = reader.columns().abz();
+    double th_prev = 0;
     bool have_prev = false;
-    while (reader.read(o.block, d)) {
+    while (reader.read(block, d)) {
         const std::size_t m = d.size();
         if (m == 0) continue;
-        if (n == 0) t_first = d.t_s[0];
+        if (sc.samples == 0) sc.t_first_s = d.t_s[0];
         for (std::size_t i = 0; i < m; ++i) {
-            // electrical radians travelled (distance, not net: a swing teaches ekf-auto on every
-            // pass): the truth's, else the signals' own phase (a step below pi a sample)
+            // a swing teaches ekf-auto on every pass: the distance, not the net travel
             double step = 0;
-            if (truth) {
+            if (sc.has_truth) {
                 if (have_prev) step = std::fabs(d.theta_true_rad[i] - th_prev);
                 th_prev = d.theta_true_rad[i];
                 have_prev = true;
@@ -64,18 +60,41 @@ CapturePlan plan_capture_run(const CaptureRunOptions& o) {
                 have_prev = true;
             }
             if (!std::isfinite(step)) continue;
-            travel_rad += step;
-            if (d.t_s[i] - t_first < o.settle_s) settle_travel_rad += step;
+            sc.travel_rad += step;
+            if (d.t_s[i] - sc.t_first_s < settle_s) sc.settle_travel_rad += step;
         }
-        n += m;
+        sc.samples += m;
     }
-    const double fs = reader.sample_rate_hz();
-    if (!(fs > 0)) throw CaptureError(o.capture_path + ": sample rate unknown (no sidecar and fewer than two time stamps)");
+    sc.sample_rate_hz = reader.sample_rate_hz();
+    if (!(sc.sample_rate_hz > 0)) throw CaptureError(path + ": sample rate unknown (no sidecar and fewer than two time stamps)");
+    sc.meta = reader.meta();
+    return sc;
+}
+
+MotionProfile capture_motion(const CaptureScan& scan, double settle_s, int lines_per_rev) {
+    const double duration_s = static_cast<double>(scan.samples) / scan.sample_rate_hz;
+    const double window = std::min(settle_s, duration_s);
+    const double electrical_rad_s = window > 0 ? scan.settle_travel_rad / window : duration_s > 0 ? scan.travel_rad / duration_s : 0.0;
+    MotionProfile m;
+    m.kind = MotionKind::Constant;
+    m.velocity_rad_s = electrical_rad_s / lines_per_rev;
+    return m;
+}
+
+CapturePlan plan_capture_run(const CaptureRunOptions& o) {
+    if (o.capture_path.find('?') != std::string::npos)
+        throw ConfigError("capture", "the path '" + o.capture_path + "' contains '?', which a capture: device URI cannot carry; rename the file");
+    // Read the capture once: its length (the run's planned samples), the first time stamp and
+    // the travel. Every fault of the file is found here, before anything is written.
+    const CaptureScan scan = scan_capture(o.capture_path, o.capture, o.settle_s, o.block);
+    const bool truth = scan.has_truth;
+    const std::uint64_t n = scan.samples;
+    const double fs = scan.sample_rate_hz, t_first = scan.t_first_s;
     std::optional<EncoderProfile> from_capture;
-    if (reader.meta().is_object() && reader.meta().contains("encoder"))
-        from_capture = encoder_from_json(reader.meta()["encoder"], "capture.encoder");
+    if (scan.meta.is_object() && scan.meta.contains("encoder"))
+        from_capture = encoder_from_json(scan.meta["encoder"], "capture.encoder");
     if (o.abz) {
-        if (!reader.columns().abz())
+        if (!scan.has_abz)
             throw ConfigError("dut_interpolation", "the capture has no a/b lines to read a DUT's position from (docs/abz.md)");
         try {
             AbzDecoder check(*o.abz);
@@ -97,13 +116,10 @@ CapturePlan plan_capture_run(const CaptureRunOptions& o) {
     sc.sample_rate_hz = fs;
     sc.duration_s = static_cast<double>(n) / fs;
     sc.t0_s = t_first;
-    // A stand-in motion for the preflight's checks and the spectrum's segment length: constant
-    // at the truth's (without truth: the signals' phase's) mean speed over the settle time (so the travel the preflight finds there,
-    // ekf-auto's learning rule, is the capture's), or over the whole capture without a settle time.
-    const double window = std::min(o.settle_s, sc.duration_s);
-    const double electrical_rad_s = window > 0 ? settle_travel_rad / window : sc.duration_s > 0 ? travel_rad / sc.duration_s : 0.0;
-    sc.motion.kind = MotionKind::Constant;
-    sc.motion.velocity_rad_s = electrical_rad_s / sc.encoder.lines_per_rev;
+    // The capture's own motion for the preflight (so the travel it finds over the settle time,
+    // ekf-auto's learning rule, is the capture's) and the spectrum's segment length.
+    sc.motion = capture_motion(scan, o.settle_s, sc.encoder.lines_per_rev);
+    sc.motion_from_capture = true;
     sc.settle_s = o.settle_s;
     EstimatorSpec spec{o.estimator, o.estimator, o.params.is_null() ? json::object() : o.params, std::nullopt};
     if (o.encoder && from_capture) spec.encoder = o.encoder;  // told another profile than the truth's
@@ -118,7 +134,7 @@ CapturePlan plan_capture_run(const CaptureRunOptions& o) {
         check_uri_text(ch, "channels", "the channel name");
         q.push_back(col + "=" + ch);
     }
-    if (reader.columns().abz()) {
+    if (scan.has_abz) {
         if (o.abz) {
             q.push_back("interpolation=" + std::to_string(o.abz->interpolation));
             q.push_back("index_count=" + std::to_string(o.abz->index_count));

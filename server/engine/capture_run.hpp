@@ -39,6 +39,24 @@ struct CaptureRunOptions {
     std::optional<InterfaceProfile> interface;
 };
 
+// What one read of a capture finds: its length, rate, first time stamp, columns, metadata and
+// the electrical radians travelled (distance, not net) in all and within settle_s of its start:
+// the truth's, else the signals' own phase atan2(sin, cos) (a step below pi a sample).
+struct CaptureScan {
+    std::uint64_t samples = 0;
+    double sample_rate_hz = 0, t_first_s = 0;
+    double travel_rad = 0, settle_travel_rad = 0;
+    bool has_truth = false, has_abz = false;
+    nlohmann::json meta;  // the sidecar's or header's metadata
+};
+CaptureScan scan_capture(const std::string& path, const CaptureOptions& options, double settle_s, std::size_t block = 65536);
+
+// The motion a capture run's preflight checks (samples per cycle, a learner's settle travel) and
+// its spectrum's segment length rest on: constant at the capture's mean electrical speed over
+// the settle time, or over the whole capture without one (a capture's motion is the capture's,
+// not what a scenario's "motion" says).
+MotionProfile capture_motion(const CaptureScan& scan, double settle_s, int lines_per_rev);
+
 // The run a capture is: its plan (plan_run of the scenario built from the capture), and what
 // reading the capture once found (report "capture").
 struct CapturePlan {

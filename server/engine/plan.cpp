@@ -1,6 +1,7 @@
 #include "server/engine/plan.hpp"
 
 #include "drivers/device.hpp"
+#include "server/engine/capture_run.hpp"
 #include "server/engine/limits.hpp"
 #include "signal_gen/base/config.hpp"
 
@@ -140,6 +141,17 @@ RunPlan plan_run(Scenario sc, const RunBudget& budget) {
     build_estimators(p);
     check_limits(p);
     const dev::UriParts input = check_device_uris(p.scenario);
+    // A capture replayed: the preflight takes its motion from the capture, not from the
+    // scenario's "motion" (left from the fixture a form started from). A capture that cannot be
+    // read is the run's fault when it opens the device, named there.
+    if (input.scheme == "capture" && !p.scenario.instruments && !p.scenario.motion_from_capture && !input.path.empty()) {
+        try {
+            const CaptureScan scan = scan_capture(input.path, capture_options_from_uri(input.settings), p.scenario.settle_s);
+            p.scenario.motion = capture_motion(scan, p.scenario.settle_s, p.scenario.encoder.lines_per_rev);
+            p.scenario.motion_from_capture = true;
+        } catch (const std::exception&) {
+        }
+    }
     p.samples_per_cycle = min_samples_per_cycle(p.scenario);
     p.warnings = preflight(p.scenario, p.samples_per_cycle, input);
     return p;

@@ -51,6 +51,9 @@ struct Scenario {
     // --encoder); encoder is a stand-in: estimators are told none, errors have no arcsec, no bounds.
     bool encoder_known = true;
     MotionProfile motion;
+    // Not a scenario key: plan_run replaced motion by the capture's own (capture_run.hpp
+    // capture_motion) for a capture: device run, whatever the scenario said.
+    bool motion_from_capture = false;
     double sample_rate_hz = 100000.0;
     double duration_s = 1.0;
     double t0_s = 0.0;
