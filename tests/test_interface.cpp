@@ -182,6 +182,12 @@ TEST_CASE("interface: the HTML report's signal section: a gauge a band with its 
     for (const char* id : {"plot-signal-vpp", "plot-signal-ratio", "plot-signal-phase", "plot-signal-tv"})
         CHECK(html.find(std::string("<svg id=\"") + id + "\"") != std::string::npos);
     CHECK(html.find("spec 1.2") != std::string::npos);  // the band's edge on the amplitude trend
+    // Against the shaft angle: one point a recorded period and channel (1024 lines: a point's angle is its period's place mod 1024).
+    const auto sp = html.find("<svg id=\"plot-signal-shaft\"");
+    REQUIRE(sp != std::string::npos);
+    const std::string shaft = html.substr(sp, html.find("</svg>", sp) - sp);
+    CHECK(count(shaft, "<circle") == 2 * graded_run["signal"]["recording"]["first_period"].size());
+    CHECK(shaft.find("1024 periods a revolution") != std::string::npos);
     SECTION("without a profile: not graded, no rings, said so") {
         const std::string plain = report_html(run(0.5, false));
         CHECK(plain.find("No interface profile: the figures are not graded") != std::string::npos);

@@ -6,6 +6,7 @@
 
 #include <catch2/catch.hpp>
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 #include <vector>
@@ -246,5 +247,40 @@ TEST_CASE("signal quality: the Lissajous bins are the ellipse's points, forwards
         const auto j = analyse(Sig{}, [](double t) { return 0.1 * t; }, 1000, 1.0).to_json();
         CHECK(j["periods"].get<int>() == 0);
         CHECK_FALSE(j.contains("lissajous"));
+    }
+}
+
+TEST_CASE("signal quality: each recorded period's place along the scale, forwards, backwards and swinging", "[signal]") {
+    // position_periods: the electrical period [2 pi p, 2 pi (p + 1)) of the signals' own angle,
+    // counted from the first sample's: the shaft angle of a dirty section of the scale.
+    auto positions = [](const nlohmann::json& rec) {
+        std::vector<long long> v;
+        for (const auto& x : rec["position_periods"]) v.push_back(x.get<long long>());
+        REQUIRE(v.size() == rec["first_period"].size());
+        return v;
+    };
+    SECTION("forwards: one period further each period") {
+        const auto rec = analyse(Sig{}, [](double t) { return kTwoPi * 50 * t + 0.2; }, 20000, 1.0).to_json()["recording"];
+        const auto p = positions(rec);
+        REQUIRE(p.size() >= 45);
+        for (std::size_t i = 1; i < p.size(); ++i) CHECK(p[i] == p[i - 1] + 1);
+        CHECK(p.front() >= 0);
+        CHECK(p.front() <= 2);  // the first whole periods after the start (the first is not analysed: its speed before is unknown)
+    }
+    SECTION("backwards: one period lower each period, below the start") {
+        const auto p = positions(analyse(Sig{}, [](double t) { return -kTwoPi * 50 * t + 0.2; }, 20000, 1.0).to_json()["recording"]);
+        REQUIRE(p.size() >= 45);
+        for (std::size_t i = 1; i < p.size(); ++i) CHECK(p[i] == p[i - 1] - 1);
+        CHECK(p.front() < 0);
+    }
+    SECTION("swinging 6 periods each way about the start: every period within the swing") {
+        const auto p = positions(analyse(Sig{}, [](double t) { return 6 * kTwoPi * std::sin(kTwoPi * 2 * t); }, 50000, 2.0).to_json()["recording"]);
+        REQUIRE(p.size() >= 10);
+        for (const long long x : p) {
+            CHECK(x >= -6);
+            CHECK(x <= 5);
+        }
+        CHECK(*std::min_element(p.begin(), p.end()) < 0);
+        CHECK(*std::max_element(p.begin(), p.end()) >= 0);
     }
 }

@@ -422,7 +422,7 @@ void SignalQuality::close_period(double t, double a, double b) {
     mean_.ab_ratio = sum_.ab_ratio / static_cast<double>(periods_);
     mean_.phase_deg = sum_.phase_deg / static_cast<double>(periods_);
     mean_.freq_hz = sum_.freq_hz / static_cast<double>(periods_);
-    record(p);
+    record(p, dir_ > 0 ? k_start_ : k_start_ - 1);
 }
 
 void SignalQuality::bin_lissajous(const std::vector<double>& phi_rad) {
@@ -442,10 +442,13 @@ void SignalQuality::bin_lissajous(const std::vector<double>& phi_rad) {
     }
 }
 
-void SignalQuality::record(const PeriodQuality& p) {
+void SignalQuality::record(const PeriodQuality& p, long long position) {
     const double n = static_cast<double>(pending_.count), m = n + 1;
     auto blend = [&](double& acc, double v) { acc = (acc * n + v) / m; };
-    if (pending_.count == 0) pending_.first = periods_ - 1;
+    if (pending_.count == 0) {
+        pending_.first = periods_ - 1;
+        pending_.position = position;
+    }
     blend(pending_.t_s, 0.5 * (p.t_start_s + p.t_end_s));
     blend(pending_.vpp_a, p.a.vpp_v);
     blend(pending_.vpp_b, p.b.vpp_v);
@@ -468,7 +471,7 @@ void SignalQuality::record(const PeriodQuality& p) {
         const Record& y = records_[i + 1];
         const double wx = static_cast<double>(x.count), wy = static_cast<double>(y.count), s = wx + wy;
         auto mix = [&](double u, double v) { return (u * wx + v * wy) / s; };
-        merged.push_back({x.first, x.count + y.count, mix(x.t_s, y.t_s), mix(x.vpp_a, y.vpp_a), mix(x.vpp_b, y.vpp_b), mix(x.ratio, y.ratio),
+        merged.push_back({x.first, x.count + y.count, x.position, mix(x.t_s, y.t_s), mix(x.vpp_a, y.vpp_a), mix(x.vpp_b, y.vpp_b), mix(x.ratio, y.ratio),
                           mix(x.phase_deg, y.phase_deg), mix(x.tv_a, y.tv_a), mix(x.tv_b, y.tv_b), mix(x.offset_a, y.offset_a), mix(x.offset_b, y.offset_b)});
     }
     records_ = std::move(merged);
@@ -618,11 +621,12 @@ json SignalQuality::to_json() const {
                     {"harmonics_percent", h}, {"thd_percent", c.thd_percent}, {"noise_v_rms", c.noise_v_rms}, {"max_v", c.max_v}, {"min_v", c.min_v},
                     {"vpp_range_v", {lo.vpp_v, hi.vpp_v}}, {"tv_range_deg", {lo.tv_deg, hi.tv_deg}}};
     };
-    json rec{{"periods_per_point", per_record_}, {"first_period", json::array()}, {"t_s", json::array()}, {"vpp_a_v", json::array()},
+    json rec{{"periods_per_point", per_record_}, {"first_period", json::array()}, {"position_periods", json::array()}, {"t_s", json::array()}, {"vpp_a_v", json::array()},
              {"vpp_b_v", json::array()}, {"ab_ratio", json::array()}, {"phase_deg", json::array()}, {"tv_a_deg", json::array()},
              {"tv_b_deg", json::array()}, {"offset_a_v", json::array()}, {"offset_b_v", json::array()}};
     auto push = [&](const Record& r) {
         rec["first_period"].push_back(r.first);
+        rec["position_periods"].push_back(r.position);
         rec["t_s"].push_back(r.t_s);
         rec["vpp_a_v"].push_back(r.vpp_a);
         rec["vpp_b_v"].push_back(r.vpp_b);

@@ -70,8 +70,8 @@ public:
 
 private:
     void close_period(double t_end_s, double a_end_v, double b_end_v);
+    void record(const PeriodQuality& p, long long position);
     void start_period(double t_s, double a_v, double b_v, long long k, int direction);
-    void record(const PeriodQuality& p);
 
     // The stream
     bool have_prev_ = false;
@@ -98,6 +98,7 @@ private:
     // Recording: buckets of whole periods, each the mean of the periods in it.
     struct Record {
         std::size_t first = 0, count = 0;
+        long long position = 0;  // the first period's place: it spans electrical angles [2 pi position, 2 pi (position + 1)) from the start's
         double t_s = 0, vpp_a = 0, vpp_b = 0, ratio = 0, phase_deg = 0, tv_a = 0, tv_b = 0, offset_a = 0, offset_b = 0;
     };
     std::vector<Record> records_;

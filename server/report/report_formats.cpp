@@ -856,8 +856,40 @@ std::string signal_section_html(const json& r) {
             }
             h << p.str();
         }
+        // The same against the shaft angle (each period's place along the scale, counted from the
+        // run's start, modulo one revolution): a dirty or damaged section of the scale returns at
+        // the same angle every turn.
+        const json enc = r["scenario"].value("encoder", json());
+        const long long lines = enc.is_object() && enc.value("lines_per_rev", json()).is_number_integer() ? enc["lines_per_rev"].get<long long>() : 0;
+        const json& pos = rec.value("position_periods", json::array());
+        if (lines > 0 && pos.size() == xs.size()) {
+            json deg = json::array();
+            for (const auto& v : pos) {
+                const long long k = ((v.get<long long>() % lines) + lines) % lines;
+                deg.push_back(360.0 * (static_cast<double>(k) + 0.5) / static_cast<double>(lines));
+            }
+            Axis x{"shaft angle from the run's start (deg, " + std::to_string(lines) + " periods a revolution)"}, y{"Vpp (V)"};
+            x.lo = 0;
+            x.hi = 360;
+            y.see_all(rec["vpp_a_v"]);
+            y.see_all(rec["vpp_b_v"]);
+            for (const char* metric : {"signal_vpp_a_v", "signal_vpp_b_v"})
+                for (const char* k : {"spec", "mounting"}) y.see_all(band_of(metric).value(k, json::array()));
+            if (y.hi >= y.lo && y.hi - y.lo < 0.01 * std::fabs(y.hi)) {
+                const double mid = 0.5 * (y.lo + y.hi), least = 0.01 * std::fabs(y.hi);
+                y.lo = mid - least / 2;
+                y.hi = mid + least / 2;
+            }
+            y.finish();
+            SvgPlot p("plot-signal-shaft", "Amplitude per period against shaft angle", x, y);
+            p.points(deg, rec["vpp_a_v"], kColours[0], 1.6);
+            p.points(deg, rec["vpp_b_v"], kColours[1], 1.6);
+            p.legend("A", kColours[0]);
+            p.legend("B", kColours[1]);
+            h << p.str();
+        }
         if (rec.value("periods_per_point", 1) > 1)
-            h << "<p class=\"muted\">Each point is the mean of " << rec["periods_per_point"].dump() << " periods (the recording keeps at most 2048 points).</p>";
+            h << "<p class=\"muted\">Each point is the mean of " << rec["periods_per_point"].dump() << " periods (the recording keeps at most 2048 points; against the shaft angle a point is placed at its first period's).</p>";
     }
     h << "</div></div>\n";
     return h.str();
