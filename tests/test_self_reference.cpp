@@ -198,12 +198,22 @@ TEST_CASE("self-reference: agrees with the truth-scored error on generated runs 
             INFO("truth std " << truth << " self-referenced " << self << " +- " << u);
             CHECK(std::fabs(self - truth) <= std::max(0.1 * truth, 2 * u));
             for (int k = 1; k <= 4; ++k) {
-                double truth_k = 0;
+                double truth_k = 0, truth_phase = 0;
                 for (const auto& h : e["metrics"]["harmonics"])
-                    if (h["order"] == k) truth_k = h["amplitude"]["rad"].get<double>();
+                    if (h["order"] == k) {
+                        truth_k = h["amplitude"]["rad"].get<double>();
+                        truth_phase = h["phase_rad"].get<double>();
+                    }
                 const json& hk = sr["harmonics"][static_cast<std::size_t>(k - 1)];
                 INFO(k << "x truth " << truth_k << " self-referenced " << hk["amplitude_rad"] << " +- " << hk["u_rad"]);
                 CHECK(std::fabs(hk["amplitude_rad"].get<double>() - truth_k) <= std::max(0.1 * truth_k, 3 * hk["u_rad"].get<double>()));
+                // Where a harmonic stands well above its uncertainty, its phase is the truth's too:
+                // the error curve against the electrical angle (the HTML's plot-self-reference) is the truth's.
+                if (truth_k > 20 * hk["u_rad"].get<double>()) {
+                    const double d = std::remainder(hk["phase_rad"].get<double>() - truth_phase, kTwoPi);
+                    INFO(k << "x phase truth " << truth_phase << " self-referenced " << hk["phase_rad"]);
+                    CHECK(std::fabs(d) <= std::max(0.1, 5 * hk["u_rad"].get<double>() / truth_k));
+                }
             }
         }
     }
@@ -276,6 +286,7 @@ TEST_CASE("self-reference: a run on a capture without truth is judged on the sel
         const std::string html = report_html(r);
         CHECK_THAT(html, Catch::Contains("this capture has no truth"));
         CHECK_THAT(html, Catch::Contains("self_ref_rms_rad"));
+        CHECK_THAT(html, Catch::Contains("<svg id=\"plot-self-reference\""));  // the sub-divisional error from its harmonics
     }
     SECTION("a limit the capture cannot measure (rms_rad needs truth) FAILs and says why") {
         const json r = execute_run(scenario(json::array({json{{"estimator", "atan2"}, {"metric", "rms_rad"}, {"max", 0.5}}})));

@@ -592,6 +592,43 @@ std::string envelope_plots(const json& tr, const json& estimators, const json& r
     out += svg_spectrum(estimators);
     return out;
 }
+// Each lane's self-referenced error against the electrical angle (docs/self-reference.md): the
+// periodic part its harmonics 1..8 give, e(s) = sum A_k cos(k s - phase_k), the sub-divisional
+// error a capture without truth still shows. Its mean is not observable: the curves are about 0.
+std::string svg_self_reference(const json& estimators) {
+    const Palette colour(estimators);
+    std::vector<std::pair<std::string, json>> curves;
+    constexpr int kPoints = 256;
+    Axis x{"electrical angle of the self-reference (rad)"}, y{"self-referenced error, periodic part (rad)"};
+    x.lo = 0;
+    x.hi = kTwoPi;
+    json xs = json::array();
+    for (int i = 0; i <= kPoints; ++i) xs.push_back(kTwoPi * i / kPoints);
+    for (const auto& e : estimators) {
+        const json sr = e.value("analysers", json::object()).value("self_reference", json());
+        if (!sr.is_object() || !sr.value("measured", false) || !sr.value("harmonics", json()).is_array()) continue;
+        json ys = json::array();
+        for (int i = 0; i <= kPoints; ++i) {
+            const double s_rad = kTwoPi * i / kPoints;
+            double v = 0;
+            for (const auto& hk : sr["harmonics"])
+                if (hk.value("amplitude_rad", json()).is_number() && hk.value("phase_rad", json()).is_number())
+                    v += hk["amplitude_rad"].get<double>() * std::cos(hk.value("order", 0) * s_rad - hk["phase_rad"].get<double>());
+            ys.push_back(v);
+            y.see(ys.back());
+        }
+        curves.push_back({e.value("label", std::string()), std::move(ys)});
+    }
+    if (curves.empty()) return "";
+    y.finish();
+    SvgPlot p("plot-self-reference", "Self-referenced error vs electrical angle (harmonics 1-8)", x, y);
+    for (const auto& [label, ys] : curves) {
+        p.line(xs, ys, colour(label), false, 1.5);
+        p.legend(label, colour(label));
+    }
+    return p.str();
+}
+
 std::string svg_bars(const json& estimators) {
     const double W = 640, H = 300, L = 70, R = 12, B = 40, T = 46;  // legend row above the plot area: inside it, it covered the 1x bar
     double vmax = 0;
@@ -1022,6 +1059,7 @@ std::string report_html(const json& r) {
         h << "<p>No traces: the run processed no samples.</p>";
     } else if (envelope) {
         h << envelope_plots(tr, r["estimators"], r);
+        h << svg_self_reference(r["estimators"]);
         h << svg_bars(r["estimators"]);
     } else {
         h << stride_plots(tr, r["estimators"]);
