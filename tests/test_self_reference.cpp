@@ -360,3 +360,59 @@ TEST_CASE("a capture: run's preflight takes the motion from the capture, not fro
         CHECK_FALSE(q.scenario.motion_from_capture);
     }
 }
+
+TEST_CASE("self-reference: the preflight says when a capture's motion cannot give it", "[selfref][capture][preflight]") {
+    // The rule on the capture's own figures (docs/self-reference.md "What it cannot see").
+    const SelfReferenceOptions so;
+    CaptureScan s;
+    s.sample_rate_hz = 100000;
+    s.samples = 100000;  // 1 s
+    auto cycles = [](double c) { return c * kTwoPi; };
+    s.travel_rad = cycles(200);
+    s.settle_travel_rad = cycles(20);
+    CHECK_FALSE(self_reference_motion_check(s, 0.1).has_value());  // 180 cycles at 500 samples a cycle
+    s.travel_rad = cycles(2 * so.window_cycles + 20 - 0.5);         // just below two windows after the settle time
+    auto f = self_reference_motion_check(s, 0.1);
+    REQUIRE(f.has_value());
+    CHECK(f->code == "self_reference_motion");
+    CHECK_THAT(f->message, Catch::Contains("travels 31.5 electrical cycles after the settle time"));
+    s.travel_rad = cycles(2 * so.window_cycles + 20 + 0.5);
+    CHECK_FALSE(self_reference_motion_check(s, 0.1).has_value());
+    // Slow: 40 cycles over 100 s at 100 kHz is 250 000 samples a cycle; a window holds 65 536.
+    s.samples = 10000000;
+    s.travel_rad = cycles(40);
+    s.settle_travel_rad = 0;
+    f = self_reference_motion_check(s, 0.0);
+    REQUIRE(f.has_value());
+    CHECK(f->field == "sample_rate_hz");
+    CHECK_THAT(f->message, Catch::Contains("2.5e+05 samples per electrical cycle"));
+    // No motion at all.
+    s.travel_rad = 0;
+    CHECK(self_reference_motion_check(s, 0.0).has_value());
+
+    SECTION("end to end: a short capture without truth carries the warning, through fringe estimate's path and a capture: run") {
+        TempDir d;
+        const Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
+        const auto cap = d.path / "short.fcap";
+        std::vector<double> t{0.0, 0.05}, phi(2), om(2), al(2);
+        gen.motion.evaluate(t.data(), 2, phi.data(), om.data(), al.data());
+        const double el_hz = std::fabs(phi[1] - phi[0]) / 0.05 * gen.encoder.lines_per_rev / kTwoPi;
+        const std::size_t n = static_cast<std::size_t>(20.0 / el_hz * gen.sample_rate_hz);  // about 20 electrical cycles
+        write_capture(gen, n, cap, false);
+        CaptureRunOptions o;
+        o.capture_path = cap.string();
+        o.estimator = "atan2";
+        o.settle_s = 0;
+        const json r = run_capture(o);
+        bool warned = false;
+        for (const auto& w : r["warnings"]) warned |= w["code"] == "self_reference_motion";
+        CHECK(warned);
+        json j{{"name", "short"}, {"encoder", gen.encoder}, {"motion", {{"kind", "constant"}, {"electrical_freq_hz", 1000.0}}},
+               {"sample_rate_hz", gen.sample_rate_hz}, {"duration_s", static_cast<double>(n) / gen.sample_rate_hz}, {"settle_s", 0.0}, {"seed", 1},
+               {"device", "capture:" + cap.string()}, {"estimators", json::array({json{{"name", "atan2"}}})}};
+        const RunPlan p = plan_run(scenario_from_json(j, FRINGE_SOURCE_DIR "/fixtures/scenarios"));
+        warned = false;
+        for (const auto& w : p.warnings) warned |= w.code == "self_reference_motion";
+        CHECK(warned);
+    }
+}

@@ -158,6 +158,7 @@ int run_estimate(const EstimateOptions& o) {
             } else if (sr.is_object()) {
                 std::printf("self-referenced error: not measured: %s\n", term_escape(sr.value("why_not", std::string("no reason given"))).c_str());
             }
+            for (const auto& w : r["warnings"]) std::printf("warning: %s\n", term_escape(w.value("message", std::string())).c_str());
         } else if (m["scored"].get<std::uint64_t>() == 0) {
             const double n = static_cast<double>(cap["samples"].get<std::uint64_t>());
             std::printf("no scored samples: %.0f samples (%.6g s), %llu after the %.6g s settle time, %llu of them marked invalid by the estimator\n", n,

@@ -81,6 +81,30 @@ MotionProfile capture_motion(const CaptureScan& scan, double settle_s, int lines
     return m;
 }
 
+std::optional<Finding> self_reference_motion_check(const CaptureScan& scan, double settle_s) {
+    const SelfReferenceOptions so;
+    const double cycles = std::max(0.0, scan.travel_rad - scan.settle_travel_rad) / kTwoPi;
+    const double duration_s = scan.sample_rate_hz > 0 ? static_cast<double>(scan.samples) / scan.sample_rate_hz : 0.0;
+    const double scored_s = std::max(0.0, duration_s - settle_s);
+    char b[400];
+    if (cycles < 2 * so.window_cycles) {
+        std::snprintf(b, sizeof b,
+                      "the self-referenced error needs the motion to sweep the electrical angle: the capture travels %.3g electrical cycles after "
+                      "the settle time, and a window spans %.0f (one of fewer than %.0f is skipped): expect few or no windows, or nothing measured",
+                      cycles, so.window_cycles, so.min_window_cycles);
+        return Finding{false, "self_reference_motion", "settle_s", b};
+    }
+    const double spc = scored_s > 0 ? scan.sample_rate_hz * scored_s / cycles : 0.0;  // mean samples per electrical cycle
+    if (spc * so.min_window_cycles > static_cast<double>(so.max_window_samples)) {
+        std::snprintf(b, sizeof b,
+                      "the capture moves at %.3g samples per electrical cycle on average: a self-referenced window holds at most %zu samples, "
+                      "fewer than the %.0f cycles it is measured on; most windows will be skipped (decimate the capture or capture faster motion)",
+                      spc, so.max_window_samples, so.min_window_cycles);
+        return Finding{false, "self_reference_motion", "sample_rate_hz", b};
+    }
+    return std::nullopt;
+}
+
 CapturePlan plan_capture_run(const CaptureRunOptions& o) {
     if (o.capture_path.find('?') != std::string::npos)
         throw ConfigError("capture", "the path '" + o.capture_path + "' contains '?', which a capture: device URI cannot carry; rename the file");
@@ -154,7 +178,10 @@ CapturePlan plan_capture_run(const CaptureRunOptions& o) {
     if (!truth_enc)
         p.facts["no_encoder"] = "neither an encoder profile nor the capture's metadata gives one: the estimator is told none, the errors have "
                                 "no arcsec (they need lines_per_rev) and no bounds (they need the signal model)";
+    const bool self_ref = sc.scoring.self_reference;
     p.run = plan_run(std::move(sc));
+    if (self_ref)
+        if (auto f = self_reference_motion_check(scan, o.settle_s)) p.run.warnings.push_back(std::move(*f));
     return p;
 }
 

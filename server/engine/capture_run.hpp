@@ -6,7 +6,9 @@
 
 #include "drivers/abz.hpp"
 #include "drivers/capture_file.hpp"
+#include "server/analysis/self_reference.hpp"
 #include "server/engine/plan.hpp"
+#include "server/engine/preflight.hpp"
 #include "server/engine/report.hpp"
 #include "server/engine/scenario.hpp"
 #include "signal_gen/encoder.hpp"
@@ -56,6 +58,12 @@ CaptureScan scan_capture(const std::string& path, const CaptureOptions& options,
 // the settle time, or over the whole capture without one (a capture's motion is the capture's,
 // not what a scenario's "motion" says).
 MotionProfile capture_motion(const CaptureScan& scan, double settle_s, int lines_per_rev);
+
+// The self-referenced error's needs of the motion (docs/self-reference.md "What it cannot
+// see"), checked on the capture: enough electrical cycles of travel after the settle time for
+// a few windows, and not so slow that a window's samples run out before it spans the least
+// cycles it is measured on. A warning, or nothing.
+std::optional<Finding> self_reference_motion_check(const CaptureScan& scan, double settle_s);
 
 // The run a capture is: its plan (plan_run of the scenario built from the capture), and what
 // reading the capture once found (report "capture").

@@ -144,16 +144,20 @@ RunPlan plan_run(Scenario sc, const RunBudget& budget) {
     // A capture replayed: the preflight takes its motion from the capture, not from the
     // scenario's "motion" (left from the fixture a form started from). A capture that cannot be
     // read is the run's fault when it opens the device, named there.
+    std::optional<Finding> self_ref_check;
     if (input.scheme == "capture" && !p.scenario.instruments && !p.scenario.motion_from_capture && !input.path.empty()) {
         try {
             const CaptureScan scan = scan_capture(input.path, capture_options_from_uri(input.settings), p.scenario.settle_s);
             p.scenario.motion = capture_motion(scan, p.scenario.settle_s, p.scenario.encoder.lines_per_rev);
             p.scenario.motion_from_capture = true;
+            // Without truth (or asked for) the error is self-referenced: can this motion give it?
+            if (!scan.has_truth || p.scenario.scoring.self_reference) self_ref_check = self_reference_motion_check(scan, p.scenario.settle_s);
         } catch (const std::exception&) {
         }
     }
     p.samples_per_cycle = min_samples_per_cycle(p.scenario);
     p.warnings = preflight(p.scenario, p.samples_per_cycle, input);
+    if (self_ref_check) p.warnings.push_back(std::move(*self_ref_check));
     return p;
 }
 
