@@ -36,32 +36,50 @@ CaptureScan scan_capture(const std::string& path, const CaptureOptions& options,
     CaptureScan sc;
     sc.has_truth = reader.columns().theta_true;
     sc.has_abz = reader.columns().abz();
-    double th_prev = 0;
-    bool have_prev = false;
+    // A swing teaches ekf-auto on every pass: the distance, not the net travel; but the noise's
+    // jitter of a standing encoder's phase is no travel. The phase (unwrapped), averaged over
+    // groups of kGroup samples, is counted when it has moved kDeadbandRad from where it was last
+    // counted, by the whole way it moved (a turn loses at most the deadband).
+    constexpr double kDeadbandRad = 0.5;
+    constexpr int kGroup = 16;
+    double w_prev = 0, phase = 0, anchor = 0, group_sum = 0;
+    int group_n = 0;
+    bool have_prev = false, have_anchor = false;
     while (reader.read(block, d)) {
         const std::size_t m = d.size();
         if (m == 0) continue;
         if (sc.samples == 0) sc.t_first_s = d.t_s[0];
         for (std::size_t i = 0; i < m; ++i) {
-            // a swing teaches ekf-auto on every pass: the distance, not the net travel
-            double step = 0;
             if (sc.has_truth) {
-                if (have_prev) step = std::fabs(d.theta_true_rad[i] - th_prev);
-                th_prev = d.theta_true_rad[i];
+                if (!std::isfinite(d.theta_true_rad[i])) continue;
+                phase = d.theta_true_rad[i];
                 have_prev = true;
             } else if (std::isfinite(d.sin_v[i]) && std::isfinite(d.cos_v[i]) && (d.sin_v[i] != 0 || d.cos_v[i] != 0)) {
                 const double w = std::atan2(d.sin_v[i], d.cos_v[i]);
                 if (have_prev) {
-                    double dw = w - th_prev;
-                    dw -= kTwoPi * std::round(dw / kTwoPi);
-                    step = std::fabs(dw);
+                    double dw = w - w_prev;
+                    dw -= kTwoPi * std::round(dw / kTwoPi);  // a step below pi a sample
+                    phase += dw;
                 }
-                th_prev = w;
+                w_prev = w;
                 have_prev = true;
+            } else {
+                continue;
             }
-            if (!std::isfinite(step)) continue;
-            sc.travel_rad += step;
-            if (d.t_s[i] - sc.t_first_s < settle_s) sc.settle_travel_rad += step;
+            group_sum += phase;
+            if (++group_n < kGroup) continue;
+            const double mean = group_sum / kGroup;
+            group_sum = 0;
+            group_n = 0;
+            if (!have_anchor) {
+                anchor = mean;
+                have_anchor = true;
+            }
+            const double moved = std::fabs(mean - anchor);
+            if (moved < kDeadbandRad || !std::isfinite(moved)) continue;
+            anchor = mean;
+            sc.travel_rad += moved;
+            if (d.t_s[i] - sc.t_first_s < settle_s) sc.settle_travel_rad += moved;
         }
         sc.samples += m;
     }

@@ -43,7 +43,8 @@ struct CaptureRunOptions {
 
 // What one read of a capture finds: its length, rate, first time stamp, columns, metadata and
 // the electrical radians travelled (distance, not net) in all and within settle_s of its start:
-// the truth's, else the signals' own phase atan2(sin, cos) (a step below pi a sample).
+// the truth's, else the signals' own phase atan2(sin, cos) (a step below pi a sample), averaged
+// over 16 samples and counted past a 0.5 rad deadband (a standing encoder's noise is no travel).
 struct CaptureScan {
     std::uint64_t samples = 0;
     double sample_rate_hz = 0, t_first_s = 0;
