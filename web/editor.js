@@ -250,6 +250,8 @@ export async function newRun(view, cleanup) {
         : "without truth: each estimator's error will be self-referenced (measured against the signals' own phase, with its uncertainty)"}`;
       uploadState.dataset.id = c.id;
       uploadState.dataset.truth = c.has_truth ? '1' : '';
+      captureTruth = !!c.has_truth;
+      markNeedsTruth();
       preselectInterface();
       schedule();
     } catch (e) {
@@ -258,6 +260,7 @@ export async function newRun(view, cleanup) {
     }
   };
   fileIn.addEventListener('change', () => uploadCapture(fileIn.files[0]));
+  devPath.addEventListener('input', () => { captureTruth = null; markNeedsTruth(); });
   drop.addEventListener('dragover', (ev) => { ev.preventDefault(); drop.classList.add('over'); });
   drop.addEventListener('dragleave', () => drop.classList.remove('over'));
   drop.addEventListener('drop', (ev) => {
@@ -269,6 +272,7 @@ export async function newRun(view, cleanup) {
   // generator's URI; one instrument for both (the same URI) stays one, another input is kept.
   let instruments = null;
   const fillDevice = (device) => {
+    captureTruth = null;
     instruments = device && typeof device === 'object' ? device : null;
     const uri = instruments ? instruments.output : device;
     const colon = uri.indexOf(':');
@@ -281,6 +285,7 @@ export async function newRun(view, cleanup) {
     devParams.replaceChildren(...(d ? d.settings : []).map((p) => paramInput(p, given[p.name], `scenario.device.${p.name}`, `device.${p.name}`)));
     modeSettings(d);
     drop.hidden = scheme !== 'capture';
+    markNeedsTruth();
     if (scheme === 'capture')
       api.get('captures').then((r) => captureIds.replaceChildren(...(r.captures || []).map((c) => h('option', { value: c.id }, `${c.samples} samples`)))).catch(() => {});
   };
@@ -361,7 +366,7 @@ export async function newRun(view, cleanup) {
     const unit = () => unitOf(met.value);
     const units = [h('span', { class: 'unit' }), h('span', { class: 'unit' })];
     const showUnits = () => { for (const u of units) u.textContent = unit() ? ` ${unit()}` : ''; };
-    met.addEventListener('change', showUnits);
+    met.addEventListener('change', () => { showUnits(); markNeedsTruth(); });
     showUnits();
     const row = h('tr', { class: 'limit' }, h('td', { class: 'c-est' }, est), h('td', { class: 'c-metric' }, met), h('td', { class: 'c-min', 'data-label': 'min' }, min, units[0]),
       h('td', { class: 'c-max', 'data-label': 'max' }, max, units[1]), h('td', { class: 'c-band', 'data-label': 'marginal %' }, band),
@@ -386,6 +391,32 @@ export async function newRun(view, cleanup) {
       row.classList.toggle('inactive', out);
       row.title = out ? `${want} is not ticked: this limit is left out of the run` : '';
     }
+    markNeedsTruth();
+  }
+  // A capture without truth: a limit on a figure that needs truth (an estimator's metric other
+  // than the self-referenced ones, as the service grades them) cannot pass. Such limits are marked
+  // and a note names what measures the error without truth.
+  let captureTruth = null;  // the capture uploaded here: has it truth? null: none uploaded (or the path typed since)
+  const truthNote = h('p', { class: 'warn-note', id: 'truth-note', hidden: true });
+  const needsTruth = (metric) => {
+    const m = metrics.find((x) => x.name === metric);
+    return m ? m.scope === 'estimator' && !metric.startsWith('self_ref_') : /^harmonic_\d+x_rad$/.test(metric);
+  };
+  function markNeedsTruth() {
+    const noTruth = captureTruth === false && driverSel.value === 'capture';
+    const named = [];
+    for (const row of limitBody.querySelectorAll('tr.limit')) {
+      const metric = row.querySelector('.l-metric').value;
+      const mark = noTruth && !row.classList.contains('inactive') && needsTruth(metric);
+      row.classList.toggle('needs-truth', mark);
+      if (mark) {
+        named.push(metric);
+        row.title = `${metric} needs truth (theta_true), which this capture has not: this limit will FAIL as not measured`;
+      }
+    }
+    truthNote.hidden = !named.length;
+    truthNote.textContent = named.length ? `This capture has no truth (theta_true): ${named.length === 1 ? '1 limit names a figure' : `${named.length} limits name figures`} that need it `
+      + `(${[...new Set(named)].join(', ')}) and will FAIL as not measured. Without truth the error is measured by self_ref_rms_rad and self_ref_harmonic_1x_rad .. 4x_rad (self-referenced).` : '';
   }
 
   // ---- the scenario the form describes; each value's input gets the field the API names --
@@ -619,7 +650,7 @@ export async function newRun(view, cleanup) {
       h('div', { class: 'row' }, h('label', { class: 'field' }, h('span', { class: 'fname' }, 'interface profile'), ifaceSel), ifaceNote)),
     h('fieldset', {}, legend('Estimators under test', 'tick one to see its parameters'), estBox),
     h('fieldset', {}, legend('Limits', 'the verdict: FAIL beyond min/max, MARGINAL within the band on the passing side'),
-      h('div', { class: 'table-wrap' }, limitTable), h('button', { type: 'button', id: 'add-limit', onclick: () => { addLimit({ estimator: tickedLabels()[0] || '*' }); schedule(); } }, 'add limit')),
+      h('div', { class: 'table-wrap' }, limitTable), truthNote, h('button', { type: 'button', id: 'add-limit', onclick: () => { addLimit({ estimator: tickedLabels()[0] || '*' }); schedule(); } }, 'add limit')),
     preflightBox,
     h('div', { class: 'row actions' }, startBtn,
       h('button', { type: 'button', id: 'check', onclick: async () => { if (!api.token()) { needToken(); return; } checked = null; await runPreflight(); } }, 'Check'),

@@ -518,6 +518,15 @@ try {
   const inlSaved = JSON.parse(readFileSync(await inlDl.path(), 'utf8'));
   check(JSON.stringify(inlSaved.interface) === JSON.stringify(inline) && await page.textContent('#interface-note') === '',
     'the inline profile is kept through a dropped capture and sent as it was');
+  // The fixture's limits name figures that need truth: marked, and the note names them.
+  const truthNote = await page.evaluate(() => ({ text: document.querySelector('#truth-note').hidden ? '' : document.querySelector('#truth-note').textContent,
+    marked: [...document.querySelectorAll('#limits tr.limit.needs-truth .l-metric')].map((m) => m.value) }));
+  check(truthNote.marked.length === 4 && /4 limits name figures that need it \(rms_rad, slipped_samples, efficiency\)/.test(truthNote.text) && /self_ref_rms_rad/.test(truthNote.text),
+    `limits that need truth are marked on a capture without it (${truthNote.marked.join(', ')}): "${truthNote.text.slice(0, 100)}…"`);
+  await page.uncheck('input[data-estimator="ekf-ideal"]');
+  await page.selectOption('#limits tr.limit.needs-truth .l-metric >> nth=0', 'self_ref_rms_rad');
+  const after = await page.evaluate(() => [...document.querySelectorAll('#limits tr.limit.needs-truth')].length);
+  check(after === 2, `a limit moved to self_ref_rms_rad, or on an unticked estimator, is no longer marked (${after} left)`);
   await page.unroute('**/api/v1/fixtures/fig10c-loopback');
 
   // Phone width: run list, report and compare fit 390 px without horizontal page scrolling.
