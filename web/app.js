@@ -257,20 +257,32 @@ function allMetricsTable(mt) {
 }
 
 // Every fitted harmonic of each estimator's error, with its 95 % interval (the bars in the
-// plots show the amplitudes).
+// plots show the amplitudes scored against truth); then the self-referenced harmonics of the
+// error against the electrical angle (docs/self-reference.md), interval +- 1.96 u.
 function harmonicsTable(r) {
   const rows = [];
+  const truthless = plots.hasNoTruth(r);
   for (const e of r.estimators || []) {
     const m = e.metrics || {}, u = (m.uncertainty || {}).harmonics || [];
     for (const x of m.harmonics || []) {
       const iv = (u.find((y) => y.order === x.order) || {}).amplitude_rad;
       rows.push(h('tr', {}, h('td', {}, e.label), h('td', { class: 'num' }, `${x.order}x`),
-        h('td', { class: 'num' }, withUnit(x.amplitude && x.amplitude.rad, 'rad'), intervalSpan(iv))));
+        h('td', { class: 'num' }, withUnit(x.amplitude && x.amplitude.rad, 'rad'), intervalSpan(iv)), h('td', { class: 'muted' }, 'against truth')));
+    }
+  }
+  for (const e of r.estimators || []) {
+    const sr = e.analysers && e.analysers.self_reference;
+    if (!sr || !sr.measured) continue;
+    for (const x of sr.harmonics || []) {
+      const iv = typeof x.u_rad === 'number' ? [Math.max(0, x.amplitude_rad - 1.96 * x.u_rad), x.amplitude_rad + 1.96 * x.u_rad] : null;
+      rows.push(h('tr', { class: 'self-ref', 'data-lane': e.label, 'data-order': x.order }, h('td', {}, e.label), h('td', { class: 'num' }, `${x.order}x`),
+        h('td', { class: 'num' }, withUnit(x.amplitude_rad, 'rad'), intervalSpan(iv)),
+        h('td', { class: 'self-ref-tag' }, truthless ? 'self-referenced (no truth)' : 'self-referenced')));
     }
   }
   if (!rows.length) return '';
   return h('div', {}, h('h2', {}, 'Error harmonics'), scroller(h('table', { id: 'harmonics' },
-    h('thead', {}, h('tr', {}, ['estimator', 'order', 'amplitude'].map((c) => h('th', {}, c)))), h('tbody', {}, rows))));
+    h('thead', {}, h('tr', {}, ['estimator', 'order', 'amplitude', 'measured'].map((c) => h('th', {}, c)))), h('tbody', {}, rows))));
 }
 
 async function report(id, into) {

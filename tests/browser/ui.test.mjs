@@ -486,6 +486,10 @@ try {
       && row.text.includes(`± ${sig3(pm)} rad`) && /95 % \S+\.\.\S+/.test(row.text) && pm > 0 && pm < 0.5 * sr.rms_rad,
     `${lane}: self-referenced rms ${row && row.text} (no truth)`);
   }
+  const srH = await page.$$eval('#harmonics tbody tr.self-ref[data-lane="atan2"]', (trs) => trs.map((tr) => tr.textContent));
+  const srN = nu.estimators.find((e) => e.label === 'atan2').analysers.self_reference.harmonics.length;
+  check(srN >= 4 && srH.length === srN && srH.every((t) => /\(95 % /.test(t) && t.endsWith('self-referenced (no truth)')),
+    `the error's harmonics against the electrical angle, self-referenced, each with its interval (${srH.length} for atan2; ${srH[0]})`);
   // atan2 follows the signals' noise: about noise / amplitude rad rms.
   const a2 = nu.estimators.find((e) => e.label === 'atan2').analysers.self_reference.rms_rad;
   check(Math.abs(a2 / (NOISE_V / PEAK_V) - 1) < 0.15, `atan2's self-referenced rms ${a2.toExponential(3)} rad is the noise's ${(NOISE_V / PEAK_V).toExponential(3)} rad within 15 %`);
