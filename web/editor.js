@@ -389,9 +389,8 @@ export async function newRun(view, cleanup) {
       sel.onchange = () => { sel.dataset.want = sel.value; refreshLimits(); };
       const out = want !== '*' && !labels.includes(want);
       row.classList.toggle('inactive', out);
-      row.title = out ? `${want} is not ticked: this limit is left out of the run` : '';
     }
-    markNeedsTruth();
+    markNeedsTruth();  // sets each row's title
   }
   // A capture without truth: a limit on a figure that needs truth (an estimator's metric other
   // than the self-referenced ones, as the service grades them) cannot pass. Such limits are marked
@@ -407,12 +406,12 @@ export async function newRun(view, cleanup) {
     const named = [];
     for (const row of limitBody.querySelectorAll('tr.limit')) {
       const metric = row.querySelector('.l-metric').value;
-      const mark = noTruth && !row.classList.contains('inactive') && needsTruth(metric);
+      const out = row.classList.contains('inactive');
+      const mark = noTruth && !out && needsTruth(metric);
       row.classList.toggle('needs-truth', mark);
-      if (mark) {
-        named.push(metric);
-        row.title = `${metric} needs truth (theta_true), which this capture has not: this limit will FAIL as not measured`;
-      }
+      if (mark) named.push(metric);
+      row.title = out ? `${row.querySelector('.l-est').dataset.want} is not ticked: this limit is left out of the run`
+        : mark ? `${metric} needs truth (theta_true), which this capture has not: this limit will FAIL as not measured` : '';
     }
     truthNote.hidden = !named.length;
     truthNote.textContent = named.length ? `This capture has no truth (theta_true): ${named.length === 1 ? '1 limit names a figure' : `${named.length} limits name figures`} that need it `

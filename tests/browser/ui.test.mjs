@@ -529,8 +529,9 @@ try {
     `limits that need truth are marked on a capture without it (${truthNote.marked.join(', ')}): "${truthNote.text.slice(0, 100)}…"`);
   await page.uncheck('input[data-estimator="ekf-ideal"]');
   await page.selectOption('#limits tr.limit.needs-truth .l-metric >> nth=0', 'self_ref_rms_rad');
-  const after = await page.evaluate(() => [...document.querySelectorAll('#limits tr.limit.needs-truth')].length);
-  check(after === 2, `a limit moved to self_ref_rms_rad, or on an unticked estimator, is no longer marked (${after} left)`);
+  const after = await page.evaluate(() => [...document.querySelectorAll('#limits tr.limit')].map((r) => ({ marked: r.classList.contains('needs-truth'), title: r.title })));
+  check(after.filter((r) => r.marked).length === 2 && after[0].title === '' && /ekf-ideal is not ticked/.test(after[3].title) && /needs truth/.test(after[1].title),
+    `a limit moved to self_ref_rms_rad, or on an unticked estimator, is no longer marked, and its title says why (${after.map((r) => r.title.slice(0, 30) || '-').join(' | ')})`);
   await page.unroute('**/api/v1/fixtures/fig10c-loopback');
 
   // Phone width: run list, report and compare fit 390 px without horizontal page scrolling.
