@@ -192,12 +192,51 @@ function valueCell(m, v) {
 }
 const heading = (m) => [m.column || m.name, m.unit ? h('span', { class: 'unit' }, ` (${m.unit})`) : ''];
 
-function estimatorsTable(mt) {
-  const cols = mt.metrics.filter((m) => m.column && m.scope === 'estimator');
+// Without truth the self-referenced columns come first, each value labelled as such.
+function estimatorsTable(mt, truthless) {
+  let cols = mt.metrics.filter((m) => m.column && m.scope === 'estimator');
+  const selfRef = (m) => m.name.startsWith('self_ref_');
+  if (truthless) cols = [...cols.filter(selfRef), ...cols.filter((m) => !selfRef(m))];
   const lanes = mt.lanes.filter((l) => l !== 'run');
+  const cell = (m, l) => {
+    const td = valueCell(m, m.values[l]);
+    if (selfRef(m) && m.values[l] && m.values[l].value != null)
+      td.append(h('span', { class: 'self-ref-tag', title: "measured against a phase built from the signals themselves (docs/self-reference.md)" },
+        truthless ? ' self-referenced (no truth)' : ' self-referenced'));
+    return td;
+  };
   return scroller(h('table', { id: 'estimators' },
     h('thead', {}, h('tr', {}, h('th', {}, 'estimator'), cols.map((m) => h('th', { title: `${m.name}: ${m.description}` }, ...heading(m))))),
-    h('tbody', {}, lanes.map((l) => h('tr', {}, h('td', {}, l), cols.map((m) => valueCell(m, m.values[l])))))));
+    h('tbody', {}, lanes.map((l) => h('tr', { 'data-lane': l }, h('td', {}, l), cols.map((m) => cell(m, l)))))));
+}
+
+// A run whose capture has no truth (theta_true): nothing is scored against truth, and each
+// estimator's error is self-referenced (docs/self-reference.md). What that is, then each
+// estimator's rms with its 95 % interval, or why it was not measured.
+function selfRefSummary(r, mt) {
+  const truthless = plots.hasNoTruth(r);
+  const lanes = (r.estimators || []).filter((e) => e.analysers && e.analysers.self_reference);
+  if (!lanes.length) return '';
+  const rms = mt.metrics.find((m) => m.name === 'self_ref_rms_rad');
+  const rows = lanes.map((e) => {
+    const sr = e.analysers.self_reference;
+    const v = rms && rms.values[e.label];
+    const measured = v && v.value != null;
+    const pm = measured && typeof sr.rms_u_rad === 'number' ? 1.96 * sr.rms_u_rad : null;
+    return h('tr', { 'data-lane': e.label, 'data-measured': measured ? '1' : '' },
+      h('td', { 'data-label': 'estimator' }, e.label),
+      h('td', { class: 'num value', 'data-label': 'rms error', 'data-value': measured ? String(v.value) : '' },
+        measured ? [withUnit(v.value, 'rad'), pm != null ? h('span', { class: 'pm' }, ` ± ${withUnit(pm, 'rad')}`) : '', intervalSpan(v.interval_95)]
+          : h('span', { class: 'muted' }, `not measured: ${(v && v.why) || sr.why_not || 'no self-referenced window'}`)),
+      h('td', { class: 'self-ref-tag', 'data-label': 'how' }, truthless ? 'self-referenced (no truth)' : 'self-referenced'),
+      h('td', { class: 'muted', 'data-label': 'rests on' }, measured ? `${sr.samples} samples, ${sig(sr.cycles)} electrical periods in ${sr.windows} windows` : ''));
+  });
+  return h('div', { id: 'self-ref' },
+    h('p', { id: 'self-ref-note', class: truthless ? 'warn' : 'muted' }, truthless
+      ? "No truth in this capture (theta_true): nothing is scored against truth. Each estimator's error is self-referenced: measured against a phase built from the signals themselves, as its rms about the mean (the mean cannot be seen) with its 95 % uncertainty (± 1.96 u). The columns that need truth read \"not measured\"."
+      : 'Also self-referenced (scoring.self_reference): the error measured against the signals\' own phase, to compare with the truth-scored std.'),
+    scroller(h('table', { id: 'self-ref-table', class: 'cards' },
+      h('thead', {}, h('tr', {}, ['estimator', 'rms error (95 %)', '', 'rests on'].map((c) => h('th', {}, c)))), h('tbody', {}, rows))));
 }
 
 // The signals' quality, once for the run (docs/signal-quality.md): the run-level summary columns.
@@ -218,20 +257,32 @@ function allMetricsTable(mt) {
 }
 
 // Every fitted harmonic of each estimator's error, with its 95 % interval (the bars in the
-// plots show the amplitudes).
+// plots show the amplitudes scored against truth); then the self-referenced harmonics of the
+// error against the electrical angle (docs/self-reference.md), interval +- 1.96 u.
 function harmonicsTable(r) {
   const rows = [];
+  const truthless = plots.hasNoTruth(r);
   for (const e of r.estimators || []) {
     const m = e.metrics || {}, u = (m.uncertainty || {}).harmonics || [];
     for (const x of m.harmonics || []) {
       const iv = (u.find((y) => y.order === x.order) || {}).amplitude_rad;
       rows.push(h('tr', {}, h('td', {}, e.label), h('td', { class: 'num' }, `${x.order}x`),
-        h('td', { class: 'num' }, withUnit(x.amplitude && x.amplitude.rad, 'rad'), intervalSpan(iv))));
+        h('td', { class: 'num' }, withUnit(x.amplitude && x.amplitude.rad, 'rad'), intervalSpan(iv)), h('td', { class: 'muted' }, 'against truth')));
+    }
+  }
+  for (const e of r.estimators || []) {
+    const sr = e.analysers && e.analysers.self_reference;
+    if (!sr || !sr.measured) continue;
+    for (const x of sr.harmonics || []) {
+      const iv = typeof x.u_rad === 'number' ? [Math.max(0, x.amplitude_rad - 1.96 * x.u_rad), x.amplitude_rad + 1.96 * x.u_rad] : null;
+      rows.push(h('tr', { class: 'self-ref', 'data-lane': e.label, 'data-order': x.order }, h('td', {}, e.label), h('td', { class: 'num' }, `${x.order}x`),
+        h('td', { class: 'num' }, withUnit(x.amplitude_rad, 'rad'), intervalSpan(iv)),
+        h('td', { class: 'self-ref-tag' }, truthless ? 'self-referenced (no truth)' : 'self-referenced')));
     }
   }
   if (!rows.length) return '';
   return h('div', {}, h('h2', {}, 'Error harmonics'), scroller(h('table', { id: 'harmonics' },
-    h('thead', {}, h('tr', {}, ['estimator', 'order', 'amplitude'].map((c) => h('th', {}, c)))), h('tbody', {}, rows))));
+    h('thead', {}, h('tr', {}, ['estimator', 'order', 'amplitude', 'measured'].map((c) => h('th', {}, c)))), h('tbody', {}, rows))));
 }
 
 async function report(id, into) {
@@ -244,8 +295,9 @@ async function report(id, into) {
   // The signal page: the figures graded against the interface profile, the Lissajous and the
   // per-period recording (signal.js), drawn once the section is on the page.
   const signals = h('section', { id: 'signal-page' }, h('h2', {}, 'Signals'), signalTable(mt));
+  const truthless = plots.hasNoTruth(r);
   into.replaceChildren(
-    h('p', {}, verdictBadge(r.verdict, 'banner'), ' ', h('span', { id: 'verdict-text' }, `${r.scenario.name} · ${r.status} · seed ${r.seed} · ${r.samples ? r.samples.processed : 0} samples · device ${r.device ? r.device.uri : '-'}`)),
+    h('p', {}, verdictBadge(r.verdict, 'banner'), ' ', h('span', { id: 'verdict-text' }, `${r.scenario.name} · ${r.status} · seed ${r.seed} · ${r.samples ? r.samples.processed : 0} samples · device ${r.device ? r.device.uri : '-'}${truthless ? " · no truth: the estimators' error is self-referenced" : ''}`)),
     r.error ? h('p', { class: 'error' }, r.error) : '',
     warningsList(r),
     h('p', { class: 'downloads' }, 'Download: ',
@@ -254,7 +306,7 @@ async function report(id, into) {
       h('a', { href: `${base}/report.html?download=1`, download: '', id: 'dl-html' }, 'HTML'),
       h('a', { href: `#/compare/${id}` }, 'compare with…')),
     h('h2', {}, 'Measurements'), measurementsTable(r),
-    h('h2', {}, 'Estimators'), estimatorsTable(mt), signals, allMetricsTable(mt), harmonicsTable(r),
+    h('h2', {}, 'Estimators'), selfRefSummary(r, mt), estimatorsTable(mt, truthless), signals, allMetricsTable(mt), harmonicsTable(r),
     h('h2', {}, 'Plots'), plotBox);
   try {
     signalPage(signals, r, mt);

@@ -78,7 +78,7 @@ export async function newRun(view, cleanup) {
   let cat;
   try {
     const [fx, est, drv, schema] = await Promise.all([api.get('fixtures'), api.get('estimators'), api.get('drivers'), api.get('schema')]);
-    cat = { fixtures: fx.fixtures.filter((f) => f.runnable), encoders: fx.encoders || [], estimators: est.estimators, drivers: drv.drivers, schema };
+    cat = { fixtures: fx.fixtures.filter((f) => f.runnable), encoders: fx.encoders || [], interfaces: fx.interfaces || [], estimators: est.estimators, drivers: drv.drivers, schema };
   } catch (e) {
     view.replaceChildren(h('p', { class: 'error', role: 'alert' }, errorText(e)));
     return;
@@ -187,6 +187,43 @@ export async function newRun(view, cleanup) {
   const sampGrid = h('div', { class: 'params open', id: 'sampling-params' });
   const fillSampling = (sc) => sampGrid.replaceChildren(...offered(S.scenario).map((p) => paramInput(p, sc[p.name], `scenario.${p.name}`, p.name)));
 
+  // Interface profile: the limits the signals' figures are graded against (docs/signal-quality.md
+  // "Interface profiles"). A shipped profile is sent as its file beside the scenarios
+  // ("../interfaces/NAME.json", resolved by the service in its fixtures); a profile inline, or a
+  // file the service does not list, is kept as the scenario gives it. A dropped capture gets 1 Vpp
+  // unless a profile is already set or the user chose one (or none) by hand.
+  const KEPT = '(kept)';
+  const ifaceSel = h('select', { name: 'interface', id: 'interface', 'data-field': 'scenario.interface' });
+  const ifaceNote = h('span', { class: 'muted', id: 'interface-note', role: 'status' });
+  let keptInterface = null;
+  let interfaceChosen = false;
+  const fillInterface = (v) => {
+    keptInterface = null;
+    interfaceChosen = false;
+    ifaceNote.textContent = '';
+    const opts = [h('option', { value: '' }, 'none (the figures are not graded)'),
+      ...cat.interfaces.map((i) => h('option', { value: i.name, disabled: !!i.problem, title: i.problem || `fixtures/interfaces/${i.name}.json` }, i.title || i.name))];
+    let value = '';
+    const m = typeof v === 'string' ? v.match(/^\.\.\/interfaces\/([^/]+)\.json$/) : null;
+    if (m && cat.interfaces.some((i) => i.name === m[1] && !i.problem)) value = m[1];
+    else if (v != null) {
+      keptInterface = structuredClone(v);
+      opts.push(h('option', { value: KEPT, class: 'kept' }, typeof v === 'object' ? `inline: ${v.name || 'unnamed'}` : `file: ${v}`));
+      value = KEPT;
+    }
+    ifaceSel.replaceChildren(...opts);
+    ifaceSel.value = value;
+  };
+  ifaceSel.addEventListener('change', () => { interfaceChosen = true; ifaceNote.textContent = ''; });
+  const readInterface = () => (ifaceSel.value === KEPT ? structuredClone(keptInterface) : ifaceSel.value ? `../interfaces/${ifaceSel.value}.json` : undefined);
+  const preselectInterface = () => {
+    if (interfaceChosen || ifaceSel.value !== '') return;
+    const one = cat.interfaces.find((i) => i.name === '1vpp' && !i.problem);
+    if (!one) return;
+    ifaceSel.value = one.name;
+    ifaceNote.textContent = `${one.title || one.name} preselected for the capture: its signals are graded against it (choose another profile, or none, here).`;
+  };
+
   // Device: driver, path, the driver's settings; capture files by picker or drop.
   const driverSel = h('select', { name: 'driver', id: 'driver', 'data-field': 'scenario.device' }, cat.drivers.map((d) => h('option', { value: d.scheme }, d.scheme)));
   const devPath = h('input', { name: 'device_path', id: 'device-path', 'data-field': 'scenario.device', placeholder: 'path (capture: an uploaded capture id)', list: 'capture-ids' });
@@ -209,8 +246,13 @@ export async function newRun(view, cleanup) {
       const dur = sampGrid.querySelector('[data-param="duration_s"]');
       if (rate && c.sample_rate_hz) rate.value = nice(c.sample_rate_hz);
       if (dur && c.sample_rate_hz && c.samples) dur.value = nice(c.samples / c.sample_rate_hz);
-      uploadState.textContent = `uploaded ${file.name}: capture ${c.id}, ${c.samples} samples at ${sig(c.sample_rate_hz)} Hz, ${c.has_truth ? 'with' : 'without'} truth`;
+      uploadState.textContent = `uploaded ${file.name}: capture ${c.id}, ${c.samples} samples at ${sig(c.sample_rate_hz)} Hz, ${c.has_truth ? 'with truth'
+        : "without truth: each estimator's error will be self-referenced (measured against the signals' own phase, with its uncertainty)"}`;
       uploadState.dataset.id = c.id;
+      uploadState.dataset.truth = c.has_truth ? '1' : '';
+      captureTruth = !!c.has_truth;
+      markNeedsTruth();
+      preselectInterface();
       schedule();
     } catch (e) {
       uploadState.textContent = `${file.name}: ${errorText(e)}`;
@@ -218,6 +260,7 @@ export async function newRun(view, cleanup) {
     }
   };
   fileIn.addEventListener('change', () => uploadCapture(fileIn.files[0]));
+  devPath.addEventListener('input', () => { captureTruth = null; markNeedsTruth(); });
   drop.addEventListener('dragover', (ev) => { ev.preventDefault(); drop.classList.add('over'); });
   drop.addEventListener('dragleave', () => drop.classList.remove('over'));
   drop.addEventListener('drop', (ev) => {
@@ -229,6 +272,7 @@ export async function newRun(view, cleanup) {
   // generator's URI; one instrument for both (the same URI) stays one, another input is kept.
   let instruments = null;
   const fillDevice = (device) => {
+    captureTruth = null;
     instruments = device && typeof device === 'object' ? device : null;
     const uri = instruments ? instruments.output : device;
     const colon = uri.indexOf(':');
@@ -241,6 +285,7 @@ export async function newRun(view, cleanup) {
     devParams.replaceChildren(...(d ? d.settings : []).map((p) => paramInput(p, given[p.name], `scenario.device.${p.name}`, `device.${p.name}`)));
     modeSettings(d);
     drop.hidden = scheme !== 'capture';
+    markNeedsTruth();
     if (scheme === 'capture')
       api.get('captures').then((r) => captureIds.replaceChildren(...(r.captures || []).map((c) => h('option', { value: c.id }, `${c.samples} samples`)))).catch(() => {});
   };
@@ -321,7 +366,7 @@ export async function newRun(view, cleanup) {
     const unit = () => unitOf(met.value);
     const units = [h('span', { class: 'unit' }), h('span', { class: 'unit' })];
     const showUnits = () => { for (const u of units) u.textContent = unit() ? ` ${unit()}` : ''; };
-    met.addEventListener('change', showUnits);
+    met.addEventListener('change', () => { showUnits(); markNeedsTruth(); });
     showUnits();
     const row = h('tr', { class: 'limit' }, h('td', { class: 'c-est' }, est), h('td', { class: 'c-metric' }, met), h('td', { class: 'c-min', 'data-label': 'min' }, min, units[0]),
       h('td', { class: 'c-max', 'data-label': 'max' }, max, units[1]), h('td', { class: 'c-band', 'data-label': 'marginal %' }, band),
@@ -344,8 +389,33 @@ export async function newRun(view, cleanup) {
       sel.onchange = () => { sel.dataset.want = sel.value; refreshLimits(); };
       const out = want !== '*' && !labels.includes(want);
       row.classList.toggle('inactive', out);
-      row.title = out ? `${want} is not ticked: this limit is left out of the run` : '';
     }
+    markNeedsTruth();  // sets each row's title
+  }
+  // A capture without truth: a limit on a figure that needs truth (an estimator's metric other
+  // than the self-referenced ones, as the service grades them) cannot pass. Such limits are marked
+  // and a note names what measures the error without truth.
+  let captureTruth = null;  // the capture uploaded here: has it truth? null: none uploaded (or the path typed since)
+  const truthNote = h('p', { class: 'warn-note', id: 'truth-note', hidden: true });
+  const needsTruth = (metric) => {
+    const m = metrics.find((x) => x.name === metric);
+    return m ? m.scope === 'estimator' && !metric.startsWith('self_ref_') : /^harmonic_\d+x_rad$/.test(metric);
+  };
+  function markNeedsTruth() {
+    const noTruth = captureTruth === false && driverSel.value === 'capture';
+    const named = [];
+    for (const row of limitBody.querySelectorAll('tr.limit')) {
+      const metric = row.querySelector('.l-metric').value;
+      const out = row.classList.contains('inactive');
+      const mark = noTruth && !out && needsTruth(metric);
+      row.classList.toggle('needs-truth', mark);
+      if (mark) named.push(metric);
+      row.title = out ? `${row.querySelector('.l-est').dataset.want} is not ticked: this limit is left out of the run`
+        : mark ? `${metric} needs truth (theta_true), which this capture has not: this limit will FAIL as not measured` : '';
+    }
+    truthNote.hidden = !named.length;
+    truthNote.textContent = named.length ? `This capture has no truth (theta_true): ${named.length === 1 ? '1 limit names a figure' : `${named.length} limits name figures`} that need it `
+      + `(${[...new Set(named)].join(', ')}) and will FAIL as not measured. Without truth the error is measured by self_ref_rms_rad and self_ref_harmonic_1x_rad .. 4x_rad (self-referenced).` : '';
   }
 
   // ---- the scenario the form describes; each value's input gets the field the API names --
@@ -371,6 +441,8 @@ export async function newRun(view, cleanup) {
       if (v === undefined) delete sc[el.dataset.param]; else sc[el.dataset.param] = v;
     }
     sc.device = deviceUri();
+    const iface = readInterface();
+    if (iface === undefined) delete sc.interface; else sc.interface = iface;
     sc.estimators = [];
     for (const div of estBox.querySelectorAll('.estimator')) {
       if (!div.querySelector('[data-estimator]').checked) continue;
@@ -554,6 +626,7 @@ export async function newRun(view, cleanup) {
     fillMotion(base.motion);
     fillSampling(base);
     fillDevice(base.device || 'loopback:');
+    fillInterface(base.interface);
     fillEstimators(base.estimators || []);
     limitBody.replaceChildren();
     for (const l of base.limits || []) addLimit(l);
@@ -572,9 +645,11 @@ export async function newRun(view, cleanup) {
     h('fieldset', {}, legend('Sampling'), sampGrid),
     h('fieldset', {}, legend('Device'), h('div', { class: 'row' }, h('label', { class: 'field' }, 'driver', driverSel),
       h('label', { class: 'field' }, 'path', devPath), captureIds), drop, devParams),
+    h('fieldset', {}, legend('Signal quality', 'the interface profile the signals are graded against'),
+      h('div', { class: 'row' }, h('label', { class: 'field' }, h('span', { class: 'fname' }, 'interface profile'), ifaceSel), ifaceNote)),
     h('fieldset', {}, legend('Estimators under test', 'tick one to see its parameters'), estBox),
     h('fieldset', {}, legend('Limits', 'the verdict: FAIL beyond min/max, MARGINAL within the band on the passing side'),
-      h('div', { class: 'table-wrap' }, limitTable), h('button', { type: 'button', id: 'add-limit', onclick: () => { addLimit({ estimator: tickedLabels()[0] || '*' }); schedule(); } }, 'add limit')),
+      h('div', { class: 'table-wrap' }, limitTable), truthNote, h('button', { type: 'button', id: 'add-limit', onclick: () => { addLimit({ estimator: tickedLabels()[0] || '*' }); schedule(); } }, 'add limit')),
     preflightBox,
     h('div', { class: 'row actions' }, startBtn,
       h('button', { type: 'button', id: 'check', onclick: async () => { if (!api.token()) { needToken(); return; } checked = null; await runPreflight(); } }, 'Check'),

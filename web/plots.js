@@ -472,14 +472,16 @@ function legendBox(div, items, cls = 'plot-legend') {
 // harmonic orders 1x..16x, only where they lie below the Nyquist frequency (sample rate / 2):
 // above it the spectrum has no bins and a marker would point at nothing. A solid line marks
 // Nyquist itself. A legend names each estimator's colour.
-export function errorSpectrum(parent, estimators) {
+export function errorSpectrum(parent, estimators, report) {
   const div = box(parent, 'Error spectrum (full rate)', 'plot-spectrum');
   const specs = (estimators || []).map((e, i) => ({ e, i, s: e.spectrum })).filter((x) => x.s && x.s.f_hz && x.s.f_hz.length);
   div.fringe = { kind: 'spectrum', series: specs.length };
   if (!specs.length) {
     const short = (estimators || []).find((e) => e.spectrum && e.spectrum.segments === 0);
     // A capture without truth: the spectrum is of the error against truth, which it has none of.
-    const truthless = short && short.metrics && short.metrics.scored === 0 && short.analysers && short.analysers.self_reference;
+    // The traces' estimators carry no metrics: the report's lane of the same label does.
+    const lane = short && ((report && report.estimators) || []).find((e) => e.label === short.label) || short;
+    const truthless = hasNoTruth(report) || (lane && lane.metrics && lane.metrics.scored === 0 && lane.analysers && lane.analysers.self_reference);
     note(div, truthless ? 'no spectrum: it is the spectrum of the error against truth, and this capture has no truth (theta_true); the self-referenced error is in the metrics (self_ref_*)'
       : short ? `no spectrum: no run of ${short.spectrum.segment_samples} contiguous scored samples` : 'no spectrum in this report');
     return div;
@@ -601,6 +603,9 @@ export function plotContext(report, estimators, labels) {
   return { settle, limits: errorLimitLines(report.measurements, est, labels) };
 }
 
+// A run on a capture without truth (theta_true): nothing was scored against truth.
+export const hasNoTruth = (report) => !!(report && report.device && report.device.settings && report.device.settings.has_truth === false);
+
 // All report plots into `parent`; an honest note for reports older than the envelope traces.
 // report: the report (its scenario's settle time and t0, its measurements' limits), when known.
 export function reportPlots(parent, t, estimators, report) {
@@ -612,9 +617,17 @@ export function reportPlots(parent, t, estimators, report) {
     p.textContent = `Old report: traces are stride samples (every ${t.stride || '?'}th sample), drawn as points; a line through them would alias.`;
     parent.append(p);
   }
+  if (hasNoTruth(report)) {
+    const p = document.createElement('p');
+    p.className = 'muted';
+    p.id = 'plots-no-truth';
+    p.textContent = 'This capture has no truth (theta_true): the error plots below (against the electrical angle, against time, its harmonics and spectrum) '
+      + "need it and stay empty. Each estimator's self-referenced error, with its uncertainty, is under Estimators; the signals are under Signals.";
+    parent.append(p);
+  }
   lissajous(parent, t);
   errorVsAngle(parent, t, labels, { limits: opts.limits });
   errorVsTime(parent, t, labels, 'Error vs time', 'plot-time', opts);
   harmonicBars(parent, estimators);
-  errorSpectrum(parent, estimators);
+  errorSpectrum(parent, estimators, report);
 }

@@ -2,7 +2,8 @@
 // `fringe serve` on 127.0.0.1. Starts a run from the New-run form, watches live progress,
 // reads the report, proves each plot drew (canvas pixels), downloads JUnit, compares two
 // runs; builds a user's own scenario in the editor (encoder, speed in rpm, ADC, limit),
-// runs it and reads the verdict; field errors at their field; capture upload; pages at
+// runs it and reads the verdict; field errors at their field; capture upload; a new user's
+// capture without truth graded against 1 Vpp with its self-referenced error; pages at
 // phone width; the token link in an open tab; an unknown run. Screenshots go to $ARTIFACTS
 // (default build/test-artifacts/browser).
 // usage: node tests/browser/ui.test.mjs FRINGE_BINARY
@@ -28,6 +29,7 @@ function cleanup(code) {
     process.exit(code);
   });
 }
+const sig3 = (v) => (Math.abs(v) >= 1e-2 && Math.abs(v) < 1e5 ? String(+v.toPrecision(3)) : v.toExponential(2));  // web/format.js sig()
 function check(cond, msg) { if (!cond) throw new Error(msg); console.log(`ok - ${msg}`); }
 
 async function startServer() {
@@ -126,6 +128,22 @@ function captureCsv(samples, fElecHz) {
   for (let i = 0; i < samples; i++) {
     const th = 2 * Math.PI * fElecHz * i / 1e5;
     rows.push(`${i / 1e5},${0.8 * Math.sin(th)},${0.8 * Math.cos(th)},${th}`);
+  }
+  return rows.join('\n') + '\n';
+}
+
+// A real encoder's capture as a scope or DAQ writes it: t,sin,cos and no truth. 1 Vpp (0.5 V
+// peak, in quadrature), 2 mV rms noise on each channel, 1 kHz electrical at 100 kHz with a slow
+// speed ripple: 400 electrical periods. Deterministic noise (Box-Muller on an LCG).
+const NOISE_V = 0.002, PEAK_V = 0.5;
+function encoderCsv(samples = 40000) {
+  let s = 12345;
+  const u = () => (s = (s * 1103515245 + 12345) % 2147483648) / 2147483648;
+  const gauss = () => Math.sqrt(-2 * Math.log(u() + 1e-12)) * Math.cos(2 * Math.PI * u());
+  const rows = ['t,sin,cos'];
+  for (let i = 0; i < samples; i++) {
+    const t = i / 1e5, th = 2 * Math.PI * 1000 * t + 0.3 * Math.sin(2 * Math.PI * 3 * t);
+    rows.push(`${t.toFixed(6)},${(PEAK_V * Math.sin(th) + NOISE_V * gauss()).toFixed(6)},${(PEAK_V * Math.cos(th) + NOISE_V * gauss()).toFixed(6)}`);
   }
   return rows.join('\n') + '\n';
 }
@@ -404,6 +422,117 @@ try {
   await page.click('#check');
   await page.waitForSelector('#preflight p');
   check(await page.$('.field-error') === null, 'the service accepts the uploaded capture as the device (preflight passes)');
+
+  // A new user with a real encoder's capture (t,sin,cos, no truth): the page as it opens, the
+  // capture driver, the estimators that need no model of the paper's encoder (atan2, pll2; the
+  // fixture's limits on the EKFs are then left out), the file dropped; 1 Vpp is preselected and
+  // says so; within a minute the report grades the signals against 1 Vpp and gives each
+  // estimator's self-referenced error with its uncertainty.
+  await page.goto(`${url}#/runs`);
+  await page.goto(`${url}#/new`);  // a fresh form (the page above was #/new too)
+  await page.waitForSelector('#interface option[value="1vpp"]', { state: 'attached' });
+  await page.waitForSelector('#new-run[aria-busy="false"]');
+  await page.waitForSelector('input[data-estimator="ekf-ideal"]:checked');
+  check(await page.$eval('#interface', (s) => s.value === '' && s.selectedOptions[0].textContent.startsWith('none')
+    && [...s.options].some((o) => o.value === '1vpp' && o.textContent === '1 Vpp')),
+  'the interface profile select lists the fixtures\' profiles by title and starts at none');
+  await page.selectOption('#driver', 'capture');
+  await page.waitForSelector('#capture-drop', { state: 'visible' });
+  for (const e of ['ekf-ideal', 'ekf-diffraction']) await page.uncheck(`input[data-estimator="${e}"]`);
+  for (const e of ['atan2', 'pll2']) await page.check(`input[data-estimator="${e}"]`);
+  const t0new = Date.now();
+  await page.setInputFiles('#capture-file', { name: 'my-encoder.csv', mimeType: 'text/csv', buffer: Buffer.from(encoderCsv()) });
+  await page.waitForFunction(() => document.querySelector('#upload-state').dataset.id);
+  const pre = await page.evaluate(() => ({ value: document.querySelector('#interface').value, text: document.querySelector('#interface').selectedOptions[0].textContent,
+    note: document.querySelector('#interface-note').textContent, state: document.querySelector('#upload-state').textContent }));
+  check(pre.value === '1vpp' && pre.text === '1 Vpp' && /1 Vpp preselected/.test(pre.note) && /choose another/.test(pre.note),
+    `a dropped capture preselects 1 Vpp and says so ("${pre.note}")`);
+  check(/without truth: each estimator's error will be self-referenced/.test(pre.state), `the upload says the error will be self-referenced ("${pre.state.slice(0, 90)}…")`);
+  const [ifaceDl] = await Promise.all([page.waitForEvent('download'), page.click('#save')]);
+  const ifaceSaved = JSON.parse(readFileSync(await ifaceDl.path(), 'utf8'));
+  check(ifaceSaved.interface === '../interfaces/1vpp.json', `the scenario names the profile as the service resolves it (${JSON.stringify(ifaceSaved.interface)})`);
+  await startFromForm(page);
+  await page.waitForSelector('.banner', { timeout: 60000 });
+  await page.waitForSelector('#signal-gauges .gauge');
+  const newMs = Date.now() - t0new;
+  const nuId = decodeURIComponent(page.url().split('#/run/')[1]);
+  const nu = await (await fetch(`${url}api/v1/runs/${nuId}/report.json`)).json();
+  check(nu.scenario.interface && nu.scenario.interface.name === '1 Vpp' && nu.device.settings.has_truth === false,
+    `the run graded against the service's 1 Vpp profile, on a capture without truth (${newMs} ms from the drop to the report)`);
+  check(newMs < 60000, `a new user reads the report within a minute of dropping the capture (${(newMs / 1000).toFixed(1)} s)`);
+  const FIG = ['signal_vpp_a_v', 'signal_vpp_b_v', 'signal_ab_ratio', 'signal_phase_deg', 'signal_tv_a_deg', 'signal_tv_b_deg'];
+  const gauges = await page.$$eval('#signal-gauges .gauge', (gs) => gs.map((g) => ({ metric: g.dataset.metric, grade: g.querySelector('.gauge-grade').dataset.grade,
+    outcome: g.fringe.outcome, value: g.fringe.value, marker: g.fringe.marker_px, mounting: g.fringe.regions.filter((r) => r.kind === 'mounting').map((r) => [r.from, r.to]) })));
+  const graded = (m) => nu.measurements.find((x) => x.estimator === 'run' && x.metric === m);
+  check(FIG.every((m) => {
+    const g = gauges.find((x) => x.metric === m), x = graded(m);
+    return g && x && g.grade === 'within mounting tolerance' && g.outcome === 'PASS' && x.outcome === 'PASS' && g.value === x.value
+      && g.mounting.length === 1 && g.value >= g.mounting[0][0] && g.value <= g.mounting[0][1] && g.marker != null;
+  }), `the six gauges are graded PASS within the 1 Vpp mounting tolerance (${FIG.map((m) => `${m} ${gauges.find((x) => x.metric === m)?.value?.toPrecision(4)}`).join(', ')})`);
+  const vpp = gauges.find((x) => x.metric === 'signal_vpp_a_v');
+  check(Math.abs(vpp.value - 2 * PEAK_V) < 0.01, `A reads ${vpp.value.toFixed(4)} Vpp for a ${PEAK_V} V peak sine`);
+  const badge = await page.$eval('.banner', (b) => ({ verdict: b.dataset.verdict, text: document.querySelector('#verdict-text').textContent }));
+  check(badge.verdict === nu.verdict && nu.verdict === 'PASS' && nu.measurements.every((m) => m.outcome === 'PASS') && /no truth: the estimators' error is self-referenced/.test(badge.text),
+    `the verdict badge reads ${badge.verdict}, the report's verdict, and the line under it says the error is self-referenced`);
+  const selfRows = await page.$$eval('#self-ref-table tbody tr', (rows) => rows.map((r) => ({ lane: r.dataset.lane, measured: r.dataset.measured,
+    value: Number(r.querySelector('.value').dataset.value), text: r.querySelector('.value').textContent, how: r.querySelector('.self-ref-tag').textContent })));
+  const note = await page.textContent('#self-ref-note');
+  check(/No truth in this capture/.test(note) && /self-referenced/.test(note) && /95 %/.test(note), `the estimators' section says why the error is self-referenced ("${note.slice(0, 60)}…")`);
+  for (const lane of ['atan2', 'pll2']) {
+    const row = selfRows.find((x) => x.lane === lane);
+    const sr = nu.estimators.find((e) => e.label === lane).analysers.self_reference;
+    const pm = 1.96 * sr.rms_u_rad;
+    check(row && row.measured === '1' && row.value === sr.rms_rad && row.how === 'self-referenced (no truth)'
+      && row.text.includes(`± ${sig3(pm)} rad`) && /95 % \S+\.\.\S+/.test(row.text) && pm > 0 && pm < 0.5 * sr.rms_rad,
+    `${lane}: self-referenced rms ${row && row.text} (no truth)`);
+  }
+  const srH = await page.$$eval('#harmonics tbody tr.self-ref[data-lane="atan2"]', (trs) => trs.map((tr) => tr.textContent));
+  const srN = nu.estimators.find((e) => e.label === 'atan2').analysers.self_reference.harmonics.length;
+  check(srN >= 4 && srH.length === srN && srH.every((t) => /\(95 % /.test(t) && t.endsWith('self-referenced (no truth)')),
+    `the error's harmonics against the electrical angle, self-referenced, each with its interval (${srH.length} for atan2; ${srH[0]})`);
+  // atan2 follows the signals' noise: about noise / amplitude rad rms.
+  const a2 = nu.estimators.find((e) => e.label === 'atan2').analysers.self_reference.rms_rad;
+  check(Math.abs(a2 / (NOISE_V / PEAK_V) - 1) < 0.15, `atan2's self-referenced rms ${a2.toExponential(3)} rad is the noise's ${(NOISE_V / PEAK_V).toExponential(3)} rad within 15 %`);
+  const estHead = await page.$$eval('#estimators thead th', (ths) => ths.map((t) => t.textContent));
+  const estCell = await page.$eval('#estimators tbody tr[data-lane="atan2"] td:nth-child(2)', (td) => td.textContent);
+  check(estHead[1].startsWith('self-ref rms') && estCell.includes('self-referenced (no truth)') && estCell.includes('95 %'),
+    `the estimators table puts the self-referenced rms first, labelled ("${estCell}")`);
+  await page.waitForSelector('#plot-spectrum');
+  const noTruth = await page.evaluate(() => ({ plots: (document.querySelector('#plots-no-truth') || {}).textContent || '', spectrum: document.querySelector('#plot-spectrum').textContent }));
+  check(/no truth/.test(noTruth.plots) && /this capture has no truth/.test(noTruth.spectrum) && !/contiguous scored samples/.test(noTruth.spectrum),
+    'the error plots say they need truth, and the spectrum blames the missing truth, not a lack of contiguous samples');
+  await page.screenshot({ path: join(artifacts, 'new-user-capture.png'), fullPage: true });
+
+  // A scenario whose profile is inline keeps it (shown as "inline: NAME"); a capture dropped then
+  // does not replace it.
+  const inline = { name: 'my 1 Vpp', bands: { signal_vpp_a_v: { spec: [0.6, 1.2], mounting: [0.9, 1.05] } } };
+  await page.route('**/api/v1/fixtures/fig10c-loopback', async (route) => {
+    const res = await route.fetch();
+    const j = await res.json();
+    route.fulfill({ response: res, json: { ...j, scenario: { ...j.scenario, interface: inline } } });
+  });
+  await page.goto(`${url}#/runs`);
+  await page.goto(`${url}#/new`);
+  await page.waitForFunction(() => document.querySelector('#interface') && document.querySelector('#interface').value === '(kept)');
+  check(await page.$eval('#interface', (s) => s.selectedOptions[0].textContent) === 'inline: my 1 Vpp', 'an inline interface profile is shown as "inline: my 1 Vpp"');
+  await page.selectOption('#driver', 'capture');
+  await page.setInputFiles('#capture-file', { name: 'again.csv', mimeType: 'text/csv', buffer: Buffer.from(encoderCsv(20000)) });
+  await page.waitForFunction(() => document.querySelector('#upload-state').dataset.id);
+  const [inlDl] = await Promise.all([page.waitForEvent('download'), page.click('#save')]);
+  const inlSaved = JSON.parse(readFileSync(await inlDl.path(), 'utf8'));
+  check(JSON.stringify(inlSaved.interface) === JSON.stringify(inline) && await page.textContent('#interface-note') === '',
+    'the inline profile is kept through a dropped capture and sent as it was');
+  // The fixture's limits name figures that need truth: marked, and the note names them.
+  const truthNote = await page.evaluate(() => ({ text: document.querySelector('#truth-note').hidden ? '' : document.querySelector('#truth-note').textContent,
+    marked: [...document.querySelectorAll('#limits tr.limit.needs-truth .l-metric')].map((m) => m.value) }));
+  check(truthNote.marked.length === 4 && /4 limits name figures that need it \(rms_rad, slipped_samples, efficiency\)/.test(truthNote.text) && /self_ref_rms_rad/.test(truthNote.text),
+    `limits that need truth are marked on a capture without it (${truthNote.marked.join(', ')}): "${truthNote.text.slice(0, 100)}…"`);
+  await page.uncheck('input[data-estimator="ekf-ideal"]');
+  await page.selectOption('#limits tr.limit.needs-truth .l-metric >> nth=0', 'self_ref_rms_rad');
+  const after = await page.evaluate(() => [...document.querySelectorAll('#limits tr.limit')].map((r) => ({ marked: r.classList.contains('needs-truth'), title: r.title })));
+  check(after.filter((r) => r.marked).length === 2 && after[0].title === '' && /ekf-ideal is not ticked/.test(after[3].title) && /needs truth/.test(after[1].title),
+    `a limit moved to self_ref_rms_rad, or on an unticked estimator, is no longer marked, and its title says why (${after.map((r) => r.title.slice(0, 30) || '-').join(' | ')})`);
+  await page.unroute('**/api/v1/fixtures/fig10c-loopback');
 
   // Phone width: run list, report and compare fit 390 px without horizontal page scrolling.
   const phone = await browser.newContext({ viewport: { width: 390, height: 844 }, deviceScaleFactor: 1 });
