@@ -355,6 +355,20 @@ TEST_CASE("a capture: run's preflight takes the motion from the capture, not fro
                 CHECK(std::stod(w.message.substr(at + 7)) == Approx(0.1 * capture_el_hz).margin(0.11));
             }
         CHECK(learning == (0.1 * capture_el_hz < 50));
+        // A capture: scenario may leave its motion out or half filled in (a form's): it is not read.
+        for (const json& m : {json(nullptr), json{{"kind", "constant"}}}) {
+            json k = j;
+            if (m.is_null()) k.erase("motion");
+            else k["motion"] = m;
+            const RunPlan pk = plan_run(scenario_from_json(k, FRINGE_SOURCE_DIR "/fixtures/scenarios"));
+            CHECK(pk.samples_per_cycle == Approx(p.samples_per_cycle));
+        }
+        {  // another device still needs one
+            json k = j;
+            k.erase("motion");
+            k["device"] = "loopback:";
+            CHECK_THROWS_WITH(scenario_from_json(k, FRINGE_SOURCE_DIR "/fixtures/scenarios"), Catch::Contains("motion"));
+        }
         // A capture that cannot be read leaves the scenario's motion: the run's device names the fault.
         j["device"] = "capture:" + (d.path / "missing.fcap").string();
         const RunPlan q = plan_run(scenario_from_json(j, FRINGE_SOURCE_DIR "/fixtures/scenarios"));

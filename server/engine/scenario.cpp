@@ -150,7 +150,12 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
     s.duration_s = k.number(r, "duration_s");
     s.t0_s = k.number(r, "t0_s");
     s.seed = static_cast<std::uint64_t>(k.integer(r, "seed"));
-    s.motion = motion_from_json(r.raw("motion"), base_dir, s.encoder.lines_per_rev, "motion");
+    // A capture replayed moves as it was captured: its run takes the motion from the capture
+    // (plan_run), so a capture: device's scenario may leave "motion" out, or half filled in (a
+    // form's), and it is not read.
+    const bool replay = r.has("device") && r.raw("device").is_string() && r.raw("device").get<std::string>().rfind("capture:", 0) == 0;
+    if (!replay) s.motion = motion_from_json(r.raw("motion"), base_dir, s.encoder.lines_per_rev, "motion");
+    else if (r.has("motion")) r.raw("motion");
     if (s.samples() < 1) throw ConfigError("duration_s", "gives no samples at this sample rate");
     if (r.has("device") && r.raw("device").is_object()) {
         JsonReader dr = r.object("device");
