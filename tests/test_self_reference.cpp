@@ -153,6 +153,14 @@ TEST_CASE("self-reference: no motion, gaps, NaN and a short run are not measured
         for (std::size_t i = 0; i < x.valid.size(); i += 2) x.valid[i] = 0;
         const auto r = analyse(x);
         CHECK_FALSE(r.measured);
+        CHECK_THAT(r.why_not, Catch::Contains("no window") && Catch::Contains("an invalid estimate is a gap"));
+    }
+    SECTION("every sample invalid: the reason is the estimator's, not the motion's") {
+        auto x = synthetic(50000, 100000, kTwoPi * 200, 0, 1e-3, 0, 0);
+        std::fill(x.valid.begin(), x.valid.end(), std::uint8_t{0});
+        const auto r = analyse(x);
+        CHECK_FALSE(r.measured);
+        CHECK_THAT(r.why_not, Catch::Contains("the estimator marked all") && Catch::Contains("invalid"));
     }
     SECTION("NaN outputs end windows; the rest is measured") {
         auto x = synthetic(200000, 100000, kTwoPi * 200, 0, 1e-3, 1e-3, 0);

@@ -191,9 +191,15 @@ SelfReferenceResult SelfReference::finish() {
     const double tau = correlation_time(batch_sq_, resid_sq_, batches_);
     const double dof = static_cast<double>(res.samples) - tau * pg;
     if (!res.windows || dof <= 0) {
-        res.why_not = res.windows ? "too few samples in the windows used"
-                                  : "no window of at least min_window_cycles electrical periods without a gap (the motion must sweep the "
-                                    "phase several times, smoothly)";
+        if (res.after_settle > 0 && res.valid_after_settle == 0)  // the estimator's own verdict, not the motion's
+            res.why_not = "the estimator marked all " + std::to_string(res.after_settle) +
+                          " samples after the settle time invalid (its state says why; an estimator told another signal model or amplitude than "
+                          "the capture's often does)";
+        else if (res.windows)
+            res.why_not = "too few samples in the windows used";
+        else
+            res.why_not = "no window of at least " + std::to_string(static_cast<int>(o_.min_window_cycles)) +
+                          " electrical periods without a gap (the motion must sweep the phase several times, smoothly; an invalid estimate is a gap)";
         return res;
     }
     const auto nl = n_.ldlt();
