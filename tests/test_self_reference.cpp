@@ -440,7 +440,7 @@ TEST_CASE("self-reference: the preflight says when a capture's motion cannot giv
     }
 }
 
-TEST_CASE("capture scan: a standing encoder's noisy phase is no travel; a swing is its whole distance", "[selfref][capture][preflight]") {
+TEST_CASE("capture scan: a standing encoder's noisy phase is no travel, a swing is its whole distance", "[selfref][capture][preflight]") {
     TempDir d;
     const double fs = 100000;
     auto write = [&](const std::string& name, auto theta) {

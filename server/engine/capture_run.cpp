@@ -44,7 +44,7 @@ CaptureScan scan_capture(const std::string& path, const CaptureOptions& options,
     constexpr int kGroup = 16;
     double w_prev = 0, phase = 0, anchor = 0, group_sum = 0;
     int group_n = 0;
-    bool have_prev = false, have_anchor = false;
+    bool have_prev = false, have_anchor = false, settle_closed = false;
     while (reader.read(block, d)) {
         const std::size_t m = d.size();
         if (m == 0) continue;
@@ -76,13 +76,21 @@ CaptureScan scan_capture(const std::string& path, const CaptureOptions& options,
                 have_anchor = true;
             }
             const double moved = std::fabs(mean - anchor);
-            if (moved < kDeadbandRad || !std::isfinite(moved)) continue;
+            if (!std::isfinite(moved)) continue;
+            const bool in_settle = d.t_s[i] - sc.t_first_s < settle_s;
+            // Leaving the settle time: its travel takes what moved since the last count too.
+            if (!in_settle && !settle_closed) {
+                sc.settle_travel_rad = sc.travel_rad + moved;
+                settle_closed = true;
+            }
+            if (moved < kDeadbandRad) continue;
             anchor = mean;
             sc.travel_rad += moved;
-            if (d.t_s[i] - sc.t_first_s < settle_s) sc.settle_travel_rad += moved;
+            if (in_settle) sc.settle_travel_rad += moved;
         }
         sc.samples += m;
     }
+    if (!settle_closed) sc.settle_travel_rad = sc.travel_rad;
     sc.sample_rate_hz = reader.sample_rate_hz();
     if (!(sc.sample_rate_hz > 0)) throw CaptureError(path + ": sample rate unknown (no sidecar and fewer than two time stamps)");
     sc.meta = reader.meta();
