@@ -235,6 +235,30 @@ export function errorVsAngle(parent, t, labels, opts = {}) {
   return div;
 }
 
+// Each lane's self-referenced error against the electrical angle (docs/self-reference.md): the
+// periodic part its harmonics give, e(s) = sum A_k cos(k s - phase_k), about the unobservable
+// mean. The sub-divisional error a capture without truth still shows.
+export function selfRefVsAngle(parent, estimators) {
+  const lanes = (estimators || []).filter((e) => e.analysers && e.analysers.self_reference && e.analysers.self_reference.measured
+    && Array.isArray(e.analysers.self_reference.harmonics));
+  if (!lanes.length) return null;
+  const div = box(parent, 'Self-referenced error vs electrical angle (harmonics 1-8)', 'plot-self-reference');
+  const N = 256, xs = Array.from({ length: N + 1 }, (_, i) => (2 * Math.PI * i) / N);
+  const ys = lanes.map((e) => xs.map((s) => e.analysers.self_reference.harmonics.reduce((acc, hk) =>
+    acc + (Number.isFinite(hk.amplitude_rad) && Number.isFinite(hk.phase_rad) ? hk.amplitude_rad * Math.cos(hk.order * s - hk.phase_rad) : 0), 0)));
+  div.fringe = { kind: 'self_reference', lanes: lanes.map((e) => e.label), x: xs, y: ys };
+  const holder = document.createElement('div');
+  div.append(holder);
+  div.fringe.u = new uPlot({
+    width: width(parent), height: 300, scales: { x: { time: false, auto: false, range: [0, 2 * Math.PI] }, y: { range: range(ys) } },
+    axes: [{ label: 'electrical angle of the self-reference (rad)' }, { label: 'error, periodic part (rad)', size: 70, values: errTicks }],
+    series: [{ label: 'angle', value: xValue('rad', 0, 2 * Math.PI) },
+      ...lanes.map((e, i) => ({ label: e.label, stroke: color(estimators.indexOf(e)), width: 1.5, value: legendValue('rad', ys[i], 'absmax') }))],
+  }, [xs, ...ys], holder);
+  note(div, 'from each estimator\'s self-referenced harmonics 1x-8x (the curve the truth-scored error vs angle would show, less its mean, which cannot be seen without truth)');
+  return div;
+}
+
 // Limits that bound every sample of the plotted error, as horizontal lines: max_abs_rad (|e| <= max,
 // lines at +-max) and max_dev_rad (|e - mean| <= max, lines at mean +- max). Limits on rms, mean
 // or counts bound no single sample and are not drawn. measurements: the report's rows.
@@ -622,11 +646,13 @@ export function reportPlots(parent, t, estimators, report) {
     p.className = 'muted';
     p.id = 'plots-no-truth';
     p.textContent = 'This capture has no truth (theta_true): the error plots below (against the electrical angle, against time, its harmonics and spectrum) '
-      + "need it and stay empty. Each estimator's self-referenced error, with its uncertainty, is under Estimators; the signals are under Signals.";
+      + "need it and stay empty; the self-referenced error against the electrical angle is drawn from its harmonics. Each estimator's "
+      + 'self-referenced error, with its uncertainty, is under Estimators; the signals are under Signals.';
     parent.append(p);
   }
   lissajous(parent, t);
   errorVsAngle(parent, t, labels, { limits: opts.limits });
+  selfRefVsAngle(parent, (report && report.estimators) || estimators);  // the traces' list carries no analysers
   errorVsTime(parent, t, labels, 'Error vs time', 'plot-time', opts);
   harmonicBars(parent, estimators);
   errorSpectrum(parent, estimators, report);

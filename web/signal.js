@@ -342,6 +342,45 @@ function trend(parent, spec, rec, profile) {
   return div;
 }
 
+// Each recorded period's amplitude against the shaft angle: its place along the scale
+// (recording.position_periods, from the run's start) modulo the encoder's lines per revolution.
+// A dirty section of the scale, or a gap run-out, returns at the same angle every turn.
+function shaftPlot(parent, rec, lines) {
+  const pos = rec.position_periods;
+  if (!(lines > 0) || !Array.isArray(pos) || pos.length !== rec.first_period.length) return null;
+  const div = h('div', { class: 'plot signal-shaft', id: 'signal-shaft' });
+  parent.append(div);
+  div.append(h('h3', {}, `Amplitude per period against shaft angle (${lines} periods a revolution, from the run's start)`));
+  const deg = pos.map((p) => (360 * ((((p % lines) + lines) % lines) + 0.5)) / lines);
+  const series = [['A', rec.vpp_a_v || []], ['B', rec.vpp_b_v || []]];
+  let lo = Infinity, hi = -Infinity;
+  for (const [, ys] of series) for (const v of ys) if (finite(v)) { lo = Math.min(lo, v); hi = Math.max(hi, v); }
+  if (!Number.isFinite(lo)) { lo = 0; hi = 1; }
+  const least = Math.abs(hi) * 0.01 || 1e-6;  // at least 1 % of the level tall: three-digit ticks stay distinct
+  if (hi - lo < least) { const mid = (lo + hi) / 2; lo = mid - least / 2; hi = mid + least / 2; }
+  const pad = (hi - lo) * 0.08;
+  lo -= pad; hi += pad;
+  const W = 560, H = 240, l = 64, r = 12, t = 12, b = 34;
+  const X = (v) => l + (v / 360) * (W - l - r), Y = (v) => H - b - ((v - lo) / (hi - lo)) * (H - t - b);
+  const g = svg('svg', { viewBox: `0 0 ${W} ${H}`, class: 'shaft-svg', role: 'img', 'aria-label': 'amplitude per period against shaft angle' });
+  g.append(svg('rect', { x: l, y: t, width: W - l - r, height: H - t - b, fill: 'none', class: 'liss-axis' }));
+  for (let a = 0; a <= 360; a += 60) g.append(svg('text', { x: X(a), y: H - b + 14, 'text-anchor': 'middle', class: 'liss-label' }, String(a)));
+  const step = niceStep((hi - lo) / 4);
+  for (let v = Math.ceil(lo / step) * step; v <= hi; v += step)
+    g.append(svg('line', { x1: l - 3, x2: W - r, y1: Y(v), y2: Y(v), class: 'liss-tick' }), svg('text', { x: l - 5, y: Y(v) + 3, 'text-anchor': 'end', class: 'liss-label' }, sig(v)));
+  g.append(svg('text', { x: (l + W - r) / 2, y: H - 4, 'text-anchor': 'middle', class: 'liss-label' }, 'shaft angle (deg)'),
+    svg('text', { x: 12, y: (t + H - b) / 2, transform: `rotate(-90 12 ${(t + H - b) / 2})`, 'text-anchor': 'middle', class: 'liss-label' }, 'Vpp (V)'));
+  let points = 0;
+  series.forEach(([name, ys], i) => {
+    const grp = svg('g', { fill: color(i), class: `shaft-points shaft-${name}` });
+    ys.forEach((v, k) => { if (finite(v)) { grp.append(svg('circle', { cx: X(deg[k]).toFixed(2), cy: Y(v).toFixed(2), r: 1.8 })); points++; } });
+    g.append(grp, svg('text', { x: l + 8 + 30 * i, y: t + 12, fill: color(i), class: 'liss-label' }, name));
+  });
+  div.append(g);
+  div.fringe = { kind: 'signal-shaft', lines, points, deg, y_range: [lo, hi] };
+  return div;
+}
+
 // ---- the section -----------------------------------------------------------------------------
 
 // Into `section` (attached to the page, so the plots know their width): the signal page of
@@ -382,5 +421,7 @@ export function signalPage(section, r, mt) {
       ? `Per-period recording: each point is the mean of ${rec.periods_per_point} periods (${rec.first_period.length} points for ${sg.periods} periods), against the index of its first period.`
       : `Per-period recording: one point per electrical period (${rec.first_period.length}), against the period index.`));
     for (const t of TRENDS) trend(plotsBox, t, rec, profile);
+    const enc = r.scenario && r.scenario.encoder;
+    shaftPlot(plotsBox, rec, enc && Number.isInteger(enc.lines_per_rev) ? enc.lines_per_rev : 0);
   } else plotsBox.append(h('p', { class: 'muted plot-note signal-rec-note' }, 'This report has no per-period recording.'));
 }

@@ -501,6 +501,14 @@ try {
   const noTruth = await page.evaluate(() => ({ plots: (document.querySelector('#plots-no-truth') || {}).textContent || '', spectrum: document.querySelector('#plot-spectrum').textContent }));
   check(/no truth/.test(noTruth.plots) && /this capture has no truth/.test(noTruth.spectrum) && !/contiguous scored samples/.test(noTruth.spectrum),
     'the error plots say they need truth, and the spectrum blames the missing truth, not a lack of contiguous samples');
+  // The self-referenced error against the electrical angle, drawn from each lane's harmonics.
+  const srPlot = await page.$eval('#plot-self-reference', (d) => ({ lanes: d.fringe.lanes, y: d.fringe.y, x: d.fringe.x, canvas: !!d.querySelector('canvas') }));
+  const h2 = nu.estimators.find((e) => e.label === 'atan2').analysers.self_reference.harmonics;
+  const at = (s) => h2.reduce((acc, hk) => acc + hk.amplitude_rad * Math.cos(hk.order * s - hk.phase_rad), 0);
+  const li = srPlot.lanes.indexOf('atan2');
+  check(srPlot.canvas && li >= 0 && srPlot.lanes.includes('pll2') && srPlot.x.length === 257
+    && srPlot.x.every((s, i) => Math.abs(srPlot.y[li][i] - at(s)) <= 1e-12 + 1e-9 * Math.abs(at(s))),
+  `the self-referenced error vs electrical angle is drawn for ${srPlot.lanes.join(', ')} from their harmonics`);
   await page.screenshot({ path: join(artifacts, 'new-user-capture.png'), fullPage: true });
 
   // A scenario whose profile is inline keeps it (shown as "inline: NAME"); a capture dropped then

@@ -447,6 +447,13 @@ try {
     if (drawn.join() !== edges.join() || !stroked) tBad.push(`${id}: edges ${drawn.join(' ')} (stroked at ${t.lines.map((v) => v.toFixed(0)).join(' ')})`);
   }
   check(tBad.length === 0 && trends.length >= 4, `the per-period trends draw all ${rec.first_period.length} recorded points and the band edges as lines${tBad.length ? `: ${tBad.join(' | ')}` : ''}`);
+  // Against the shaft angle: a point a recorded period and channel, each at its place mod the lines a revolution.
+  const lines = repG.scenario.encoder.lines_per_rev;
+  const shaft = await page.$eval('#signal-shaft', (d) => ({ ...d.fringe, circles: d.querySelectorAll('circle').length }));
+  const wantDeg = rec.position_periods.map((p) => (360 * ((((p % lines) + lines) % lines) + 0.5)) / lines);
+  check(shaft.lines === lines && shaft.points === 2 * rec.first_period.length && shaft.circles === shaft.points
+    && shaft.deg.every((v, i) => Math.abs(v - wantDeg[i]) < 1e-9),
+  `amplitude against shaft angle: ${shaft.points} points (${lines} periods a revolution) at each period's place along the scale`);
   await (await page.$('#signal-page')).screenshot({ path: join(artifacts, 'views-signal-1280.png') });
   // Unticking "band edges in view" zooms to the periods: no edge drawn, the range the data's.
   await page.click('#trend-vpp .bands-toggle');
