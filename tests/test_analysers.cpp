@@ -184,3 +184,40 @@ TEST_CASE("pipeline: a task pool runs every task once and hands back each task's
         }
     }
 }
+
+namespace {
+// Outputs atan2 but vouches for none of it (an estimator told the wrong signal model does this).
+class NeverValid final : public est::Estimator {
+public:
+    void reset(const est::EstimatorConfig&) override {}
+    void process(est::InputSpan in, est::OutputSpan out) override {
+        for (std::size_t i = 0; i < in.size(); ++i) {
+            out.theta_rad[i] = std::atan2(in.sin_v[i], in.cos_v[i]);
+            out.omega_rad_s[i] = std::numeric_limits<double>::quiet_NaN();
+            out.valid[i] = 0;
+        }
+    }
+    est::BoundClass bound_class() const override { return est::BoundClass::Memoryless; }
+};
+}  // namespace
+
+TEST_CASE("analysers: an estimator that vouches for nothing is diagnosed as such, with truth and without", "[analysers][run]") {
+    est::ScopedEstimator never({"test-never-valid", "never valid (a test)", {}, [] { return std::make_unique<NeverValid>(); }, {}});
+    for (const bool self_ref : {false, true}) {
+        INFO((self_ref ? "self-referenced" : "truth-scored"));
+        Scenario sc = ideal_run(json::array({json{{"name", "test-never-valid"}}, json{{"name", "atan2"}}}));
+        sc.scoring.self_reference = self_ref;
+        const json r = execute_run(sc);
+        REQUIRE(r["status"] == "done");
+        auto codes = [](const json& e) {
+            std::vector<std::string> v;
+            for (const auto& d : e["diagnosis"]) v.push_back(d["code"].get<std::string>());
+            return v;
+        };
+        CHECK(codes(r["estimators"][0]) == std::vector<std::string>{"never_valid"});
+        CHECK(codes(r["estimators"][1]).empty());  // atan2 vouches for its samples
+        bool warned = false;
+        for (const auto& w : r["warnings"]) warned |= w["code"] == "never_valid" && w["message"].get<std::string>().rfind("test-never-valid marked every sample", 0) == 0;
+        CHECK(warned);
+    }
+}

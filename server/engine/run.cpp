@@ -211,6 +211,19 @@ std::vector<EstimatorReport> score_lanes(const Scenario& sc, const dev::DeviceIn
             e.bounds = bounds_json(delivered, *lane->e, sc.sample_rate_hz, m.scored, m.rms_rad);
             e.bounds["signal_as_delivered"] = basis;
         }
+        // An estimator that vouched for none of its output after the settle time: the cause is
+        // its own (told another signal model or amplitude, no lock), whatever else is reported.
+        {
+            const json sr = e.analysers.is_object() ? e.analysers.value("self_reference", json()) : json();
+            const bool truthless_never = sr.is_object() && sr.value("samples_after_settle", std::uint64_t{0}) > 0 && sr.value("valid_fraction", json()) == json(0.0);
+            const bool scored_never = m.after_settle > 0 && m.invalid_after_settle == m.after_settle;
+            if (lane->e && (truthless_never || scored_never)) {
+                const std::string msg = "marked every sample after the settle time invalid: nothing it output can be judged (its state says why; an "
+                                        "estimator told another signal model or amplitude than the signals' often does)";
+                e.diagnosis.push_back({"never_valid", msg});
+                warnings.push_back({false, "never_valid", "estimators." + e.label, e.label + " " + msg});
+            }
+        }
         e.convention_violations = res.conventions.size();
         for (const auto& f : res.conventions) {
             e.diagnosis.push_back({f.code, f.message});
