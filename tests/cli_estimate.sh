@@ -62,6 +62,11 @@ assert len(ms) == 6 and all(m["estimator"] == "run" and m["interface"] == "1 Vpp
 worst = "FAIL" if any(m["outcome"] == "FAIL" for m in ms) else "MARGINAL" if any(m["outcome"] == "MARGINAL" for m in ms) else "PASS"
 assert r["verdict"] == worst and "interface profile" in r["capture"]["not_scored"], (r["verdict"], worst)
 PY
+# the same as HTML and JUnit: the signal page with a gauge a band, a testcase a band
+"$FRINGE" estimate "$dir/notruth.csv" --estimator atan2 --interface "$SRC/fixtures/interfaces/1vpp.json" --html "$dir/ni.html" --junit "$dir/ni.xml" -q
+[ "$(grep -o 'class="gauge"' "$dir/ni.html" | wc -l)" -eq 6 ] && grep -q 'id="signal-page"' "$dir/ni.html" || fail "estimate --html: the signal page"
+[ "$(grep -o '<testcase' "$dir/ni.xml" | wc -l)" -eq 6 ] || fail "estimate --junit: a testcase a band"
+expect_error "html: .*notruth.csv is the capture" "$FRINGE" estimate "$dir/notruth.csv" --estimator atan2 --html "$dir/notruth.csv"
 printf '{"name": "x", "bands": {"signal_vpp_a_v": {"spec": [2, 1]}}}' > "$dir/badif.json"
 expect_error "interface.bands.signal_vpp_a_v.*badif.json" "$FRINGE" estimate "$dir/notruth.csv" --estimator atan2 --interface "$dir/badif.json"
 

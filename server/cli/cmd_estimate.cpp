@@ -4,6 +4,7 @@
 #include "drivers/capture_file.hpp"
 #include "server/engine/capture_run.hpp"
 #include "server/engine/scenario.hpp"
+#include "server/report/report_formats.hpp"
 #include "signal_gen/base/text.hpp"
 #include "signal_gen/fastmath.hpp"
 
@@ -19,7 +20,7 @@ namespace {
 using nlohmann::json;
 
 struct EstimateOptions {
-    std::string capture, estimator, encoder, output, report, channels, interface;
+    std::string capture, estimator, encoder, output, report, channels, interface, html, junit;
     std::vector<std::string> params;
     int dut_interpolation = 0;  // 0: no ABZ readout
     long long dut_index_count = 0;
@@ -84,13 +85,13 @@ int run_estimate(const EstimateOptions& o) {
     if (o.capture.empty()) throw ConfigError("capture", "a capture file is required (or --list)");
     if (o.estimator.empty()) throw ConfigError("estimator", "--estimator NAME is required (see --list)");
     // Without -o or --report the printed summary is the output; with -q as well there would be none.
-    if (o.output.empty() && o.report.empty() && o.quiet)
-        throw ConfigError("output", "-q prints nothing: give -o ESTIMATES.csv and/or --report REPORT.json");
+    if (o.output.empty() && o.report.empty() && o.html.empty() && o.junit.empty() && o.quiet)
+        throw ConfigError("output", "-q prints nothing: give -o ESTIMATES.csv and/or --report REPORT.json (or --html, --junit)");
     if (!std::isfinite(o.settle_s)) throw ConfigError("settle_s", "--settle-s must be a finite number of seconds");
     // A .csv's or .sr's sidecar is read from x.json whether or not it exists yet: a report
     // written there would be read as the capture's metadata next time.
     const bool has_sidecar = capture_format_for(o.capture) != CaptureFormat::Binary;
-    refuse_overwrite({{"output", o.output}, {"report", o.report}},
+    refuse_overwrite({{"output", o.output}, {"report", o.report}, {"html", o.html}, {"junit", o.junit}},
                      {{"capture", o.capture}, {"capture's sidecar", has_sidecar ? sidecar_path(o.capture) : ""}, {"encoder profile", o.encoder}, {"interface profile", o.interface}});
     CaptureRunOptions e;
     e.capture_path = o.capture;
@@ -119,6 +120,8 @@ int run_estimate(const EstimateOptions& o) {
         const bool ok = std::fwrite(text.data(), 1, text.size(), f) == text.size();
         if (std::fclose(f) != 0 || !ok) throw std::runtime_error(o.report + ": write failed");
     }
+    if (!o.html.empty()) write_file_atomic(o.html, report_html(r));
+    if (!o.junit.empty()) write_file_atomic(o.junit, junit_xml(r));
     // The run failed part way (the estimator's process died, the capture changed under it):
     // the report says so, the estimates stop there, and the exit code is 2.
     if (r["status"] != "done") throw std::runtime_error(r["error"].is_string() ? r["error"].get<std::string>() : "the run ended " + r["status"].dump());
@@ -245,6 +248,8 @@ Command add_estimate(CLI::App& app) {
     es->add_option("--param", o->params, "Estimator parameter key=value (repeatable)");
     es->add_option("-o,--output", o->output, "Estimates CSV to write: t,theta_rad,omega_rad_s,valid (without -o and --report: the summary only)");
     es->add_option("--report", o->report, "Report JSON to write (scores and bounds when the capture has truth)");
+    es->add_option("--html", o->html, "Self-contained HTML report to write (the signals' gauges, Lissajous and trends; the error plots)");
+    es->add_option("--junit", o->junit, "JUnit XML to write (one testcase per measurement, every metric as a property)");
     es->add_option("--max-expanded-mb", o->max_expanded_mb, "Most sample data a sigrok session (.sr) may expand to, MiB "
                                                             "(its members as declared; a limit against ZIP bombs)")
         ->check(kFinitePositive)->capture_default_str();
