@@ -66,6 +66,11 @@ PY
 "$FRINGE" estimate "$dir/notruth.csv" --estimator atan2 --interface "$SRC/fixtures/interfaces/1vpp.json" --html "$dir/ni.html" --junit "$dir/ni.xml" -q
 [ "$(grep -o 'class="gauge"' "$dir/ni.html" | wc -l)" -eq 6 ] && grep -q 'id="signal-page"' "$dir/ni.html" || fail "estimate --html: the signal page"
 [ "$(grep -o '<testcase' "$dir/ni.xml" | wc -l)" -eq 6 ] || fail "estimate --junit: a testcase a band"
+# a band as wide as a double allows: no crash, no NaN in the HTML (found by a trial: the gauge's width overflowed)
+printf '{"name": "wide", "bands": {"signal_vpp_a_v": {"spec": [-1e308, 1e308]}, "signal_ab_ratio": {"spec": [0, 1e308]}}}' > "$dir/wide.json"
+"$FRINGE" estimate "$dir/notruth.csv" --estimator atan2 --interface "$dir/wide.json" --html "$dir/wide.html" > "$dir/wide.txt" || fail "a wide band: exit $?"
+grep -q "A pp .*spec -1e+308..1e+308: within specification" "$dir/wide.txt" || fail "a wide band's line: $(cat "$dir/wide.txt")"
+! grep -q 'nan\|inf"' "$dir/wide.html" || fail "a wide band: NaN or inf in the HTML"
 expect_error "html: .*notruth.csv is the capture" "$FRINGE" estimate "$dir/notruth.csv" --estimator atan2 --html "$dir/notruth.csv"
 printf '{"name": "x", "bands": {"signal_vpp_a_v": {"spec": [2, 1]}}}' > "$dir/badif.json"
 expect_error "interface.bands.signal_vpp_a_v.*badif.json" "$FRINGE" estimate "$dir/notruth.csv" --estimator atan2 --interface "$dir/badif.json"

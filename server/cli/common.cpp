@@ -163,10 +163,10 @@ void print_signal_summary(const json& r) {
 }
 
 namespace {
-std::string band_number(const json& v, const char* open) {
+std::string band_number(const json& v, const char* open, int digits = 4) {
     if (!v.is_number()) return open;
-    char b[32];
-    std::snprintf(b, sizeof b, "%.4g", v.get<double>());
+    char b[40];
+    std::snprintf(b, sizeof b, "%.*g", digits, v.get<double>());
     return b;
 }
 
@@ -177,9 +177,9 @@ std::string band_gauge(const json& value, const json& band) {
     const json spec = band.value("spec", json()), mount = band.value("mounting", json());
     if (!spec.is_array() || spec.size() != 2 || !spec[0].is_number() || !spec[1].is_number()) return "";
     const double lo = spec[0].get<double>(), hi = spec[1].get<double>(), w = hi - lo;
-    if (!(w > 0)) return "";
     constexpr int kCells = 25;
     const double x0 = lo - w / 3, x1 = hi + w / 3, dx = (x1 - x0) / kCells;
+    if (!(w > 0) || !std::isfinite(dx) || !(dx > 0)) return "";  // a band too wide to draw (its width overflows)
     std::string g(kCells, '.');
     for (int i = 0; i < kCells; ++i) {
         const double x = x0 + (i + 0.5) * dx;
@@ -192,7 +192,7 @@ std::string band_gauge(const json& value, const json& band) {
         const double v = value.get<double>();
         if (v < x0) g[0] = '<';
         else if (v >= x1) g[kCells - 1] = '>';
-        else g[std::min(kCells - 1, static_cast<int>((v - x0) / dx))] = '|';
+        else if (const double cell = (v - x0) / dx; std::isfinite(cell)) g[std::clamp(static_cast<int>(cell), 0, kCells - 1)] = '|';
     }
     return "[" + g + "]";
 }
@@ -218,7 +218,8 @@ void print_signal_bands(const json& r) {
         if (spec.is_array() && spec.size() == 2) bands = "spec " + band_number(spec[0], "-inf") + ".." + band_number(spec[1], "inf");
         if (mount.is_array() && mount.size() == 2) bands += ", mounting " + band_number(mount[0], "-inf") + ".." + band_number(mount[1], "inf");
         const std::string unit = m.value("unit", "");
-        const std::string val = m["value"].is_number() ? band_number(m["value"], "") + (unit.empty() ? "" : " " + unit) : "not measured";
+        // Six digits: a value just outside an edge must not print as the edge.
+        const std::string val = m["value"].is_number() ? band_number(m["value"], "", 6) + (unit.empty() ? "" : " " + unit) : "not measured";
         std::printf("    %-18s %-14s %s  %s: %s\n", term_escape(label).c_str(), val.c_str(), band_gauge(m["value"], band).c_str(), bands.c_str(),
                     term_escape(m.value("grade", std::string("-"))).c_str());
     }

@@ -738,6 +738,8 @@ std::string signal_section_html(const json& r) {
         double lo = std::isfinite(slo) ? slo : std::min(0.0, std::isfinite(v) ? v : 0.0), hi = std::isfinite(shi) ? shi : 2 * std::fabs(slo) + 1e-12;
         if (!(hi > lo)) hi = lo + 1;
         const double w = hi - lo, x0 = lo - w / 3, x1 = hi + w / 3;
+        // A band too wide to scale (its width overflows a double): the value and grade only.
+        const bool scaled = std::isfinite(x1 - x0) && x1 > x0;
         constexpr double W = 360, gx = 8, gw = W - 16, gy = 24, gh = 12;
         auto X = [&](double x) { return gx + gw * std::clamp((x - x0) / (x1 - x0), 0.0, 1.0); };
         const std::string metric = m.value("metric", "");
@@ -754,7 +756,12 @@ std::string signal_section_html(const json& r) {
           << "\" height=\"60\" viewBox=\"0 0 " << W << " 60\"><text x=\"" << gx << "\" y=\"14\" font-size=\"12\" font-weight=\"bold\">"
           << xml_escape(mi && !mi->column.empty() ? mi->column : label_of(metric)) << "</text><text x=\"" << W - gx << "\" y=\"14\" font-size=\"12\" text-anchor=\"end\">"
           << (has_value ? fmt_num(v) + (unit.empty() ? "" : " " + xml_escape(unit)) : std::string("not measured")) << ": " << xml_escape(m.value("grade", std::string()))
-          << "</text><rect class=\"out\" x=\"" << gx << "\" y=\"" << gy << "\" width=\"" << gw << "\" height=\"" << gh << "\" fill=\"#d0d7de\"/>";
+          << "</text>";
+        if (!scaled) {
+            h << "<text x=\"" << gx << "\" y=\"" << gy + gh << "\" font-size=\"10\">(the band is too wide to draw)</text></svg>";
+            continue;
+        }
+        h << "<rect class=\"out\" x=\"" << gx << "\" y=\"" << gy << "\" width=\"" << gw << "\" height=\"" << gh << "\" fill=\"#d0d7de\"/>";
         if (has_spec)
             h << "<rect class=\"spec\" x=\"" << X(slo) << "\" y=\"" << gy << "\" width=\"" << X(shi) - X(slo) << "\" height=\"" << gh << "\" fill=\"#f2cc60\"/>";
         if (has_mount)
@@ -855,11 +862,12 @@ std::string signal_section_html(const json& r) {
         for (const auto& t : trends) {
             Axis x{"period index"}, y{t.ylabel};
             x.see_all(xs);
-            for (const auto& [key, metric, name] : t.series) {
-                y.see_all(rec.value(key, json::array()));
-                // The band's edges are in view: a trend is read against its limits.
-                const json band = band_of(metric);
-                for (const char* k : {"spec", "mounting"}) y.see_all(band.value(k, json::array()));
+            for (const auto& [key, metric, name] : t.series) y.see_all(rec.value(key, json::array()));
+            {  // The band's edges are in view (a trend is read against its limits), unless that overflows the scale.
+                Axis with_bands = y;
+                for (const auto& [key, metric, name] : t.series)
+                    for (const char* k : {"spec", "mounting"}) with_bands.see_all(band_of(metric).value(k, json::array()));
+                if (std::isfinite(with_bands.hi - with_bands.lo)) y = with_bands;
             }
             x.finish(0);
             if (x.hi <= x.lo) x.hi = x.lo + 1;
@@ -910,8 +918,12 @@ std::string signal_section_html(const json& r) {
             x.hi = 360;
             y.see_all(rec["vpp_a_v"]);
             y.see_all(rec["vpp_b_v"]);
-            for (const char* metric : {"signal_vpp_a_v", "signal_vpp_b_v"})
-                for (const char* k : {"spec", "mounting"}) y.see_all(band_of(metric).value(k, json::array()));
+            {
+                Axis with_bands = y;
+                for (const char* metric : {"signal_vpp_a_v", "signal_vpp_b_v"})
+                    for (const char* k : {"spec", "mounting"}) with_bands.see_all(band_of(metric).value(k, json::array()));
+                if (std::isfinite(with_bands.hi - with_bands.lo)) y = with_bands;
+            }
             if (y.hi >= y.lo && y.hi - y.lo < 0.01 * std::fabs(y.hi)) {
                 const double mid = 0.5 * (y.lo + y.hi), least = 0.01 * std::fabs(y.hi);
                 y.lo = mid - least / 2;
