@@ -62,6 +62,16 @@ assert len(ms) == 6 and all(m["estimator"] == "run" and m["interface"] == "1 Vpp
 worst = "FAIL" if any(m["outcome"] == "FAIL" for m in ms) else "MARGINAL" if any(m["outcome"] == "MARGINAL" for m in ms) else "PASS"
 assert r["verdict"] == worst and "interface profile" in r["capture"]["not_scored"], (r["verdict"], worst)
 PY
+# the same capture through fringe run (a capture: device, no motion): its summary gives the self-referenced error, not "no scored samples"
+$PY - "$dir/cap.json" "$dir/notruth.csv" "$SRC/fixtures/encoders/ideal.json" > "$dir/ntrun.json" <<'PY'
+import json, sys
+fs = json.load(open(sys.argv[1]))["sample_rate_hz"]
+print(json.dumps({"name": "no-truth", "encoder": sys.argv[3], "sample_rate_hz": fs, "duration_s": 30000 / fs, "settle_s": 0.05,
+                  "device": "capture:" + sys.argv[2], "estimators": [{"name": "atan2"}], "limits": [{"estimator": "atan2", "metric": "self_ref_rms_rad", "max": 1}]}))
+PY
+"$FRINGE" run "$dir/ntrun.json" --no-db > "$dir/ntrun.txt" || fail "a capture: run without truth: exit $? $(cat "$dir/ntrun.txt")"
+grep -q "^  atan2 *self-referenced (no truth) rms .* rad (95 % " "$dir/ntrun.txt" && ! grep -q "no scored samples" "$dir/ntrun.txt" || fail "run summary without truth: $(cat "$dir/ntrun.txt")"
+
 # the same as HTML and JUnit: the signal page with a gauge a band, a testcase a band
 "$FRINGE" estimate "$dir/notruth.csv" --estimator atan2 --interface "$SRC/fixtures/interfaces/1vpp.json" --html "$dir/ni.html" --junit "$dir/ni.xml" -q
 [ "$(grep -o 'class="gauge"' "$dir/ni.html" | wc -l)" -eq 6 ] && grep -q 'id="signal-page"' "$dir/ni.html" || fail "estimate --html: the signal page"

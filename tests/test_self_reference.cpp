@@ -290,6 +290,8 @@ TEST_CASE("self-reference: a run on a capture without truth is judged on the sel
         }
         CHECK(metrics == std::set<std::string>{"self_ref_samples", "self_ref_cycles", "self_ref_valid_fraction", "self_ref_rms_rad"});
         CHECK(r["estimators"][0]["analysers"]["self_reference"]["measured"] == true);
+        CHECK(r["estimators"][0]["diagnosis"].empty());  // atan2 vouched for its samples: not never_valid for want of truth
+        for (const auto& w : r["warnings"]) CHECK(w["code"] != "never_valid");
         // The HTML says why there is no error spectrum: no truth, not a lack of scored samples.
         const std::string html = report_html(r);
         CHECK_THAT(html, Catch::Contains("this capture has no truth"));

@@ -234,6 +234,19 @@ void print_run_summary(const json& r, const std::string& name, bool all_metrics)
     for (const auto& e : r["estimators"]) {
         const auto& m = e["metrics"];
         const auto& ev = m.value("evidence", json::object());
+        const json sr = e.value("analysers", json::object()).value("self_reference", json());
+        if (!m["rms"].is_object() && sr.is_object() && sr.value("measured", false) == true) {
+            // Without truth: the self-referenced error, with its uncertainty, is what was measured.
+            const double rms = sr["rms_rad"].get<double>(), u = sr["rms_u_rad"].get<double>();
+            std::printf("  %-20s self-referenced (no truth) rms %.4g rad (95 %% %.4g..%.4g), %llu windows, %.1f electrical cycles, valid %.4g\n",
+                        str(e["label"]).c_str(), rms, rms - 1.96 * u, rms + 1.96 * u, static_cast<unsigned long long>(sr.value("windows", std::uint64_t{0})),
+                        sr.value("cycles", 0.0), sr.value("valid_fraction", json()).is_number() ? sr["valid_fraction"].get<double>() : 0.0);
+            continue;
+        }
+        if (!m["rms"].is_object() && sr.is_object() && sr.value("why_not", json()).is_string()) {
+            std::printf("  %-20s no truth, and the self-referenced error was not measured: %s\n", str(e["label"]).c_str(), str(sr["why_not"]).c_str());
+            continue;
+        }
         if (!m["rms"].is_object()) {
             std::printf("  %-20s no scored samples (%llu after the settle time, valid %s)\n", str(e["label"]).c_str(),
                         static_cast<unsigned long long>(ev.value("samples_after_settle", std::uint64_t{0})),

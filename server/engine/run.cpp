@@ -172,6 +172,11 @@ private:
     CaptureData rec_;
 };
 
+// A replayed capture without a theta_true column has no truth; every other source has.
+bool device_has_truth(const dev::DeviceInfo& d) {
+    return !(d.replay && d.settings.is_object() && d.settings.value("has_truth", true) == false);
+}
+
 // The scored lanes' report entries: metrics with their evidence, bounds from the signal as
 // delivered, and convention findings.
 std::vector<EstimatorReport> score_lanes(const Scenario& sc, const dev::DeviceInfo& dinfo, std::vector<std::unique_ptr<Lane>>& lanes,
@@ -216,7 +221,8 @@ std::vector<EstimatorReport> score_lanes(const Scenario& sc, const dev::DeviceIn
         {
             const json sr = e.analysers.is_object() ? e.analysers.value("self_reference", json()) : json();
             const bool truthless_never = sr.is_object() && sr.value("samples_after_settle", std::uint64_t{0}) > 0 && sr.value("valid_fraction", json()) == json(0.0);
-            const bool scored_never = m.after_settle > 0 && m.invalid_after_settle == m.after_settle;
+            // (without truth the scorer counts every sample invalid: only the self-referenced count says)
+            const bool scored_never = device_has_truth(dinfo) && m.after_settle > 0 && m.invalid_after_settle == m.after_settle;
             if (lane->e && (truthless_never || scored_never)) {
                 const std::string msg = "marked every sample after the settle time invalid: nothing it output can be judged (its state says why; an "
                                         "estimator told another signal model or amplitude than the signals' often does)";
@@ -315,7 +321,7 @@ RunReport execute_run(RunPlan plan, const RunOptions& o) {
         for (const auto& f : preflight_device(sc, dinfo)) warnings.push_back(f);
         // A capture without truth: nothing can be scored against truth, so each lane's error is
         // measured self-referenced (docs/self-reference.md) and the evidence is that analysis's.
-        has_truth = !(dinfo.replay && dinfo.settings.is_object() && dinfo.settings.value("has_truth", true) == false);
+        has_truth = device_has_truth(dinfo);
         const LaneContext lane_ctx{sc.sample_rate_hz, sc.settle_s, sc.scoring.max_harmonic, segment, sc.scoring.self_reference || !has_truth};
         for (std::size_t i = 0; i < sc.estimators.size(); ++i) {
             const auto& spec = sc.estimators[i];
