@@ -42,7 +42,10 @@ json graded(const json& bands, const json& signal) {
 
 TEST_CASE("interface: a profile's refusals name the field", "[interface][config]") {
     CHECK_THAT(refusal(json::array()), Catch::Contains("expected an interface profile object"));
-    CHECK_THAT(refusal(band_profile(json::object())), Catch::Contains("interface.bands"));
+    CHECK_THAT(refusal(band_profile(json::object())), Catch::Contains("interface.bands") && Catch::Contains("no bands"));
+    json stray = band_profile(json::object());
+    stray["zz"] = 1;  // the unknown key is named, not the empty bands it came with
+    CHECK_THAT(refusal(stray), Catch::Contains("interface.zz") && Catch::Contains("unknown key"));
     CHECK_THAT(refusal(band_profile({{"rms_rad", {{"spec", {0, 1}}}}})), Catch::Contains("not a signal-quality metric"));
     CHECK_THAT(refusal(band_profile({{"signal_ab_ratio", {{"spec", {1.25, 0.8}}}}})), Catch::Contains("interface.bands.signal_ab_ratio.spec: lo is above hi"));
     CHECK_THAT(refusal(band_profile({{"signal_ab_ratio", {{"spec", {nullptr, nullptr}}}}})), Catch::Contains("at least one side"));

@@ -493,6 +493,9 @@ TEST_CASE("service: capture upload and evaluation", "[service]") {
         // Noise-free ideal quadrature: atan2 is exact to rounding.
         CHECK(rep["schema"] == "fringe.report");
         CHECK(rep["capture"]["id"] == id);
+        // The data folder by its short name, never the host's absolute path.
+        CHECK(rep["capture"]["path"].get<std::string>().rfind("DATA/captures/", 0) == 0);
+        CHECK(rep.dump().find(d.path.string()) == std::string::npos);
         CHECK(rep["estimators"][0]["metrics"]["rms"]["rad"].get<double>() < 1e-9);
         CHECK(s.handle(req("POST", "/api/v1/captures/" + id + "/evaluate", R"({"estimator":"nope"})")).status == 400);
         CHECK(s.handle(req("POST", "/api/v1/captures/" + id + "/evaluate", R"({"estimator":"atan2","x":1})")).status == 400);

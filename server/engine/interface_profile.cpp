@@ -38,7 +38,9 @@ InterfaceProfile interface_from_json(const json& j, const std::string& path) {
     p.description = r.string("description", "");
     p.source = r.string("source", "");
     const json& bands = r.raw("bands");
-    if (!bands.is_object() || bands.empty()) throw ConfigError(r.path_of("bands"), "expected an object of bands by metric name");
+    r.finish();  // an unknown key is named before what it may have been meant to say
+    if (!bands.is_object()) throw ConfigError(r.path_of("bands"), "expected an object of bands by metric name");
+    if (bands.empty()) throw ConfigError(r.path_of("bands"), "no bands: a profile grades at least one signal metric");
     if (bands.size() > 64) throw ConfigError(r.path_of("bands"), "at most 64 bands");
     for (const auto& [metric, b] : bands.items()) {
         const std::string field = r.path_of("bands") + "." + metric;
@@ -59,7 +61,6 @@ InterfaceProfile interface_from_json(const json& j, const std::string& path) {
         br.finish();
         p.bands.push_back(std::move(band));
     }
-    r.finish();
     return p;
 }
 

@@ -85,8 +85,9 @@ json resolve_json_ref(const json& j, const std::string& base_dir, std::string* f
 EncoderProfile load_encoder(const std::string& path) { return encoder_from_json(load_json_file(path), "encoder"); }
 
 InterfaceProfile load_interface(const std::string& path) {
+    const json j = load_json_file(path);  // its faults name the file already
     try {
-        return interface_from_json(load_json_file(path), "interface");
+        return interface_from_json(j, "interface");
     } catch (const ConfigError& e) {
         throw ConfigError(e.field().empty() ? "interface" : e.field(), e.message() + " (in " + path + ")");
     }

@@ -202,7 +202,8 @@ HttpResponse Service::evaluate(const HttpRequest& req, const std::string& id) {
     // Without the plot data, as GET runs/{id}/report.json: the figures, not 0.5 MB of traces.
     rep.erase("traces");
     for (auto& e : rep["estimators"]) e.erase("spectrum");
-    return json_ok(rep);
+    // The service's folders by their short names (DATA/captures/ID.csv), as every report it serves.
+    return json_ok(json::parse(public_text(rep.dump(-1, ' ', false, json::error_handler_t::replace))));
 }
 
 }  // namespace fringe
