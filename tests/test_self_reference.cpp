@@ -469,3 +469,33 @@ TEST_CASE("capture scan: a standing encoder's noisy phase is no travel, a swing 
     const CaptureScan swing = write("swing.fcap", [](double t) { return 3 * kTwoPi * std::sin(kTwoPi * 2 * t); });
     CHECK(swing.travel_rad == Approx(4 * 2 * 3 * kTwoPi).epsilon(0.04));  // each of the 8 turns loses at most the 0.5 rad deadband
 }
+
+TEST_CASE("a capture: scenario takes what it leaves out (rate, length, encoder, motion) from the capture", "[selfref][capture][preflight]") {
+    TempDir d;
+    const Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
+    for (const bool truth : {true, false}) {
+        INFO((truth ? "with truth (and the encoder in its metadata)" : "without truth"));
+        const auto cap = d.path / (truth ? "with.fcap" : "bare.fcap");
+        write_capture(gen, 40000, cap, truth);
+        const json j{{"name", "minimal"}, {"device", "capture:" + cap.string()}, {"estimators", json::array({json{{"name", "atan2"}}})}};
+        const Scenario parsed = scenario_from_json(j, FRINGE_SOURCE_DIR "/fixtures/scenarios");
+        CHECK(parsed.length_from_capture);
+        const RunPlan p = plan_run(parsed);
+        CHECK(p.scenario.sample_rate_hz == gen.sample_rate_hz);
+        CHECK(p.scenario.samples() == 40000);
+        CHECK(p.scenario.encoder_known == truth);  // the capture's own encoder, from its metadata
+        if (truth) CHECK(p.scenario.encoder.lines_per_rev == gen.encoder.lines_per_rev);
+        const json r = execute_run(plan_run(parsed));
+        CHECK(r["status"] == "done");
+        CHECK(r["samples"]["processed"] == 40000);
+        CHECK(r["scenario"]["duration_s"].get<double>() == Approx(40000 / gen.sample_rate_hz));
+    }
+    // Left out and unreadable: the scenario's field is named with the capture's fault.
+    const json missing{{"name", "minimal"}, {"device", "capture:" + (d.path / "none.fcap").string()}, {"estimators", json::array({json{{"name", "atan2"}}})}};
+    CHECK_THROWS_WITH(plan_run(scenario_from_json(missing, FRINGE_SOURCE_DIR "/fixtures/scenarios")),
+                      Catch::Contains("not given, and the capture could not be read"));
+    // Another device still needs them.
+    json loop = missing;
+    loop["device"] = "loopback:";
+    CHECK_THROWS(scenario_from_json(loop, FRINGE_SOURCE_DIR "/fixtures/scenarios"));
+}

@@ -54,6 +54,9 @@ int run_gen(const GenOptions& o) {
                      {{"scenario", o.scenario}});
     Scenario sc = load_scenario(o.scenario);
     if (o.seed >= 0) sc.seed = static_cast<std::uint64_t>(o.seed);
+    if (sc.device.rfind("capture:", 0) == 0 && (sc.length_from_capture || sc.motion_unread || !sc.encoder_known))
+        throw ConfigError("device", "a capture: scenario takes its rate, length, encoder and motion from the capture when it runs; fringe gen "
+                                    "synthesises signals and needs them given (an encoder, motion, sample_rate_hz and duration_s)");
     const std::uint64_t total = o.samples > 0 ? static_cast<std::uint64_t>(o.samples) : sc.samples();
     Generator gen(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed, sc.t0_s);
     json meta;

@@ -135,26 +135,43 @@ void check_budget(const Scenario& sc, const RunBudget& b) {
 }  // namespace
 
 RunPlan plan_run(Scenario sc, const RunBudget& budget) {
+    // A capture replayed, read once here: the preflight takes its motion from the capture, not
+    // from the scenario's "motion" (left from the fixture a form started from), and a scenario
+    // that left out the rate, the length or the encoder takes the capture's. A capture that
+    // cannot be read is the run's fault when it opens the device, named there (or here, when
+    // the scenario needs its length).
+    std::optional<Finding> self_ref_check;
+    if (!sc.instruments && sc.device.rfind("capture:", 0) == 0 && !sc.motion_from_capture) {
+        std::optional<CaptureScan> scan;
+        const dev::UriParts u = dev::check_uri(sc.device);  // a bad URI: its own error
+        try {
+            if (!u.path.empty()) scan = scan_capture(u.path, capture_options_from_uri(u.settings), sc.settle_s);
+        } catch (const std::exception& e) {
+            if (sc.length_from_capture || !sc.encoder_known)
+                throw ConfigError(sc.length_from_capture ? "duration_s" : "encoder",
+                                  std::string("not given, and the capture could not be read to take it from: ") + e.what());
+        }
+        if (scan) {
+            if (!(sc.sample_rate_hz > 0)) sc.sample_rate_hz = scan->sample_rate_hz;
+            if (!(sc.duration_s > 0)) sc.duration_s = static_cast<double>(scan->samples) / scan->sample_rate_hz;
+            if (!sc.encoder_known && scan->meta.is_object() && scan->meta.contains("encoder")) {
+                sc.encoder = encoder_from_json(scan->meta["encoder"], "capture.encoder");
+                sc.encoder_known = true;
+            }
+            sc.motion = capture_motion(*scan, sc.settle_s, sc.encoder.lines_per_rev);
+            sc.motion_from_capture = true;
+            // Without truth (or asked for) the error is self-referenced: can this motion give it?
+            if (!scan->has_truth || sc.scoring.self_reference) self_ref_check = self_reference_motion_check(*scan, sc.settle_s);
+        }
+        sc.length_from_capture = false;
+        if (sc.samples() < 1) throw ConfigError("duration_s", "gives no samples at this sample rate");
+    }
     check_budget(sc, budget);
     RunPlan p;
     p.scenario = std::move(sc);
     build_estimators(p);
     check_limits(p);
     const dev::UriParts input = check_device_uris(p.scenario);
-    // A capture replayed: the preflight takes its motion from the capture, not from the
-    // scenario's "motion" (left from the fixture a form started from). A capture that cannot be
-    // read is the run's fault when it opens the device, named there.
-    std::optional<Finding> self_ref_check;
-    if (input.scheme == "capture" && !p.scenario.instruments && !p.scenario.motion_from_capture && !input.path.empty()) {
-        try {
-            const CaptureScan scan = scan_capture(input.path, capture_options_from_uri(input.settings), p.scenario.settle_s);
-            p.scenario.motion = capture_motion(scan, p.scenario.settle_s, p.scenario.encoder.lines_per_rev);
-            p.scenario.motion_from_capture = true;
-            // Without truth (or asked for) the error is self-referenced: can this motion give it?
-            if (!scan.has_truth || p.scenario.scoring.self_reference) self_ref_check = self_reference_motion_check(scan, p.scenario.settle_s);
-        } catch (const std::exception&) {
-        }
-    }
     p.samples_per_cycle = min_samples_per_cycle(p.scenario);
     p.warnings = preflight(p.scenario, p.samples_per_cycle, input);
     if (self_ref_check) p.warnings.push_back(std::move(*self_ref_check));

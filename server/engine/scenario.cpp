@@ -145,19 +145,23 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
             throw ConfigError(e.field().empty() ? field : e.field(), e.message() + " (in " + file + ")");
         }
     };
-    s.encoder = referenced("encoder", "a profile", encoder_from_json);
+    // A capture replayed moves as it was captured and has its own rate and length: its run
+    // takes them from the capture (plan_run), so a capture: device's scenario may leave out
+    // "motion" (or leave it half filled in, a form's: it is not read), "sample_rate_hz",
+    // "duration_s" and "encoder" (then the capture's own, else none: no bounds, no arcsec).
+    const bool replay = r.has("device") && r.raw("device").is_string() && r.raw("device").get<std::string>().rfind("capture:", 0) == 0;
+    if (replay && (!r.has("encoder") || r.raw("encoder").is_null())) s.encoder_known = false;
+    else s.encoder = referenced("encoder", "a profile", encoder_from_json);
     if (r.has("interface")) s.interface = referenced("interface", "an interface profile", interface_from_json);
-    s.sample_rate_hz = k.number(r, "sample_rate_hz");
-    s.duration_s = k.number(r, "duration_s");
+    s.length_from_capture = replay && (!r.has("sample_rate_hz") || !r.has("duration_s"));
+    s.sample_rate_hz = replay && !r.has("sample_rate_hz") ? 0.0 : k.number(r, "sample_rate_hz");
+    s.duration_s = replay && !r.has("duration_s") ? 0.0 : k.number(r, "duration_s");
     s.t0_s = k.number(r, "t0_s");
     s.seed = static_cast<std::uint64_t>(k.integer(r, "seed"));
-    // A capture replayed moves as it was captured: its run takes the motion from the capture
-    // (plan_run), so a capture: device's scenario may leave "motion" out, or half filled in (a
-    // form's), and it is not read.
-    const bool replay = r.has("device") && r.raw("device").is_string() && r.raw("device").get<std::string>().rfind("capture:", 0) == 0;
     if (!replay) s.motion = motion_from_json(r.raw("motion"), base_dir, s.encoder.lines_per_rev, "motion");
     else if (r.has("motion")) r.raw("motion");
-    if (s.samples() < 1) throw ConfigError("duration_s", "gives no samples at this sample rate");
+    s.motion_unread = replay;
+    if (!s.length_from_capture && s.samples() < 1) throw ConfigError("duration_s", "gives no samples at this sample rate");
     if (r.has("device") && r.raw("device").is_object()) {
         JsonReader dr = r.object("device");
         Scenario::Instruments ins;

@@ -54,6 +54,11 @@ struct Scenario {
     // Not a scenario key: plan_run replaced motion by the capture's own (capture_run.hpp
     // capture_motion) for a capture: device run, whatever the scenario said.
     bool motion_from_capture = false;
+    // Not a scenario key: a capture: device's scenario left out sample_rate_hz or duration_s
+    // (they are 0 until plan_run takes them from the capture).
+    bool length_from_capture = false;
+    // Not a scenario key: a capture: device's "motion" is not read (the run takes the capture's).
+    bool motion_unread = false;
     double sample_rate_hz = 100000.0;
     double duration_s = 1.0;
     double t0_s = 0.0;
