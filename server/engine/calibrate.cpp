@@ -3,12 +3,48 @@
 #include "drivers/capture_file.hpp"
 #include "server/analysis/calibration.hpp"
 #include "server/engine/capture_run.hpp"
+#include "signal_gen/fastmath.hpp"
 
 #include <stdexcept>
 
 namespace fringe {
 
 using nlohmann::json;
+
+namespace {
+
+// Without truth the zero of the angle is not observable, but the Lissajous stage moves it (the
+// ellipse fit of a distorted signal is biased): the offset that keeps the corrected angle's mean
+// where the estimator's, with the calibration it is told, had it over the capture.
+double kept_zero(const CalibrateOptions& o, const est::Correction& c) {
+    CaptureReader reader(o.capture_path);
+    std::optional<EncoderProfile> told = o.encoder;
+    if (!told && reader.meta().is_object() && reader.meta().contains("encoder"))
+        told = encoder_from_json(reader.meta()["encoder"], "capture.encoder");
+    const est::Calibration nominal = est::nominal_calibration(told, resolve_params(est::calibration_params(), json::object()));
+    est::Calibration lis;
+    lis.offset_sin_v = c.offset_sin_v;
+    lis.offset_cos_v = c.offset_cos_v;
+    lis.amplitude_sin_v = c.amplitude_sin_v;
+    lis.amplitude_cos_v = c.amplitude_cos_v;
+    lis.quadrature_error_rad = c.quadrature_error_rad;
+    lis.prepare();
+    CaptureData d;
+    double sum = 0;
+    std::uint64_t n = 0;
+    while (reader.read(65536, d))
+        for (std::size_t i = 0; i < d.size(); ++i) {
+            double sn, cn, sn0, cn0;
+            lis.normalise(d.sin_v[i], d.cos_v[i], sn, cn);
+            nominal.normalise(d.sin_v[i], d.cos_v[i], sn0, cn0);
+            const double phi = std::atan2(sn, cn);
+            sum += wrap_pi(phi - c.table_value(phi) - std::atan2(sn0, cn0));
+            ++n;
+        }
+    return n ? sum / static_cast<double>(n) : 0.0;
+}
+
+}  // namespace
 
 CalibrateResult calibrate_capture(const CalibrateOptions& o) {
     if (o.estimator != "atan2") throw ConfigError("estimator", "only atan2 can be calibrated so far");
@@ -85,6 +121,7 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
     // Against a truth the error's mean is an error too (the ellipse fit of a distorted signal
     // shifts it); against the self-referenced reference it is the signals' phase convention.
     if (res.source == "truth") res.correction.offset_rad = mean;
+    else if (res.correction.has_lissajous) res.correction.offset_rad = kept_zero(o, res.correction);
     res.periodic_rms_rad = f.error_rms_rad;
     res.table_residual_rms_rad = f.table_residual_rms_rad;
     res.predicted_rms_rad = predicted_residual_rad(f.table_residual_rms_rad, res.noise_rms_rad);

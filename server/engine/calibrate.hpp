@@ -6,6 +6,8 @@
 //    truth-scored one where the capture has theta_true (metrics.harmonics, metrics.mean), else the
 //    self-referenced one (analysers.self_reference).
 // 3. Periodic stage: that error record, inverted to the angle atan2 reads (calibration.hpp).
+// 4. Offset: with truth, the error's mean; without, what keeps the corrected angle's mean where
+//    atan2 with its told calibration had it (the Lissajous stage would move it).
 #pragma once
 
 #include "estimator/correction.hpp"
