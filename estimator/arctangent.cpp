@@ -53,9 +53,7 @@ class Atan2 final : public Estimator {
 public:
     static std::vector<ParamInfo> params() {
         auto p = calibration_params();
-        p.push_back({"correction", "", ParamType::String, nullptr, -kInf, kInf, {},
-                     "correction file (fringe calibrate -o; docs/calibration.md): its Lissajous stage replaces the nominal calibration "
-                     "(not with the calibration parameters), its table is subtracted from the angle"});
+        p.push_back(correction_param());
         return p;
     }
     void reset(const EstimatorConfig& cfg) override {
@@ -63,25 +61,7 @@ public:
         if (!(cfg.sample_rate_hz > 0)) throw ConfigError("sample_rate_hz", "must be positive");
         fs_ = cfg.sample_rate_hz;
         cal_ = nominal_calibration(cfg.encoder, p);
-        corr_.reset();
-        if (p.json().contains("correction") && !p.json().at("correction").is_null()) {
-            try {
-                corr_ = std::make_unique<Correction>(Correction::load(p.string("correction")));
-            } catch (const ConfigError& e) {
-                throw e.prefixed("params");
-            }
-            if (corr_->has_lissajous) {
-                for (const char* k : {"offset_sin_v", "offset_cos_v", "amplitude_sin_v", "amplitude_cos_v", "quadrature_error_rad"})
-                    if (p.optional_number(k))
-                        throw ConfigError(std::string("params.") + k, "the correction file has a Lissajous stage: give one or the other");
-                cal_.offset_sin_v = corr_->offset_sin_v;
-                cal_.offset_cos_v = corr_->offset_cos_v;
-                cal_.amplitude_sin_v = corr_->amplitude_sin_v;
-                cal_.amplitude_cos_v = corr_->amplitude_cos_v;
-                cal_.quadrature_error_rad = corr_->quadrature_error_rad;
-                cal_.prepare();
-            }
-        }
+        corr_ = correction_from_params(p, cal_);
         uw_.reset();
         have_prev_ = false;
     }

@@ -1,5 +1,6 @@
 #include "correction.hpp"
 
+#include "common.hpp"
 #include "signal_gen/base/config.hpp"
 
 #include <cmath>
@@ -94,6 +95,34 @@ Correction Correction::from_json(const nlohmann::json& j) {
     }
     c.table = number_array(j, "table_rad", p);
     if (j.contains("offset_rad")) c.offset_rad = number(j, "offset_rad", p);
+    return c;
+}
+
+fringe::ParamInfo correction_param() {
+    return {"correction", "", ParamType::String, nullptr, -kInf, kInf, {},
+            "correction file (fringe calibrate -o; docs/calibration.md): its Lissajous stage replaces the nominal calibration "
+            "(not with the calibration parameters), its offset and table are subtracted from the angle"};
+}
+
+std::unique_ptr<Correction> correction_from_params(const fringe::Params& p, Calibration& cal) {
+    if (!p.json().contains("correction") || p.json().at("correction").is_null()) return nullptr;
+    std::unique_ptr<Correction> c;
+    try {
+        c = std::make_unique<Correction>(Correction::load(p.string("correction")));
+    } catch (const ConfigError& e) {
+        throw e.prefixed("params");
+    }
+    if (c->has_lissajous) {
+        for (const char* k : {"offset_sin_v", "offset_cos_v", "amplitude_sin_v", "amplitude_cos_v", "quadrature_error_rad"})
+            if (p.optional_number(k))
+                throw ConfigError(std::string("params.") + k, "the correction file has a Lissajous stage: give one or the other");
+        cal.offset_sin_v = c->offset_sin_v;
+        cal.offset_cos_v = c->offset_cos_v;
+        cal.amplitude_sin_v = c->amplitude_sin_v;
+        cal.amplitude_cos_v = c->amplitude_cos_v;
+        cal.quadrature_error_rad = c->quadrature_error_rad;
+        cal.prepare();
+    }
     return c;
 }
 

@@ -18,10 +18,13 @@
 //     c(phi)): the error's mean against a truth (0 when there was none to measure it against).
 #pragma once
 
+#include "signal_gen/base/params.hpp"
+
 #include <nlohmann/json.hpp>
 
 #include <cmath>
 
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -62,5 +65,12 @@ struct Correction {
     static Correction from_json(const nlohmann::json& j);
     static Correction load(const std::string& path);
 };
+
+struct Calibration;
+// The estimators' parameter correction=FILE.
+fringe::ParamInfo correction_param();
+// Reads params "correction" (null: none); a Lissajous stage replaces cal (prepared), and a
+// calibration parameter beside it is refused. Throws ConfigError naming params.correction.
+std::unique_ptr<Correction> correction_from_params(const fringe::Params& p, Calibration& cal);
 
 }  // namespace fringe::est

@@ -49,9 +49,9 @@ void write_capture(const Scenario& gen, std::size_t n, const std::filesystem::pa
 }
 
 // atan2 on a capture, told `told` about the encoder, with params; the lane's metrics and bounds.
-json atan2_on(const std::filesystem::path& cap, const EncoderProfile& told, json params = json::object()) {
+json atan2_on(const std::filesystem::path& cap, const EncoderProfile& told, json params = json::object(), const std::string& estimator = "atan2") {
     CaptureRunOptions o;
-    o.estimator = "atan2";
+    o.estimator = estimator;
     o.capture_path = cap.string();
     o.encoder = told;
     o.params = std::move(params);
@@ -249,6 +249,14 @@ TEST_CASE("calibration: the paper's 1.6 % duty-cycle signal, a 64-entry table fr
     CHECK(rms_before == Approx(1.78e-2).epsilon(0.02));
     CHECK(rms_after < 2 * crb);
     CHECK(rms_after == Approx(r.predicted_rms_rad).epsilon(0.15));
+    // pll2 tracks the corrected phase of the signals: its error drops with atan2's, and its loop
+    // filters the noise below the per-sample bound.
+    const json pll_before = atan2_on(b, gen.encoder, json::object(), "pll2");
+    const json pll_after = atan2_on(b, gen.encoder, {{"correction", corr.string()}}, "pll2");
+    const double pb = pll_before["metrics"]["rms"]["rad"].get<double>(), pa = pll_after["metrics"]["rms"]["rad"].get<double>();
+    INFO("pll2 rms before " << pb << " after " << pa);
+    CHECK(pa < pb / 20);
+    CHECK(pa < 2 * crb);
 }
 
 TEST_CASE("calibration: the 1.6 % duty-cycle signal, calibrated from a capture without truth (self-referenced), within 3x of the per-sample CRB on another", "[calibration][capture][selfref]") {
