@@ -1,10 +1,13 @@
 // atan2 (nominal calibration) and atan2-ellipse (Heydemann correction), MODEL.md 4.1.
 #include "common.hpp"
+#include "correction.hpp"
+#include "ellipse.hpp"
 #include "registry_parts.hpp"
 
 #include <Eigen/Dense>
 
 #include <algorithm>
+#include <memory>
 
 namespace fringe::est {
 
@@ -13,8 +16,11 @@ namespace {
 // Per block: normalise and atan2 (vectorised), then unwrap serially with an integer turn
 // count. omega is the first difference of theta times fs (a memoryless estimator has no
 // better rate estimate; it is noisy by nature).
+// With a correction (docs/calibration.md), its periodic part is subtracted from each wrapped
+// angle before unwrapping; without one the loop is the plain atan2's.
 void atan2_block(const Calibration& cal, InputSpan in, OutputSpan out, Unwrapper& uw,
-                 double& prev_theta, bool& have_prev, double fs, std::uint8_t valid) {
+                 double& prev_theta, bool& have_prev, double fs, std::uint8_t valid,
+                 const Correction* corr = nullptr) {
     const std::size_t n = in.size();
     const double* __restrict s = in.sin_v.data();
     const double* __restrict c = in.cos_v.data();
@@ -25,6 +31,13 @@ void atan2_block(const Calibration& cal, InputSpan in, OutputSpan out, Unwrapper
         const double sn = (s[i] - os) * inv_as;
         const double cn = ((c[i] - oc) * inv_ac + sn * sin_d) * inv_cos_d;
         th[i] = fast_atan2(sn, cn);
+    }
+    if (corr) {
+        const double off = corr->offset_rad;
+        if (!corr->table.empty())
+            for (std::size_t i = 0; i < n; ++i) th[i] -= off + corr->table_value(th[i]);
+        else
+            for (std::size_t i = 0; i < n; ++i) th[i] -= off + corr->harmonic_value(th[i]);
     }
     for (std::size_t i = 0; i < n; ++i) {
         const double t = uw(th[i]);
@@ -38,75 +51,38 @@ void atan2_block(const Calibration& cal, InputSpan in, OutputSpan out, Unwrapper
 
 class Atan2 final : public Estimator {
 public:
-    static std::vector<ParamInfo> params() { return calibration_params(); }
+    static std::vector<ParamInfo> params() {
+        auto p = calibration_params();
+        p.push_back(correction_param());
+        return p;
+    }
     void reset(const EstimatorConfig& cfg) override {
         const Params p = resolve_params(params(), cfg.params);
         if (!(cfg.sample_rate_hz > 0)) throw ConfigError("sample_rate_hz", "must be positive");
         fs_ = cfg.sample_rate_hz;
         cal_ = nominal_calibration(cfg.encoder, p);
+        corr_ = correction_from_params(p, cal_);
         uw_.reset();
         have_prev_ = false;
     }
     void process(InputSpan in, OutputSpan out) override {
-        atan2_block(cal_, in, out, uw_, prev_, have_prev_, fs_, 1);
+        atan2_block(cal_, in, out, uw_, prev_, have_prev_, fs_, 1, corr_.get());
     }
     BoundClass bound_class() const override { return BoundClass::Memoryless; }
-    nlohmann::json state() const override { return {{"calibration", cal_.to_json()}}; }
+    nlohmann::json state() const override {
+        nlohmann::json j{{"calibration", cal_.to_json()}};
+        if (corr_) j["correction"] = {{"table_entries", corr_->table.size()}, {"harmonics", corr_->cos_k.size()}};
+        return j;
+    }
 
 private:
     double fs_ = 1;
     Calibration cal_;
+    std::unique_ptr<Correction> corr_;
     Unwrapper uw_;
     double prev_ = 0;
     bool have_prev_ = false;
 };
-
-// Heydemann: least squares on A c^2 + B cs + C s^2 + D c + E s = 1 (the origin lies inside
-// the ellipse whenever the offsets are below the amplitudes), then the centre, the
-// normalised quadratic form and (MODEL.md 4.1) sin(delta) = b'/(2 sqrt(a'c')),
-// A_c = 1/(cos(delta) sqrt(a')), A_s = 1/(cos(delta) sqrt(c')).
-struct ConicAccumulator {
-    Eigen::Matrix<double, 5, 5> M = Eigen::Matrix<double, 5, 5>::Zero();
-    Eigen::Matrix<double, 5, 1> v = Eigen::Matrix<double, 5, 1>::Zero();
-    double points = 0;  // effective number of points
-    void add(double s, double c, double keep = 1.0) {
-        Eigen::Matrix<double, 5, 1> m;
-        m << c * c, c * s, s * s, c, s;
-        M = keep * M + m * m.transpose();
-        v = keep * v + m;
-        points = keep * points + 1.0;
-    }
-};
-
-// Returns an empty string on success, else why the fit is rejected.
-std::string fit_ellipse(const ConicAccumulator& acc, Calibration& out) {
-    if (acc.points < 6) return "too few points";
-    Eigen::LDLT<Eigen::Matrix<double, 5, 5>> ldlt(acc.M);
-    if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return "normal equations not positive definite";
-    const Eigen::Matrix<double, 5, 1> p = ldlt.solve(acc.v);
-    // A singular fit (all points at one phase) shows as a tiny pivot.
-    const auto d = ldlt.vectorD();
-    if (!(d.minCoeff() > 1e-12 * d.maxCoeff())) return "degenerate (no motion over the calibration window?)";
-    const double A = p(0), B = p(1), C = p(2), D = p(3), E = p(4);
-    const double det = 4 * A * C - B * B;
-    if (!(det > 0)) return "conic is not an ellipse";
-    const double c0 = (-2 * C * D + B * E) / det, s0 = (B * D - 2 * A * E) / det;
-    const double k = 1.0 + A * c0 * c0 + B * c0 * s0 + C * s0 * s0;
-    if (!(k > 0)) return "ellipse does not enclose its centre";
-    const double a1 = A / k, b1 = B / k, c1 = C / k;
-    const double sd = b1 / (2 * std::sqrt(a1 * c1));
-    if (!(std::fabs(sd) < 0.9)) return "quadrature error beyond 64 degrees";
-    const double cd = std::sqrt(1 - sd * sd);
-    Calibration cal;
-    cal.offset_cos_v = c0;
-    cal.offset_sin_v = s0;
-    cal.amplitude_cos_v = 1.0 / (cd * std::sqrt(a1));
-    cal.amplitude_sin_v = 1.0 / (cd * std::sqrt(c1));
-    cal.quadrature_error_rad = std::asin(sd);
-    cal.prepare();
-    out = cal;
-    return {};
-}
 
 class Atan2Ellipse final : public Estimator {
 public:
@@ -216,6 +192,35 @@ private:
 };
 
 }  // namespace
+
+std::string fit_ellipse(const ConicAccumulator& acc, Calibration& out) {
+    if (acc.points < 6) return "too few points";
+    Eigen::LDLT<Eigen::Matrix<double, 5, 5>> ldlt(acc.M);
+    if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return "normal equations not positive definite";
+    const Eigen::Matrix<double, 5, 1> p = ldlt.solve(acc.v);
+    // A singular fit (all points at one phase) shows as a tiny pivot.
+    const auto d = ldlt.vectorD();
+    if (!(d.minCoeff() > 1e-12 * d.maxCoeff())) return "degenerate (no motion over the calibration window?)";
+    const double A = p(0), B = p(1), C = p(2), D = p(3), E = p(4);
+    const double det = 4 * A * C - B * B;
+    if (!(det > 0)) return "conic is not an ellipse";
+    const double c0 = (-2 * C * D + B * E) / det, s0 = (B * D - 2 * A * E) / det;
+    const double k = 1.0 + A * c0 * c0 + B * c0 * s0 + C * s0 * s0;
+    if (!(k > 0)) return "ellipse does not enclose its centre";
+    const double a1 = A / k, b1 = B / k, c1 = C / k;
+    const double sd = b1 / (2 * std::sqrt(a1 * c1));
+    if (!(std::fabs(sd) < 0.9)) return "quadrature error beyond 64 degrees";
+    const double cd = std::sqrt(1 - sd * sd);
+    Calibration cal;
+    cal.offset_cos_v = c0;
+    cal.offset_sin_v = s0;
+    cal.amplitude_cos_v = 1.0 / (cd * std::sqrt(a1));
+    cal.amplitude_sin_v = 1.0 / (cd * std::sqrt(c1));
+    cal.quadrature_error_rad = std::asin(sd);
+    cal.prepare();
+    out = cal;
+    return {};
+}
 
 void register_arctangent(std::vector<EstimatorInfo>& r) {
     r.push_back({"atan2", "Arctangent with the nominal calibration (offsets, amplitudes, quadrature from the profile or none); memoryless",

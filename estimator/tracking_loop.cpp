@@ -8,6 +8,7 @@
 // (the error must pass pi/2). Then the sample is invalid, the event is counted and the loop
 // re-acquires from atan2, its turn count taken nearest the phase it last held, extrapolated.
 #include "common.hpp"
+#include "correction.hpp"
 #include "registry_parts.hpp"
 
 namespace fringe::est {
@@ -23,6 +24,7 @@ public:
         p.push_back({"damping", "", ParamType::Number, 0.70710678118654752, 0.05, 10, {},
                      "damping ratio zeta; 1/sqrt(2) makes the loop the steady-state Kalman filter of the CV model"});
         p.push_back(acquisition_param());
+        p.push_back(correction_param());
         return p;
     }
     void reset(const EstimatorConfig& cfg) override {
@@ -35,6 +37,7 @@ public:
         k1_ = 2 * p.number("damping") * wn * T_;
         k2_ = wn * wn * T_;
         cal_ = nominal_calibration(cfg.encoder, p);
+        corr_ = correction_from_params(p, cal_);
         k_ = cal_.coeffs();
         acq_n_ = static_cast<std::size_t>(p.integer("acquisition_samples"));
         acq_.reset(acq_n_, cfg.sample_rate_hz, cal_);
@@ -72,8 +75,16 @@ public:
                 }
                 continue;
             }
-            const double sn = (s - k_.os) * k_.inv_as;
-            const double cn = ((c - k_.oc) * k_.inv_ac + sn * k_.sin_d) * k_.inv_cos_d;
+            double sn = (s - k_.os) * k_.inv_as;
+            double cn = ((c - k_.oc) * k_.inv_ac + sn * k_.sin_d) * k_.inv_cos_d;
+            if (corr_) {
+                // The loop tracks the corrected phase of the signals (docs/calibration.md).
+                const double phi = std::atan2(sn, cn);
+                const double r = std::hypot(sn, cn);
+                const double a = phi - corr_->offset_rad - (corr_->table.empty() ? corr_->harmonic_value(phi) : corr_->table_value(phi));
+                sn = r * std::sin(a);
+                cn = r * std::cos(a);
+            }
             // Off the recursion: the ratiometric normalisation depends on the input only.
             const double m2 = sn * sn + cn * cn;
             const double inv_mag = m2 > 0 ? 1.0 / std::sqrt(m2) : 0.0;
@@ -127,6 +138,7 @@ public:
 private:
     double T_ = 1, fn_ = 100, k1_ = 0, k2_ = 0;
     Calibration cal_;
+    std::unique_ptr<Correction> corr_;
     Acquisition acq_;
     double frac_ = 0, omega_ = 0;  // predicted phase in (-pi, pi] (+ turns), rate
     double pc_ = 1, ps_ = 0;       // cos, sin of the predicted phase

@@ -15,5 +15,6 @@ Command add_board_sim(CLI::App& app);
 Command add_devices(CLI::App& app);
 Command add_instrument_sim(CLI::App& app);
 Command add_metrics(CLI::App& app);
+Command add_calibrate(CLI::App& app);
 
 }  // namespace fringe::cli

@@ -1,0 +1,141 @@
+#include "correction.hpp"
+
+#include "common.hpp"
+#include "signal_gen/base/config.hpp"
+
+#include <cmath>
+#include <fstream>
+
+namespace fringe::est {
+
+namespace {
+
+constexpr double kTwoPiC = 6.283185307179586476925;
+
+std::vector<double> number_array(const nlohmann::json& j, const char* key, const std::string& path) {
+    std::vector<double> v;
+    if (!j.contains(key)) return v;
+    const auto& a = j.at(key);
+    if (!a.is_array()) throw ConfigError(path + "." + key, "must be an array of numbers");
+    for (const auto& x : a) {
+        if (!x.is_number() || !std::isfinite(x.get<double>())) throw ConfigError(path + "." + key, "must be an array of finite numbers");
+        v.push_back(x.get<double>());
+    }
+    return v;
+}
+
+double number(const nlohmann::json& j, const char* key, const std::string& path) {
+    if (!j.contains(key) || !j.at(key).is_number() || !std::isfinite(j.at(key).get<double>()))
+        throw ConfigError(path + "." + key, "must be a finite number");
+    return j.at(key).get<double>();
+}
+
+}  // namespace
+
+double Correction::harmonic_value(double phi) const {
+    double v = 0;
+    for (std::size_t k = 0; k < cos_k.size(); ++k) {
+        const double a = static_cast<double>(k + 1) * phi;
+        v += cos_k[k] * std::cos(a) + sin_k[k] * std::sin(a);
+    }
+    return v;
+}
+
+void Correction::tabulate(std::size_t n) {
+    table.assign(n, 0.0);
+    for (std::size_t i = 0; i < n; ++i) table[i] = harmonic_value(kTwoPiC * static_cast<double>(i) / static_cast<double>(n));
+}
+
+nlohmann::json Correction::to_json() const {
+    nlohmann::json j{{"schema", "fringe.correction"},
+                     {"schema_version", 1},
+                     {"sign", "subtracted: theta_corrected = phi - offset_rad - c(phi), c = estimate minus truth at the angle phi read"},
+                     {"interpolation", "linear between entries; entry i at 2*pi*i/N; entry N = entry 0"}};
+    if (has_lissajous)
+        j["lissajous"] = {{"offset_sin_v", offset_sin_v},       {"offset_cos_v", offset_cos_v},
+                          {"amplitude_sin_v", amplitude_sin_v}, {"amplitude_cos_v", amplitude_cos_v},
+                          {"gain_ratio_sin_to_cos", amplitude_sin_v / amplitude_cos_v},
+                          {"quadrature_error_rad", quadrature_error_rad}};
+    nlohmann::json h = nlohmann::json::array();
+    for (std::size_t k = 0; k < cos_k.size(); ++k) h.push_back({{"order", k + 1}, {"cos_rad", cos_k[k]}, {"sin_rad", sin_k[k]}});
+    j["harmonics"] = std::move(h);
+    j["table_rad"] = table;
+    j["offset_rad"] = offset_rad;
+    return j;
+}
+
+Correction Correction::from_json(const nlohmann::json& j) {
+    const std::string p = "correction";
+    if (!j.is_object()) throw ConfigError(p, "must be a JSON object");
+    if (j.value("schema", std::string()) != "fringe.correction") throw ConfigError(p + ".schema", "must be \"fringe.correction\"");
+    Correction c;
+    if (j.contains("lissajous")) {
+        const auto& l = j.at("lissajous");
+        const std::string lp = p + ".lissajous";
+        if (!l.is_object()) throw ConfigError(lp, "must be an object");
+        c.has_lissajous = true;
+        c.offset_sin_v = number(l, "offset_sin_v", lp);
+        c.offset_cos_v = number(l, "offset_cos_v", lp);
+        c.amplitude_sin_v = number(l, "amplitude_sin_v", lp);
+        c.amplitude_cos_v = number(l, "amplitude_cos_v", lp);
+        c.quadrature_error_rad = number(l, "quadrature_error_rad", lp);
+        if (!(c.amplitude_sin_v > 0) || !(c.amplitude_cos_v > 0)) throw ConfigError(lp, "amplitudes must be positive");
+        if (!(std::fabs(c.quadrature_error_rad) < kTwoPiC / 4)) throw ConfigError(lp + ".quadrature_error_rad", "must be within (-pi/2, pi/2)");
+    }
+    if (j.contains("harmonics")) {
+        const auto& h = j.at("harmonics");
+        if (!h.is_array()) throw ConfigError(p + ".harmonics", "must be an array");
+        for (std::size_t k = 0; k < h.size(); ++k) {
+            const std::string hp = p + ".harmonics[" + std::to_string(k) + "]";
+            if (!h[k].is_object() || h[k].value("order", 0) != static_cast<int>(k + 1))
+                throw ConfigError(hp + ".order", "orders must be 1, 2, 3, ... in turn");
+            c.cos_k.push_back(number(h[k], "cos_rad", hp));
+            c.sin_k.push_back(number(h[k], "sin_rad", hp));
+        }
+    }
+    c.table = number_array(j, "table_rad", p);
+    if (j.contains("offset_rad")) c.offset_rad = number(j, "offset_rad", p);
+    return c;
+}
+
+fringe::ParamInfo correction_param() {
+    return {"correction", "", ParamType::String, nullptr, -kInf, kInf, {},
+            "correction file (fringe calibrate -o; docs/calibration.md): its Lissajous stage replaces the nominal calibration "
+            "(not with the calibration parameters), its offset and table are subtracted from the angle"};
+}
+
+std::unique_ptr<Correction> correction_from_params(const fringe::Params& p, Calibration& cal) {
+    if (!p.json().contains("correction") || p.json().at("correction").is_null()) return nullptr;
+    std::unique_ptr<Correction> c;
+    try {
+        c = std::make_unique<Correction>(Correction::load(p.string("correction")));
+    } catch (const ConfigError& e) {
+        throw e.prefixed("params");
+    }
+    if (c->has_lissajous) {
+        for (const char* k : {"offset_sin_v", "offset_cos_v", "amplitude_sin_v", "amplitude_cos_v", "quadrature_error_rad"})
+            if (p.optional_number(k))
+                throw ConfigError(std::string("params.") + k, "the correction file has a Lissajous stage: give one or the other");
+        cal.offset_sin_v = c->offset_sin_v;
+        cal.offset_cos_v = c->offset_cos_v;
+        cal.amplitude_sin_v = c->amplitude_sin_v;
+        cal.amplitude_cos_v = c->amplitude_cos_v;
+        cal.quadrature_error_rad = c->quadrature_error_rad;
+        cal.prepare();
+    }
+    return c;
+}
+
+Correction Correction::load(const std::string& path) {
+    std::ifstream f(path);
+    if (!f) throw ConfigError("correction", "cannot open " + path);
+    nlohmann::json j;
+    try {
+        f >> j;
+    } catch (const nlohmann::json::exception& e) {
+        throw ConfigError("correction", path + ": not JSON (" + e.what() + ")");
+    }
+    return from_json(j);
+}
+
+}  // namespace fringe::est

@@ -1,0 +1,145 @@
+#include "calibrate.hpp"
+
+#include "drivers/capture_file.hpp"
+#include "server/analysis/calibration.hpp"
+#include "server/engine/capture_run.hpp"
+#include "signal_gen/fastmath.hpp"
+
+#include <stdexcept>
+
+namespace fringe {
+
+using nlohmann::json;
+
+namespace {
+
+// Without truth the zero of the angle is not observable, but the Lissajous stage moves it (the
+// ellipse fit of a distorted signal is biased): the offset that keeps the corrected angle's mean
+// where the estimator's, with the calibration it is told, had it over the capture.
+double kept_zero(const CalibrateOptions& o, const est::Correction& c) {
+    CaptureReader reader(o.capture_path);
+    std::optional<EncoderProfile> told = o.encoder;
+    if (!told && reader.meta().is_object() && reader.meta().contains("encoder"))
+        told = encoder_from_json(reader.meta()["encoder"], "capture.encoder");
+    const est::Calibration nominal = est::nominal_calibration(told, resolve_params(est::calibration_params(), json::object()));
+    est::Calibration lis;
+    lis.offset_sin_v = c.offset_sin_v;
+    lis.offset_cos_v = c.offset_cos_v;
+    lis.amplitude_sin_v = c.amplitude_sin_v;
+    lis.amplitude_cos_v = c.amplitude_cos_v;
+    lis.quadrature_error_rad = c.quadrature_error_rad;
+    lis.prepare();
+    CaptureData d;
+    double sum = 0;
+    std::uint64_t n = 0;
+    while (reader.read(65536, d))
+        for (std::size_t i = 0; i < d.size(); ++i) {
+            double sn, cn, sn0, cn0;
+            lis.normalise(d.sin_v[i], d.cos_v[i], sn, cn);
+            nominal.normalise(d.sin_v[i], d.cos_v[i], sn0, cn0);
+            const double phi = std::atan2(sn, cn);
+            sum += wrap_pi(phi - c.table_value(phi) - std::atan2(sn0, cn0));
+            ++n;
+        }
+    return n ? sum / static_cast<double>(n) : 0.0;
+}
+
+}  // namespace
+
+CalibrateResult calibrate_capture(const CalibrateOptions& o) {
+    if (o.estimator != "atan2") throw ConfigError("estimator", "only atan2 can be calibrated so far");
+    CalibrateResult res;
+    json params = json::object();
+    json lis;
+    if (o.lissajous) {
+        LissajousIdentifier id;
+        CaptureReader reader(o.capture_path);
+        CaptureData d;
+        while (reader.read(65536, d)) id.add(d.size(), d.sin_v.data(), d.cos_v.data());
+        est::Calibration cal;
+        const std::string why = id.finish(cal);
+        if (!why.empty()) throw std::runtime_error("ellipse fit of the signals rejected: " + why);
+        auto& c = res.correction;
+        c.has_lissajous = true;
+        c.offset_sin_v = cal.offset_sin_v;
+        c.offset_cos_v = cal.offset_cos_v;
+        c.amplitude_sin_v = cal.amplitude_sin_v;
+        c.amplitude_cos_v = cal.amplitude_cos_v;
+        c.quadrature_error_rad = cal.quadrature_error_rad;
+        params = cal.to_json();
+        lis = {{"method", "Heydemann ellipse fit"}, {"points", id.points()}};
+    }
+    CaptureRunOptions ro;
+    ro.capture_path = o.capture_path;
+    ro.estimator = o.estimator;
+    ro.params = params;
+    ro.encoder = o.encoder;
+    ro.settle_s = o.settle_s;
+    const RunReport rep = run_capture(ro);
+    if (rep.status != RunStatus::Done || rep.estimators.empty())
+        throw std::runtime_error("the run of " + o.estimator + " on the capture failed: " + rep.error);
+    const json lane = rep.estimators.front();
+    const json& m = lane.at("metrics");
+    std::vector<ErrorHarmonic> h;
+    double mean = 0;
+    json rests;
+    if (m.contains("harmonics") && m.at("harmonics").is_array() && !m.at("harmonics").empty()) {
+        res.source = "truth";
+        for (const auto& x : m.at("harmonics"))
+            h.push_back({x.at("order").get<int>(), x.at("amplitude").at("rad").get<double>(), x.at("phase_rad").get<double>()});
+        mean = m.at("mean").at("rad").get<double>();
+        res.before_rms_rad = m.at("rms").at("rad").get<double>();
+        res.noise_rms_rad = m.at("harmonic_analysis").at("broadband_rms_rad").get<double>();
+        rests = {{"scored_samples", m.at("evidence").at("scored_samples")}, {"scored_cycles", m.at("evidence").at("scored_cycles")},
+                 {"orders_fitted", m.at("harmonic_analysis").at("orders_fitted")}};
+    } else {
+        const json sr = lane.value("analysers", json::object()).value("self_reference", json());
+        if (!sr.is_object() || !sr.value("measured", false))
+            throw std::runtime_error("the capture has no truth and no self-referenced error: " +
+                                     (sr.is_object() ? sr.value("why_not", std::string("not measured")) : std::string("not measured")));
+        res.source = "self_reference";
+        for (const auto& x : sr.at("harmonics"))
+            h.push_back({x.at("order").get<int>(), x.at("amplitude_rad").get<double>(), x.at("phase_rad").get<double>()});
+        mean = sr.at("mean_vs_reference_rad").get<double>();
+        res.before_rms_rad = sr.at("rms_rad").get<double>();
+        res.noise_rms_rad = sr.at("residual_rms_rad").get<double>();
+        rests = {{"windows", sr.at("windows")}, {"cycles", sr.at("cycles")}, {"samples", sr.at("samples")},
+                 {"orders_fitted", h.size()}};
+    }
+    PeriodicOptions po;
+    po.table_size = o.table_size;
+    po.harmonics = o.harmonics;
+    PeriodicFit f;
+    try {
+        f = periodic_correction(h, mean, po);
+    } catch (const std::invalid_argument& e) {
+        throw std::runtime_error(e.what());
+    }
+    res.correction.cos_k = f.correction.cos_k;
+    res.correction.sin_k = f.correction.sin_k;
+    res.correction.table = f.correction.table;
+    // Against a truth the error's mean is an error too (the ellipse fit of a distorted signal
+    // shifts it); against the self-referenced reference it is the signals' phase convention.
+    if (res.source == "truth") res.correction.offset_rad = mean;
+    else if (res.correction.has_lissajous) res.correction.offset_rad = kept_zero(o, res.correction);
+    res.periodic_rms_rad = f.error_rms_rad;
+    res.table_residual_rms_rad = f.table_residual_rms_rad;
+    res.predicted_rms_rad = predicted_residual_rad(f.table_residual_rms_rad, res.noise_rms_rad);
+    if (lane.contains("bounds") && lane.at("bounds").contains("per_sample_crb_rad") && lane.at("bounds").at("per_sample_crb_rad").is_number())
+        res.per_sample_crb_rad = lane.at("bounds").at("per_sample_crb_rad").get<double>();
+    res.facts = {{"capture", o.capture_path},
+                 {"estimator", o.estimator},
+                 {"error_source", res.source},
+                 {"lissajous", lis},
+                 {"record", rests},
+                 {"before_rms_rad", res.before_rms_rad},
+                 {"periodic_rms_rad", res.periodic_rms_rad},
+                 {"max_error_slope", f.max_slope},
+                 {"table_residual_rms_rad", res.table_residual_rms_rad},
+                 {"noise_rms_rad", res.noise_rms_rad},
+                 {"predicted_rms_rad", res.predicted_rms_rad},
+                 {"per_sample_crb_rad", res.per_sample_crb_rad > 0 ? json(res.per_sample_crb_rad) : json()}};
+    return res;
+}
+
+}  // namespace fringe

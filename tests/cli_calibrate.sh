@@ -1,0 +1,61 @@
+#!/usr/bin/env bash
+# fringe calibrate through the real executable (docs/calibration.md): a correction from one
+# capture of the 1.6 % duty-cycle fixture, its CSV and C header, and atan2 with it on another
+# capture within 2x of the per-sample CRB; bad input exits 2 and writes nothing.
+set -euo pipefail
+FRINGE="$1"; SRC="$2"
+PY=/usr/bin/python3
+dir=$(mktemp -d); trap 'rm -rf "$dir"' EXIT
+fail() { echo "FAIL: $*" >&2; exit 1; }
+ok() { echo "ok - $*"; }
+
+"$FRINGE" gen "$SRC/fixtures/scenarios/paper-duty1p6.json" -o "$dir/a.fcap" -q --seed 1
+"$FRINGE" gen "$SRC/fixtures/scenarios/paper-duty1p6.json" -o "$dir/b.fcap" -q --seed 2
+out=$("$FRINGE" calibrate "$dir/a.fcap" -o "$dir/corr.json" --csv "$dir/corr.csv" --c-header "$dir/corr.h" --name enc_corr)
+echo "$out"
+for want in "truth-scored error" "Lissajous: offsets" "table: 64 entries, linear interpolation" "predicted residual:" "x the per-sample CRB"; do
+  echo "$out" | grep -qF "$want" || fail "summary lacks '$want'"
+done
+[ "$(head -1 "$dir/corr.csv")" = "angle_rad,correction_rad" ] || fail "CSV header"
+[ "$(wc -l < "$dir/corr.csv")" -eq 65 ] || fail "CSV rows"
+grep -q "static const int16_t enc_corr\[64\] = {" "$dir/corr.h" || fail "C header array"
+# The header compiles, and its entries are the CSV's at the declared LSB.
+cat > "$dir/check.c" <<'C'
+#include <stdio.h>
+#include "corr.h"
+int main(void) { for (int i = 0; i < enc_corr_size; ++i) printf("%.17g\n", enc_corr[i] * enc_corr_lsb_rad); return 0; }
+C
+if command -v cc > /dev/null; then
+  cc -std=c99 -Wall -Werror -o "$dir/check" "$dir/check.c" -I"$dir" || fail "the C header does not compile"
+  "$dir/check" > "$dir/from_h.txt"
+  $PY - "$dir/corr.csv" "$dir/from_h.txt" <<'PY' || fail "header entries differ from the CSV by more than half an LSB"
+import sys, math
+csv = [float(l.split(",")[1]) for l in open(sys.argv[1]).read().split("\n")[1:] if l]
+h = [float(l) for l in open(sys.argv[2]) if l.strip()]
+lsb = 2 * math.pi / 65536
+assert len(h) == len(csv) == 64
+assert all(abs(a - b) <= lsb / 2 + 1e-15 for a, b in zip(csv, h)), max(abs(a - b) for a, b in zip(csv, h))
+PY
+  ok "the C header compiles and holds the CSV's table at its LSB"
+fi
+
+"$FRINGE" estimate "$dir/b.fcap" --estimator atan2 --param "correction=$dir/corr.json" --report "$dir/r.json" -q
+$PY - "$dir/r.json" <<'PY' || fail "atan2 with the correction on another capture is not within 2x of the CRB"
+import json, sys
+e = json.load(open(sys.argv[1]))["estimators"][0]
+rms, crb = e["metrics"]["rms"]["rad"], e["bounds"]["per_sample_crb_rad"]
+print(f"atan2 corrected on another capture: {rms:.4g} rad rms, {rms / crb:.3f} x the per-sample CRB")
+assert rms < 2 * crb
+PY
+ok "verified on another capture"
+
+# Bad input exits 2 and writes nothing: an LSB at which the table does not fit int16.
+set +e; msg=$("$FRINGE" calibrate "$dir/a.fcap" -o "$dir/x.json" --c-header "$dir/x.h" --lsb-rad 1e-7 2>&1); rc=$?; set -e
+[ $rc -eq 2 ] && echo "$msg" | grep -q "does not fit int16" || fail "int16 overflow: exit $rc, $msg"
+[ ! -e "$dir/x.json" ] && [ ! -e "$dir/x.h" ] || fail "files written despite the error"
+ok "an entry that does not fit int16 is refused, nothing written"
+set +e; msg=$("$FRINGE" calibrate "$dir/a.fcap" -o "$dir/a.fcap" 2>&1); rc=$?; set -e
+[ $rc -eq 2 ] || fail "overwriting the capture: exit $rc, $msg"
+set +e; msg=$("$FRINGE" calibrate "$dir/a.fcap" -o "$dir/y.json" --estimator pll2 2>&1); rc=$?; set -e
+[ $rc -eq 2 ] && echo "$msg" | grep -q "only atan2" || fail "pll2: exit $rc, $msg"
+ok "the capture is not overwritten; an estimator it cannot calibrate is named"
