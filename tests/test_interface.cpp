@@ -191,6 +191,11 @@ TEST_CASE("interface: the HTML report's signal section: a gauge a band with its 
     const std::string shaft = html.substr(sp, html.find("</svg>", sp) - sp);
     CHECK(count(shaft, "<circle") == 2 * graded_run["signal"]["recording"]["first_period"].size());
     CHECK(shaft.find("1024 periods a revolution") != std::string::npos);
+    // And as a table: a row a recorded period, under its header row.
+    const auto tp = html.find("<details id=\"signal-recording\">");
+    REQUIRE(tp != std::string::npos);
+    const std::string table = html.substr(tp, html.find("</details>", tp) - tp);
+    CHECK(count(table, "<tr>") == 1 + graded_run["signal"]["recording"]["first_period"].size());
     SECTION("without a profile: not graded, no rings, said so") {
         const std::string plain = report_html(run(0.5, false));
         CHECK(plain.find("No interface profile: the figures are not graded") != std::string::npos);

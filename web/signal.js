@@ -381,6 +381,26 @@ function shaftPlot(parent, rec, lines) {
   return div;
 }
 
+// The recording as a table, folded (at most 2048 rows): each period's (or bucket's) figures.
+const REC_COLS = [['first_period', 'first period'], ['position_periods', 'place (periods)'], ['t_s', 't (s)'], ['vpp_a_v', 'Vpp A (V)'],
+  ['vpp_b_v', 'Vpp B (V)'], ['ab_ratio', 'A/B'], ['phase_deg', 'phase (deg)'], ['tv_a_deg', 'TV A (deg)'], ['tv_b_deg', 'TV B (deg)'],
+  ['offset_a_v', 'offset A (V)'], ['offset_b_v', 'offset B (V)']];
+function recordingTable(rec) {
+  const cols = REC_COLS.filter(([k]) => Array.isArray(rec[k]));
+  const n = rec.first_period.length;
+  const cell = (v) => (Number.isInteger(v) ? String(v) : finite(v) ? String(Number(v.toPrecision(6))) : '');
+  const details = h('details', { id: 'signal-recording' },
+    h('summary', {}, `Per-period recording as a table (${n} rows${rec.periods_per_point > 1 ? `, each the mean of ${rec.periods_per_point} periods` : ''})`));
+  // Built when opened: a closed table costs nothing.
+  details.addEventListener('toggle', () => {
+    if (!details.open || details.querySelector('table')) return;
+    details.append(h('div', { class: 'table-wrap' }, h('table', { class: 'recording' },
+      h('thead', {}, h('tr', {}, cols.map(([, t]) => h('th', {}, t)))),
+      h('tbody', {}, Array.from({ length: n }, (_, i) => h('tr', {}, cols.map(([k]) => h('td', { class: 'num' }, cell(rec[k][i])))))))));
+  });
+  return details;
+}
+
 // ---- the section -----------------------------------------------------------------------------
 
 // Into `section` (attached to the page, so the plots know their width): the signal page of
@@ -423,5 +443,6 @@ export function signalPage(section, r, mt) {
     for (const t of TRENDS) trend(plotsBox, t, rec, profile);
     const enc = r.scenario && r.scenario.encoder;
     shaftPlot(plotsBox, rec, enc && Number.isInteger(enc.lines_per_rev) ? enc.lines_per_rev : 0);
+    section.append(recordingTable(rec));
   } else plotsBox.append(h('p', { class: 'muted plot-note signal-rec-note' }, 'This report has no per-period recording.'));
 }

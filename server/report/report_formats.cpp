@@ -940,7 +940,42 @@ std::string signal_section_html(const json& r) {
         if (rec.value("periods_per_point", 1) > 1)
             h << "<p class=\"muted\">Each point is the mean of " << rec["periods_per_point"].dump() << " periods (the recording keeps at most 2048 points; against the shaft angle a point is placed at its first period's).</p>";
     }
-    h << "</div></div>\n";
+    h << "</div>\n";
+    // The recording as a table (folded: up to 2048 rows), the figures per period or bucket.
+    if (rec.is_object() && rec.value("first_period", json::array()).size() > 0) {
+        static const std::array<std::pair<const char*, const char*>, 11> kCols{{{"first_period", "first period"},
+                                                                               {"position_periods", "place (periods)"},
+                                                                               {"t_s", "t (s)"},
+                                                                               {"vpp_a_v", "Vpp A (V)"},
+                                                                               {"vpp_b_v", "Vpp B (V)"},
+                                                                               {"ab_ratio", "A/B"},
+                                                                               {"phase_deg", "phase (deg)"},
+                                                                               {"tv_a_deg", "TV A (deg)"},
+                                                                               {"tv_b_deg", "TV B (deg)"},
+                                                                               {"offset_a_v", "offset A (V)"},
+                                                                               {"offset_b_v", "offset B (V)"}}};
+        const std::size_t n = rec["first_period"].size();
+        h << "<details id=\"signal-recording\"><summary>Per-period recording as a table (" << n << " rows";
+        if (rec.value("periods_per_point", 1) > 1) h << ", each the mean of " << rec["periods_per_point"].dump() << " periods";
+        h << ")</summary><div class=\"table-wrap\"><table><tr>";
+        for (const auto& [key, title] : kCols)
+            if (rec.contains(key)) h << "<th>" << title << "</th>";
+        h << "</tr>\n";
+        for (std::size_t i = 0; i < n; ++i) {
+            h << "<tr>";
+            for (const auto& [key, title] : kCols) {
+                if (!rec.contains(key)) continue;
+                const json& v = rec[key].size() > i ? rec[key][i] : json();
+                char b[32] = "";
+                if (v.is_number_integer()) std::snprintf(b, sizeof b, "%s", v.dump().c_str());
+                else if (v.is_number()) std::snprintf(b, sizeof b, "%.6g", v.get<double>());  // a period's figure to 6 digits
+                h << "<td>" << b << "</td>";
+            }
+            h << "</tr>\n";
+        }
+        h << "</table></div></details>\n";
+    }
+    h << "</div>\n";
     return h.str();
 }
 

@@ -454,6 +454,12 @@ try {
   check(shaft.lines === lines && shaft.points === 2 * rec.first_period.length && shaft.circles === shaft.points
     && shaft.deg.every((v, i) => Math.abs(v - wantDeg[i]) < 1e-9),
   `amplitude against shaft angle: ${shaft.points} points (${lines} periods a revolution) at each period's place along the scale`);
+  // The recording as a table, built when opened: a row a recorded period.
+  await page.click('#signal-recording summary');
+  await page.waitForSelector('#signal-recording tbody tr', { timeout: 5000 }).catch(() => {});
+  const recRows = await page.$$eval('#signal-recording tbody tr', (trs) => trs.length);
+  check(recRows === rec.first_period.length, `the per-period recording opens as a table of ${recRows} rows`);
+  await page.click('#signal-recording summary');
   await (await page.$('#signal-page')).screenshot({ path: join(artifacts, 'views-signal-1280.png') });
   // Unticking "band edges in view" zooms to the periods: no edge drawn, the range the data's.
   await page.click('#trend-vpp .bands-toggle');
