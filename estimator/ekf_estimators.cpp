@@ -424,6 +424,7 @@ private:
 
 void add(std::vector<EstimatorInfo>& r, const std::string& name, const std::string& summary, Flavor f) {
     r.push_back({name, summary, ekf_params(f), [f] { return std::make_unique<EkfEstimator>(f); }});
+    r.back().traits.told_amplitude = true;
 }
 
 }  // namespace
@@ -443,6 +444,7 @@ void register_ekf(std::vector<EstimatorInfo>& r) {
     add(r, "ekf-selfcal",
         "Self-calibrating EKF: ideal-sine model with gain, offset, gain-mismatch and quadrature-error states; needs no distortion parameters. Use it when the encoder's Lissajous errors are unknown and its waveform is close to sinusoidal",
         {Variant::TwoChannel, Kind::Ideal, true});
+    r.back().traits.told_amplitude = false;  // its gain states start from the data
     add(r, "closed-loop", "Closed-loop converter of Fig. 9 simulated from the analog input: M-bit DAC of the EKF prediction, error amplified by 2^N, B-bit ADC, auto-ranging of N",
         {Variant::ClosedLoop, std::nullopt, false});
 }

@@ -9,7 +9,7 @@ using nlohmann::json;
 
 void to_json(json& j, const EstimatorInfo& e) {
     const auto& t = e.traits;
-    json traits{{"assumes_ideal_sinusoids", t.assumes_ideal_sinusoids}, {"child_process", t.child_process},
+    json traits{{"assumes_ideal_sinusoids", t.assumes_ideal_sinusoids}, {"told_amplitude", t.told_amplitude}, {"child_process", t.child_process},
                 {"learns_over_cycles", t.learns_over_cycles > 0 ? json(t.learns_over_cycles) : json()}};
     if (!t.told_param.empty()) traits["told_param"] = t.told_param;
     j = json{{"name", e.name}, {"summary", e.summary}, {"params", e.params}, {"traits", traits}};

@@ -94,6 +94,10 @@ struct EstimatorTraits {
     // Its measurement model is an ideal sinusoid pair: on a signal with harmonics (a diffraction
     // encoder) its error is the model mismatch, not noise (preflight "model_mismatch").
     bool assumes_ideal_sinusoids = false;
+    // Its measurement model takes the signals' amplitude from the encoder profile it is told (it
+    // has no gain state that starts from the data): told another amplitude than the signals
+    // have, it rejects them or lags (run warning "amplitude_mismatch").
+    bool told_amplitude = false;
     // Learns the waveform shape from the signal over about this many electrical cycles of motion
     // (0: does not learn); told_param names the boolean parameter that gives it the shape instead.
     double learns_over_cycles = 0;

@@ -210,3 +210,26 @@ TEST_CASE("interface: the HTML report's signal section: a gauge a band with its 
         CHECK(short_run["verdict"] != "PASS");
     }
 }
+
+TEST_CASE("a lane told another amplitude than the signals have is warned amplitude_mismatch (estimators whose model takes it from the profile)", "[interface][run][preflight]") {
+    // Signals of 0.5 V peak; ekf-ideal told a 1 V profile (its default), atan2 and ekf-selfcal
+    // (no amplitude from the profile) not warned; ekf-ideal told the signals' own profile not warned.
+    const json signals{{"name", "half"}, {"model", "ideal"}, {"lines_per_rev", 1024}, {"vmax_v", 0.5}, {"noise", {{"sigma_add_v", 2e-4}}}};
+    json told = signals;
+    told["vmax_v"] = 1.0;
+    const json j{{"name", "amplitude"}, {"encoder", signals}, {"motion", {{"kind", "constant"}, {"electrical_freq_hz", 200.0}}},
+                 {"sample_rate_hz", 50000}, {"duration_s", 0.2}, {"settle_s", 0.05}, {"seed", 3},
+                 {"device", "loopback:?dac_bits=16&adc_bits=16"},
+                 {"estimators", json::array({json{{"name", "ekf-ideal"}, {"label", "told-1V"}, {"encoder", told}},
+                                             json{{"name", "ekf-ideal"}, {"label", "told-right"}}, json{{"name", "atan2"}, {"encoder", told}},
+                                             json{{"name", "ekf-selfcal"}, {"encoder", told}}})}};
+    const json r = execute_run(scenario_from_json(j, kScenarios));
+    REQUIRE(r["status"] == "done");
+    std::vector<std::string> warned;
+    for (const auto& w : r["warnings"])
+        if (w["code"] == "amplitude_mismatch") {
+            warned.push_back(w["field"].get<std::string>());
+            CHECK_THAT(w["message"].get<std::string>(), Catch::Contains("told-1V is told a signal of 1 V peak") && Catch::Contains("measure 0.5 V peak"));
+        }
+    CHECK(warned == std::vector<std::string>{"estimators[0]"});
+}

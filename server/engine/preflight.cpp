@@ -21,9 +21,7 @@ std::string fmt(double v) {
     return b;
 }
 
-// Peak |v| of the noise-free channels over one electrical cycle (V), with the Lissajous
-// offsets and gains.
-double peak_signal_v(const EncoderProfile& enc) {
+double peak_signal_v_of(const EncoderProfile& enc) {
     MotionProfile still;
     Generator g(enc, still, 1.0, 0);
     double peak = 0;
@@ -36,6 +34,32 @@ double peak_signal_v(const EncoderProfile& enc) {
 }
 
 }  // namespace
+
+double peak_signal_v(const EncoderProfile& enc) { return peak_signal_v_of(enc); }
+
+std::vector<Finding> amplitude_findings(const Scenario& sc, const nlohmann::json& signal) {
+    std::vector<Finding> w;
+    if (!signal.is_object() || signal.value("periods", 0) == 0) return w;
+    const auto half_range = [&](const char* ch) {
+        const nlohmann::json c = signal.value(ch, nlohmann::json());
+        if (!c.is_object() || !c.value("max_v", nlohmann::json()).is_number() || !c.value("min_v", nlohmann::json()).is_number()) return 0.0;
+        return 0.5 * (c["max_v"].get<double>() - c["min_v"].get<double>());
+    };
+    const double measured_v = std::max(half_range("a"), half_range("b"));
+    if (!(measured_v > 0)) return w;
+    for (std::size_t i = 0; i < sc.estimators.size(); ++i) {
+        const auto& e = sc.estimators[i];
+        if (!est::traits_of(e.name).told_amplitude) continue;
+        const EncoderProfile& told = e.encoder ? *e.encoder : sc.encoder;
+        const double told_v = peak_signal_v_of(told);
+        if (!(told_v > 0) || (measured_v / told_v >= 0.8 && measured_v / told_v <= 1.25)) continue;
+        w.push_back({false, "amplitude_mismatch", "estimators[" + std::to_string(i) + "]",
+                     e.label + " is told a signal of " + fmt(told_v) + " V peak (its encoder profile" + (sc.encoder_known || e.encoder ? "" : ", none given: a default") +
+                         ") but the signals measure " + fmt(measured_v) + " V peak: its model rejects or misreads them; tell it the signals' encoder "
+                         "(vmax_v and the Lissajous gains) or use an estimator that learns the amplitude (ekf-selfcal, ekf-auto, atan2)"});
+    }
+    return w;
+}
 
 void to_json(nlohmann::json& j, const Finding& f) {
     j = {{"severity", f.error ? "error" : "warning"}, {"code", f.code}, {"field", f.field}, {"message", f.message}};
@@ -149,14 +173,14 @@ std::vector<Finding> preflight(const Scenario& sc, double spc, const dev::UriPar
             w.push_back({false, "double_quantisation", "encoder.adc.bits",
                          "the encoder profile has its own " + std::to_string(sc.encoder.adc.bits) + "-bit ADC and the device digitises again at " +
                              std::to_string(adc_bits) + " bits: the signal is quantised twice (use a profile with adc.bits = 0 for runs)"});
-        const double peak = peak_signal_v(sc.encoder) + 4 * sc.encoder.noise.sigma_add_v;
+        const double peak = peak_signal_v_of(sc.encoder) + 4 * sc.encoder.noise.sigma_add_v;
         if (peak >= range_v)
             w.push_back({false, "clipping", "device",
                          "the signal reaches " + fmt(peak) + " V (peak plus 4 sigma of noise) but the converters span +-" + fmt(range_v) +
                              " V: it clips"});
     }
     if (!sc.encoder.adc.ideal()) {
-        const double peak = peak_signal_v(sc.encoder);
+        const double peak = peak_signal_v_of(sc.encoder);
         if (peak >= sc.encoder.adc.max_v || -peak < sc.encoder.adc.min_v)
             w.push_back({false, "clipping", "encoder.adc", "the encoder's own ADC spans " + fmt(sc.encoder.adc.min_v) + ".." +
                                                               fmt(sc.encoder.adc.max_v) + " V but the signal reaches +-" + fmt(peak) + " V: it clips"});
@@ -172,13 +196,13 @@ std::vector<Finding> preflight_device(const Scenario& sc, const dev::DeviceInfo&
         w.push_back({false, "double_quantisation", "encoder.adc.bits",
                      "the encoder profile has its own ADC and " + d.driver + " digitises again: the signal is quantised twice"});
     if (c.known && c.adc_range_v > 0) {
-        const double peak = peak_signal_v(sc.encoder);
+        const double peak = peak_signal_v_of(sc.encoder);
         if (peak >= c.adc_range_v)
             w.push_back({false, "clipping", "device", "the signal reaches " + fmt(peak) + " V but the device's ADC spans +-" + fmt(c.adc_range_v) + " V"});
     }
     // A unipolar DAC (a LabJack's 0..5 V) with the signal at mid-scale has less room than its ADC.
     if (c.known && c.dac_range_v > 0 && c.dac_range_v != c.adc_range_v) {
-        const double peak = peak_signal_v(sc.encoder);
+        const double peak = peak_signal_v_of(sc.encoder);
         if (peak >= c.dac_range_v)
             w.push_back({false, "clipping", "device", "the signal reaches " + fmt(peak) + " V but the device's DAC spans +-" + fmt(c.dac_range_v) +
                                                           " V around the signal's zero"});

@@ -23,6 +23,16 @@ struct Finding {
     std::string field;    // the scenario key it is about
     std::string message;  // what and why, with the numbers
 };
+
+// Peak |v| of an encoder's noise-free channels over one electrical cycle (V), with its
+// Lissajous offsets and gains: the amplitude an estimator told this profile expects.
+double peak_signal_v(const EncoderProfile& enc);
+
+// After the run: each lane whose estimator takes the amplitude from its profile
+// (traits.told_amplitude) told a peak more than 25 % off the signals' measured peak (the
+// signal-quality figures: half of max - min of the fitted shape): warning "amplitude_mismatch".
+std::vector<Finding> amplitude_findings(const Scenario& sc, const nlohmann::json& signal);
+
 void to_json(nlohmann::json& j, const Finding& f);
 
 // Peak electrical rate over the run, as samples per electrical cycle at that rate (the

@@ -501,6 +501,7 @@ RunReport execute_run(RunPlan plan, const RunOptions& o) {
     Verdict verdict;
     report.alignment = alignment;
     report.signal = signal.to_json();
+    for (auto& f : amplitude_findings(sc, report.signal)) warnings.push_back(std::move(f));
     report.measurements = evaluate_limits(sc, estimators_json(report.estimators), status, verdict,
                                           json{{"alignment", report.alignment}, {"signal", report.signal}}, has_truth);
     report.status = status;
