@@ -145,7 +145,10 @@ std::string junit_xml(const json& r) {
             x << "        <property name=\"interval_95\" value=\"" << iv << "\"/>\n";
         if (m["limit"].contains("max")) x << "        <property name=\"max\" value=\"" << num(m["limit"]["max"]) << "\"/>\n";
         if (m["limit"].contains("min")) x << "        <property name=\"min\" value=\"" << num(m["limit"]["min"]) << "\"/>\n";
-        x << "        <property name=\"marginal_fraction\" value=\"" << num(m["limit"]["marginal_fraction"]) << "\"/>\n";
+        // An interface band's limit has no marginal fraction (its mounting band is the margin).
+        if (m["limit"].contains("marginal_fraction"))
+            x << "        <property name=\"marginal_fraction\" value=\"" << num(m["limit"]["marginal_fraction"]) << "\"/>\n";
+        if (m.value("grade", json()).is_string()) x << "        <property name=\"grade\" value=\"" << xml_escape(m["grade"].get<std::string>()) << "\"/>\n";
         x << "        <property name=\"outcome\" value=\"" << xml_escape(m["outcome"].get<std::string>()) << "\"/>\n";
         if (m.value("implicit", false)) x << "        <property name=\"evidence\" value=\"true\"/>\n";
         if (m.contains("reason")) x << "        <property name=\"reason\" value=\"" << xml_escape(m["reason"].get<std::string>()) << "\"/>\n";
