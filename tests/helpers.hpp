@@ -1,5 +1,6 @@
 #pragma once
 
+#include "drivers/capture_file.hpp"
 #include "signal_gen/encoder.hpp"
 #include "signal_gen/generator.hpp"
 #include "signal_gen/motion.hpp"
@@ -12,7 +13,23 @@
 #include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 namespace fringe::test {
+
+// n samples of a generator into a capture file: with its truth and encoder in the metadata, or
+// as a real encoder's t,sin,cos alone.
+inline void write_generated_capture(const EncoderProfile& enc, const MotionProfile& motion, double fs_hz, std::uint64_t seed, std::size_t n,
+                                    const std::filesystem::path& path, bool with_truth) {
+    Generator g(enc, motion, fs_hz, seed);
+    Block b;
+    b.resize(n, false);
+    g.generate(0, b);
+    const nlohmann::json meta = with_truth ? nlohmann::json{{"sample_rate_hz", fs_hz}, {"t0_s", 0.0}, {"encoder", enc}} : nlohmann::json{{"sample_rate_hz", fs_hz}};
+    CaptureWriter w(path.string(), CaptureColumns{with_truth, with_truth, false}, meta);
+    w.write(b);
+    w.close();
+}
 
 // A fresh folder under the system's temporary folder, removed with all it holds when the
 // object goes (also when a test fails).

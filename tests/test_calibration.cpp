@@ -37,15 +37,7 @@ est::Correction known() {
 double closed(double phi) { return 0.01 * std::cos(phi) + 0.02 * std::sin(2 * phi) - 0.003 * std::cos(3 * phi) + 0.004 * std::sin(3 * phi); }
 
 void write_capture(const Scenario& gen, std::size_t n, const std::filesystem::path& path, std::uint64_t seed, bool with_truth = true) {
-    Generator g(gen.encoder, gen.motion, gen.sample_rate_hz, seed);
-    Block b;
-    b.resize(n, false);
-    g.generate(0, b);
-    const json meta = with_truth ? json{{"sample_rate_hz", gen.sample_rate_hz}, {"t0_s", 0.0}, {"encoder", gen.encoder}}
-                                 : json{{"sample_rate_hz", gen.sample_rate_hz}};
-    CaptureWriter w(path.string(), CaptureColumns{with_truth, with_truth, false}, meta);
-    w.write(b);
-    w.close();
+    test::write_generated_capture(gen.encoder, gen.motion, gen.sample_rate_hz, seed, n, path, with_truth);
 }
 
 // atan2 on a capture, told `told` about the encoder, with params; the lane's metrics and bounds.

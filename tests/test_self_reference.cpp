@@ -231,15 +231,7 @@ namespace {
 // The paper fixture's signals, n samples, into a capture: with its truth and encoder, or as a
 // real encoder's t,sin,cos alone.
 void write_capture(const Scenario& gen, std::size_t n, const std::filesystem::path& path, bool with_truth) {
-    Generator g(gen.encoder, gen.motion, gen.sample_rate_hz, gen.seed);
-    Block b;
-    b.resize(n, false);
-    g.generate(0, b);
-    const json meta = with_truth ? json{{"sample_rate_hz", gen.sample_rate_hz}, {"t0_s", 0.0}, {"encoder", gen.encoder}}
-                                 : json{{"sample_rate_hz", gen.sample_rate_hz}};
-    CaptureWriter w(path.string(), CaptureColumns{with_truth, with_truth, false}, meta);
-    w.write(b);
-    w.close();
+    test::write_generated_capture(gen.encoder, gen.motion, gen.sample_rate_hz, gen.seed, n, path, with_truth);
 }
 }  // namespace
 
