@@ -1,0 +1,170 @@
+// The EKF's per-state-size implementations (private to estimator/): ekf.cpp dispatches on the
+// state size to one of ekf_states_*.cpp, each of which instantiates EkfN for its sizes. The
+// fixed-size Eigen code of every size in one file was the longest compile of the build (several
+// minutes under the sanitizers, with the other core idle); split, the sizes compile in parallel.
+#pragma once
+
+#include "ekf.hpp"
+
+#include "common.hpp"
+
+#include <Eigen/Dense>
+
+#include <cmath>
+#include <memory>
+
+namespace fringe::est {
+
+struct Ekf::Impl {
+    virtual ~Impl() = default;
+    virtual void init(const double* x0, const double* p0) = 0;
+    virtual void predict() = 0;
+    virtual bool update(const double z[2], int channels, const double* fold, double extra) = 0;
+    virtual void predict_measurement(double h[2]) const = 0;
+    virtual double x(int i) const = 0;
+    virtual double P(int i, int j) const = 0;
+    virtual int n() const = 0;
+    virtual bool covariance_ok(double* min_eig) const = 0;
+    long long turns = 0;
+};
+
+namespace ekf_detail {
+
+// Diagnostics only (not per sample): dynamic size, so the eigen solver is compiled once
+// rather than for every state size (defined in ekf.cpp).
+bool dynamic_covariance_ok(const Eigen::MatrixXd& P, double* min_eig);
+
+// Fixed sizes up to 7 states (fast per sample); one dynamic instantiation with fixed
+// capacity (no allocation) for 8..9 states keeps compile time and memory in check.
+template <int N, int MaxN = N>
+struct EkfN final : Ekf::Impl {
+    using Vec = Eigen::Matrix<double, N, 1, 0, MaxN, 1>;
+    using Mat = Eigen::Matrix<double, N, N, 0, MaxN, MaxN>;
+    using Mat2N = Eigen::Matrix<double, 2, N, 0, 2, MaxN>;
+    using MatN2 = Eigen::Matrix<double, N, 2, 0, MaxN, 2>;
+    using Row = Eigen::Matrix<double, 1, N, Eigen::RowMajor, 1, MaxN>;
+    int n_ = N;
+    Vec xs;
+    Mat Pm, F, Q;
+    const ChannelModel* model = nullptr;
+
+    EkfN(const Ekf::Options& o, const ChannelModel* m) : n_(o.layout.n), model(m) {
+        const double T = o.T_s;
+        xs.resize(n_);
+        Pm.resize(n_, n_);
+        F.setIdentity(n_, n_);
+        Q.setZero(n_, n_);
+        F(0, 1) = T;
+        if (o.kinematics == Kinematics::CV) {
+            Q(0, 0) = o.q_kin * T * T * T / 3; Q(0, 1) = Q(1, 0) = o.q_kin * T * T / 2; Q(1, 1) = o.q_kin * T;
+        } else {
+            const int a = o.layout.alpha;
+            F(0, a) = T * T / 2; F(1, a) = T;
+            const double q = o.q_kin;
+            Q(0, 0) = q * std::pow(T, 5) / 20; Q(0, 1) = Q(1, 0) = q * std::pow(T, 4) / 8;
+            Q(0, a) = Q(a, 0) = q * std::pow(T, 3) / 6; Q(1, 1) = q * std::pow(T, 3) / 3;
+            Q(1, a) = Q(a, 1) = q * T * T / 2; Q(a, a) = q * T;
+        }
+        const auto& L = o.layout;
+        if (L.gain >= 0) Q(L.gain, L.gain) = o.q_gain_per_s * T;
+        if (L.kappa >= 0) Q(L.kappa, L.kappa) = o.q_kappa_per_s * T;
+        if (L.off_s >= 0) Q(L.off_s, L.off_s) = o.q_offset_v2_per_s * T;
+        if (L.off_c >= 0) Q(L.off_c, L.off_c) = o.q_offset_v2_per_s * T;
+        if (L.eps >= 0) Q(L.eps, L.eps) = o.q_eps_per_s * T;
+        if (L.delta >= 0) Q(L.delta, L.delta) = o.q_delta_rad2_per_s * T;
+        xs.setZero();
+        Pm.setIdentity();
+    }
+    void init(const double* x0, const double* p0) override {
+        for (int i = 0; i < n_; ++i) xs(i) = x0[i];
+        Pm.setZero();
+        for (int i = 0; i < n_; ++i) Pm(i, i) = p0[i];
+        turns = 0;
+        rewrap();
+    }
+    void rewrap() {
+        if (xs(0) > kPi || xs(0) < -kPi) {
+            const double k = std::round(xs(0) / kTwoPi);
+            xs(0) -= kTwoPi * k;
+            turns += static_cast<long long>(k);
+        }
+    }
+    void predict() override {
+        xs = F * xs;
+        Pm = F * Pm * F.transpose() + Q;
+        rewrap();
+    }
+    void predict_measurement(double h[2]) const override {
+        double H[2][kMaxStates], v[2];
+        model->eval(xs.data(), h, H, v);
+    }
+    bool update(const double z[2], int channels, const double* fold, double extra) override {
+        double h[2], Ha[2][kMaxStates], v[2], R[3];
+        model->eval(xs.data(), h, Ha, v);
+        model->noise(v, extra, R);
+        if (channels == 3) {
+            Mat2N H(2, n_);
+            for (int i = 0; i < n_; ++i) { H(0, i) = Ha[0][i]; H(1, i) = Ha[1][i]; }
+            Eigen::Vector2d innov(z[0] - h[0], z[1] - h[1]);
+            Eigen::Matrix2d Rm;
+            Rm << R[0], R[1], R[1], R[2];
+            if (fold) {  // a signed permutation: same information, folded coordinates (ekf-rectified)
+                Eigen::Matrix2d Pf;
+                Pf << fold[0], fold[1], fold[2], fold[3];
+                innov = Pf * innov;
+                H = Pf * H;
+                Rm = Pf * Rm * Pf.transpose();
+            }
+            const Mat2N HP = H * Pm;
+            const Eigen::Matrix2d S = HP * H.transpose() + Rm;
+            // S^-1 for the 2x2 innovation covariance: positive definiteness checked first
+            // (Sylvester: S00 > 0 and det > 0, the condition under which its Cholesky factor
+            // exists), then the adjugate over the determinant, one division instead of the
+            // two square roots and divisions of a Cholesky solve on the per-sample path.
+            const double det = S(0, 0) * S(1, 1) - S(0, 1) * S(1, 0);
+            if (!(S(0, 0) > 0) || !(det > 1e-300)) return false;
+            const double inv_det = 1.0 / det;
+            Eigen::Matrix2d Sinv;
+            Sinv << S(1, 1) * inv_det, -S(0, 1) * inv_det, -S(1, 0) * inv_det, S(0, 0) * inv_det;
+            // an outlier (a glitch of 5 V or 1e300 in one sample): 100 standard deviations out
+            // and off the model by more than half the signal's radius, not taken in (it threw
+            // the state off by up to 3e-2 rad, or into divergence). Both: a filter whose model
+            // misses the signal's harmonics (ekf-ideal on a diffraction signal) sees 100 sigma
+            // every cycle, but never half the radius.
+            if (!(innov.dot(Sinv * innov) <= kOutlierNis) && !(innov.squaredNorm() <= 0.25 * (h[0] * h[0] + h[1] * h[1]))) return false;
+            const MatN2 K = (Sinv * HP).transpose();
+            xs += K * innov;
+            const Mat IKH = Mat::Identity(n_, n_) - K * H;
+            Pm = IKH * Pm * IKH.transpose() + K * Rm * K.transpose();  // Joseph form
+        } else {
+            const int row = channels == 1 ? 0 : 1;
+            Row H(1, n_);
+            for (int i = 0; i < n_; ++i) H(0, i) = Ha[row][i];
+            const double r = channels == 1 ? R[0] : R[2];
+            const Row HP = H * Pm;
+            const double S = HP.dot(H) + r;
+            if (!(S > 0)) return false;
+            const Vec K = HP.transpose() / S;
+            xs += K * (z[row] - h[row]);
+            const Mat IKH = Mat::Identity(n_, n_) - K * H;
+            Pm = IKH * Pm * IKH.transpose() + (r * K) * K.transpose();
+        }
+        Pm = 0.5 * (Pm + Pm.transpose()).eval();
+        rewrap();
+        return true;
+    }
+    double x(int i) const override { return xs(i); }
+    double P(int i, int j) const override { return Pm(i, j); }
+    int n() const override { return n_; }
+    bool covariance_ok(double* min_eig) const override { return dynamic_covariance_ok(Pm, min_eig); }
+};
+
+// One per file: ekf_states_2_4.cpp (2..4 states), ekf_states_5_6.cpp, ekf_states_7.cpp and
+// ekf_states_dynamic.cpp (8..9). Each returns nullptr for a size it does not hold.
+std::unique_ptr<Ekf::Impl> make_states_2_4(const Ekf::Options& o, const ChannelModel* m);
+std::unique_ptr<Ekf::Impl> make_states_5_6(const Ekf::Options& o, const ChannelModel* m);
+std::unique_ptr<Ekf::Impl> make_states_7(const Ekf::Options& o, const ChannelModel* m);
+std::unique_ptr<Ekf::Impl> make_states_dynamic(const Ekf::Options& o, const ChannelModel* m);
+
+}  // namespace ekf_detail
+}  // namespace fringe::est
