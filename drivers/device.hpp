@@ -155,7 +155,7 @@ public:
     virtual ~RegisterPort() = default;
     virtual const BoardProfile& board() const = 0;
     // function 16: one request for all the words; 6: one request per word. `what` names the
-    // request in errors ("write correction_table[0..61] @200+62").
+    // request in errors ("write correction_table_rad[0..61] @200+62").
     virtual void write_words(int address, std::span<const std::uint16_t> words, int function, const std::string& what) = 0;
     virtual void read_words(RegTable table, int address, int count, std::uint16_t* dst, const std::string& what) = 0;
 };

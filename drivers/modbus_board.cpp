@@ -22,13 +22,13 @@ using nlohmann::json;
 
 namespace {
 const std::vector<std::string> kRoles = {"sin_out", "cos_out", "sin_in", "cos_in", "position_count", "position_fraction",
-                                         "position_rad", "status", "error_flags", "correction_table", "correction_offset",
-                                         "trim_offset_sin", "trim_offset_cos", "trim_amplitude_sin", "trim_amplitude_cos", "trim_phase",
+                                         "position_rad", "status", "error_flags", "correction_table_rad", "correction_offset_rad",
+                                         "trim_offset_sin_v", "trim_offset_cos_v", "trim_amplitude_sin_v", "trim_amplitude_cos_v", "trim_phase_rad",
                                          "correction_enable"};
 // The correction roles (docs/modbus.md "Correction registers"): writable holding registers of a dut board.
-const std::vector<std::string> kTrimRoles = {"trim_offset_sin", "trim_offset_cos", "trim_amplitude_sin", "trim_amplitude_cos", "trim_phase"};
+const std::vector<std::string> kTrimRoles = {"trim_offset_sin_v", "trim_offset_cos_v", "trim_amplitude_sin_v", "trim_amplitude_cos_v", "trim_phase_rad"};
 bool correction_role(const std::string& r) {
-    return r == "correction_table" || r == "correction_offset" || r == "correction_enable" ||
+    return r == "correction_table_rad" || r == "correction_offset_rad" || r == "correction_enable" ||
            std::find(kTrimRoles.begin(), kTrimRoles.end(), r) != kTrimRoles.end();
 }
 
@@ -140,7 +140,7 @@ BoardProfile board_from_json(const json& j, const std::string& where) {
         d.role = role;
         read_location(rr, d, order, board_fc);
         const bool corr = correction_role(role);
-        if (role == "correction_table") {
+        if (role == "correction_table_rad") {
             if (!rr.has("count")) throw ConfigError(rr.path_of("count"), "a correction table needs its entry count (e.g. \"count\": 64)");
             if (!rr.has("scale")) throw ConfigError(rr.path_of("scale"), "a correction table needs its scale in rad per LSB (e.g. 9.587379924285257e-05, 2*pi/65536)");
             d.count = static_cast<int>(rr.integer("count", 2, 4096));
@@ -148,11 +148,11 @@ BoardProfile board_from_json(const json& j, const std::string& where) {
                 throw ConfigError(rr.path_of("type"), "a correction table holds signed corrections: s16, s32 or f32");
             if (d.address + d.count * d.words() > 65536) throw ConfigError(rr.path_of("count"), "the table runs past register 65535");
         } else if (rr.has("count")) {
-            throw ConfigError(rr.path_of("count"), "only correction_table takes a count");
+            throw ConfigError(rr.path_of("count"), "only correction_table_rad takes a count");
         }
-        if (corr && role != "correction_table" && role != "correction_enable" && d.type != RegType::F32 && !rr.has("scale"))
+        if (corr && role != "correction_table_rad" && role != "correction_enable" && d.type != RegType::F32 && !rr.has("scale"))
             throw ConfigError(rr.path_of("scale"), std::string("an integer correction register needs its scale in ") +
-                                                       (role == "correction_offset" || role == "trim_phase" ? "rad" : "V") + " per LSB");
+                                                       (role == "correction_offset_rad" || role == "trim_phase_rad" ? "rad" : "V") + " per LSB");
         d.scale = rr.number("scale", 1.0, -1e12, 1e12);
         if (d.scale == 0) throw ConfigError(rr.path_of("scale"), "must not be 0");
         d.offset = rr.number("offset", 0.0, -1e12, 1e12);
@@ -216,8 +216,8 @@ BoardProfile board_from_json(const json& j, const std::string& where) {
                 if (!b.find(t)) missing += (missing.empty() ? "" : ", ") + t;
             throw ConfigError(rp, "Lissajous trims come all together: missing " + missing);
         }
-        if (b.find("correction_offset") && !b.find("correction_table")) throw ConfigError(rp + ".correction_offset", "needs a correction_table");
-        if (b.find("correction_enable") && !b.has_correction()) throw ConfigError(rp + ".correction_enable", "needs a correction_table or the trims");
+        if (b.find("correction_offset_rad") && !b.find("correction_table_rad")) throw ConfigError(rp + ".correction_offset_rad", "needs a correction_table_rad");
+        if (b.find("correction_enable") && !b.has_correction()) throw ConfigError(rp + ".correction_enable", "needs a correction_table_rad or the trims");
         for (const auto& [role, d] : b.regs) {
             if (!correction_role(role)) continue;
             const int a0 = d.address, a1 = d.address + d.count * d.words();
@@ -373,16 +373,16 @@ RegisterValue quantise(const RegisterDef& r, const std::string& role, int index,
 
 std::vector<RegisterValue> plan_correction_writes(const BoardProfile& b, const est::Correction& c) {
     if (!b.has_correction())
-        throw std::runtime_error("board " + b.name + " declares no correction registers (correction_table, or the trim_* registers; docs/modbus.md \"Correction registers\")");
+        throw std::runtime_error("board " + b.name + " declares no correction registers (correction_table_rad, or the trim_* registers; docs/modbus.md \"Correction registers\")");
     std::vector<RegisterValue> out;
-    const RegisterDef* table = b.find("correction_table");
-    const RegisterDef* offset = b.find("correction_offset");
+    const RegisterDef* table = b.find("correction_table_rad");
+    const RegisterDef* offset = b.find("correction_offset_rad");
     const RegisterDef* enable = b.find("correction_enable");
-    const bool trims = b.find("trim_offset_sin") != nullptr;
+    const bool trims = b.find("trim_offset_sin_v") != nullptr;
     if (!table && (!c.table.empty() || !c.cos_k.empty() || c.offset_rad != 0))
-        throw std::runtime_error("board " + b.name + " has trims but no correction_table: the correction's angle table and offset cannot be written (it takes a correction of the Lissajous stage only)");
+        throw std::runtime_error("board " + b.name + " has trims but no correction_table_rad: the correction's angle table and offset cannot be written (it takes a correction of the Lissajous stage only)");
     if (table && c.table.size() != static_cast<std::size_t>(table->count))
-        throw std::runtime_error("the correction's table has " + std::to_string(c.table.size()) + " entries, board " + b.name + "'s correction_table " +
+        throw std::runtime_error("the correction's table has " + std::to_string(c.table.size()) + " entries, board " + b.name + "'s correction_table_rad " +
                                  std::to_string(table->count) + ": compute it with that many (fringe calibrate --table-size " + std::to_string(table->count) +
                                  "); fringe does not resample a table");
     if (c.has_lissajous && !trims)
@@ -392,9 +392,9 @@ std::vector<RegisterValue> plan_correction_writes(const BoardProfile& b, const e
     if (table) {
         const double fold = offset ? 0.0 : c.offset_rad;  // no offset register: the total subtracted in every entry
         for (int i = 0; i < table->count; ++i)
-            out.push_back(quantise(*table, "correction_table", i, table->address + i * table->words(), c.table[static_cast<std::size_t>(i)] + fold));
+            out.push_back(quantise(*table, "correction_table_rad", i, table->address + i * table->words(), c.table[static_cast<std::size_t>(i)] + fold));
     }
-    if (offset) out.push_back(quantise(*offset, "correction_offset", -1, offset->address, c.offset_rad));
+    if (offset) out.push_back(quantise(*offset, "correction_offset_rad", -1, offset->address, c.offset_rad));
     if (trims) {
         // No Lissajous stage: the neutral trims (no offset, equal amplitudes, no phase error).
         const double vals[5] = {c.has_lissajous ? c.offset_sin_v : 0.0, c.has_lissajous ? c.offset_cos_v : 0.0, c.has_lissajous ? c.amplitude_sin_v : 1.0,

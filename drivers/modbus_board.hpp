@@ -7,9 +7,9 @@
 //   position_fraction          DUT position, fraction of a period (u16 scaled 1/65536)
 //   position_rad               DUT position in radians (alternative to count + fraction)
 //   status, error_flags        DUT status words (error_flags != 0 marks the reading invalid)
-//   correction_table           DUT correction: `count` consecutive entries, rad per LSB (docs/modbus.md)
-//   correction_offset          DUT correction: the constant offset, rad
-//   trim_offset_sin/_cos, trim_amplitude_sin/_cos, trim_phase
+//   correction_table_rad       DUT correction: `count` consecutive entries, rad (scale: rad per LSB; docs/modbus.md)
+//   correction_offset_rad      DUT correction: the constant offset, rad
+//   trim_offset_sin_v, trim_offset_cos_v, trim_amplitude_sin_v, trim_amplitude_cos_v, trim_phase_rad
 //                              DUT Lissajous trims applied before its arctangent (V, V, rad)
 //   correction_enable          DUT correction: 0 off; writing non-zero applies what the registers hold
 // physical = raw * scale + offset; 32-bit types span two registers in word_order.
@@ -44,7 +44,7 @@ struct RegisterDef {
     std::string unit;
     bool readable = true, writable = false;
     int write_function = 16;  // 16: write multiple registers; 6: write single register, one request per word
-    int count = 1;            // correction_table: entries, each words() registers, at consecutive addresses
+    int count = 1;            // correction_table_rad: entries, each words() registers, at consecutive addresses
     int bits = 0;             // converter resolution over [range_lo, range_hi] (0: not given)
     bool has_range = false;
     double range_lo = 0, range_hi = 0;  // raw units (what the register holds, e.g. volts at the pin)
@@ -82,7 +82,7 @@ struct BoardProfile {
         return it == regs.end() ? nullptr : &it->second;
     }
     // The correction registers (docs/modbus.md "Correction registers"): a table, trims, or both.
-    bool has_correction() const { return find("correction_table") || find("trim_offset_sin"); }
+    bool has_correction() const { return find("correction_table_rad") || find("trim_offset_sin_v"); }
     bool has_dut_position() const { return find("position_rad") || (find("position_count") && find("position_fraction")); }
 };
 
@@ -114,11 +114,11 @@ std::vector<ReadBatch> plan_reads(const std::vector<const RegisterDef*>& regs, i
 // declared), the table entries, the offset, the trims, correction_enable = 1. Each value is
 // quantised to its register (raw = round((value - offset) / scale) for integer types); a value
 // that does not fit the type is an error naming the entry, and nothing is planned. Without a
-// correction_offset register the offset is folded into every table entry (the total subtracted).
+// correction_offset_rad register the offset is folded into every table entry (the total subtracted).
 // A correction whose table has another entry count than the board's, or a Lissajous stage for a
 // board without trims, is refused (std::runtime_error saying what to do).
 struct RegisterValue {
-    std::string role;  // "correction_table", "correction_offset", "trim_phase", "correction_enable"
+    std::string role;  // "correction_table_rad", "correction_offset_rad", "trim_phase_rad", "correction_enable"
     int index = -1;    // table entry, else -1
     RegisterDef reg;   // its register (a copy: the plan outlives the device)
     int address = 0;   // this value's first register

@@ -69,7 +69,7 @@ rows = [l.split(",") for l in lines[2:]]
 assert len(rows) == 72, len(rows)
 assert rows[0][:3] == ["correction_enable", "", "200"] and rows[0][6] == "0", rows[0]
 assert rows[-1][:3] == ["correction_enable", "", "200"] and rows[-1][6] == "1", rows[-1]
-table = [r for r in rows if r[0] == "correction_table"]
+table = [r for r in rows if r[0] == "correction_table_rad"]
 assert [int(r[2]) for r in table] == list(range(256, 320))
 for r in table:
     raw, word = int(r[6]), int(r[7])
@@ -99,7 +99,7 @@ expect_error "a table size that is not the board's" "--table-size" \
   "$FRINGE" calibrate "$dir/before.fcap" -o "$dir/x.json" --settle-s 0 --table-size 32 --write-board "$URI"
 [ ! -e "$dir/x.json" ] || fail "a refused calibrate wrote its file"
 sim drop --modbus tcp://127.0.0.1:0 --board dut-interpolator --drop-after 1
-expect_error "a board killed during the table write" "write correction_table[0..63] @256+64" \
+expect_error "a board killed during the table write" "write correction_table_rad[0..63] @256+64" \
   "$FRINGE" write-correction "$dir/corr.json" --device "modbus+tcp://127.0.0.1:$(port_of "$SIM_AT")?board=dut-interpolator&timeout_ms=200&retries=1"
 expect_error "a correction file that is not one" "correction" \
   "$FRINGE" write-correction "$dir/writes.json" --device "$URI"

@@ -62,13 +62,13 @@ est::Correction as_written(const std::vector<RegisterValue>& plan) {
     est::Correction c;
     for (const auto& v : plan) {
         const double q = v.raw * v.reg.scale + v.reg.offset;
-        if (v.role == "correction_table") c.table.push_back(q);
-        else if (v.role == "correction_offset") c.offset_rad = q;
-        else if (v.role == "trim_offset_sin") c.has_lissajous = true, c.offset_sin_v = q;
-        else if (v.role == "trim_offset_cos") c.offset_cos_v = q;
-        else if (v.role == "trim_amplitude_sin") c.amplitude_sin_v = q;
-        else if (v.role == "trim_amplitude_cos") c.amplitude_cos_v = q;
-        else if (v.role == "trim_phase") c.quadrature_error_rad = q;
+        if (v.role == "correction_table_rad") c.table.push_back(q);
+        else if (v.role == "correction_offset_rad") c.offset_rad = q;
+        else if (v.role == "trim_offset_sin_v") c.has_lissajous = true, c.offset_sin_v = q;
+        else if (v.role == "trim_offset_cos_v") c.offset_cos_v = q;
+        else if (v.role == "trim_amplitude_sin_v") c.amplitude_sin_v = q;
+        else if (v.role == "trim_amplitude_cos_v") c.amplitude_cos_v = q;
+        else if (v.role == "trim_phase_rad") c.quadrature_error_rad = q;
     }
     return c;
 }
@@ -127,8 +127,8 @@ std::vector<std::uint16_t> read_holding(RegisterPort& p, int address, int count)
 TEST_CASE("board correction: the profile's correction registers load strictly", "[modbus][calibration]") {
     const auto dut = load_board("dut-interpolator");
     REQUIRE(dut.has_correction());
-    CHECK(dut.find("correction_table")->count == 64);
-    CHECK(dut.find("correction_table")->type == RegType::S16);
+    CHECK(dut.find("correction_table_rad")->count == 64);
+    CHECK(dut.find("correction_table_rad")->type == RegType::S16);
     CHECK(dut.find("correction_enable"));
     CHECK_FALSE(load_board("generic-aio").has_correction());
     auto bad = [](const std::function<void(json&)>& edit) {
@@ -137,23 +137,23 @@ TEST_CASE("board correction: the profile's correction registers load strictly", 
         return board_from_json(j, "b");
     };
     CHECK_NOTHROW(bad([](json&) {}));
-    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table"].erase("count"); }), Catch::Contains("b.registers.correction_table.count"));
-    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table"].erase("scale"); }),
-                      Catch::Contains("b.registers.correction_table.scale") && Catch::Contains("rad per LSB"));
-    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table"]["cuont"] = 3; }), Catch::Contains("cuont"));
-    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table"]["type"] = "u16"; }), Catch::Contains("correction_table.type"));
-    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table"]["type"] = "int"; }), Catch::Contains("correction_table.type"));
-    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_offset"]["count"] = 2; }), Catch::Contains("correction_offset.count") && Catch::Contains("only correction_table"));
-    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["trim_phase"].erase("scale"); }), Catch::Contains("trim_phase.scale"));
-    CHECK_THROWS_WITH(bad([](json& j) { j["registers"].erase("trim_phase"); }), Catch::Contains("missing trim_phase"));
-    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table"]["table"] = "input"; }), Catch::Contains("correction_table"));
+    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table_rad"].erase("count"); }), Catch::Contains("b.registers.correction_table_rad.count"));
+    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table_rad"].erase("scale"); }),
+                      Catch::Contains("b.registers.correction_table_rad.scale") && Catch::Contains("rad per LSB"));
+    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table_rad"]["cuont"] = 3; }), Catch::Contains("cuont"));
+    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table_rad"]["type"] = "u16"; }), Catch::Contains("correction_table_rad.type"));
+    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table_rad"]["type"] = "int"; }), Catch::Contains("correction_table_rad.type"));
+    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_offset_rad"]["count"] = 2; }), Catch::Contains("correction_offset_rad.count") && Catch::Contains("only correction_table_rad"));
+    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["trim_phase_rad"].erase("scale"); }), Catch::Contains("trim_phase_rad.scale"));
+    CHECK_THROWS_WITH(bad([](json& j) { j["registers"].erase("trim_phase_rad"); }), Catch::Contains("missing trim_phase_rad"));
+    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table_rad"]["table"] = "input"; }), Catch::Contains("correction_table_rad"));
     CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_enable"]["access"] = "w"; }), Catch::Contains("correction_enable.access"));
-    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table"]["address"] = 190; }), Catch::Contains("overlaps"));
-    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table"]["count"] = 70000; }), Catch::Contains("correction_table.count"));
+    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table_rad"]["address"] = 190; }), Catch::Contains("overlaps"));
+    CHECK_THROWS_WITH(bad([](json& j) { j["registers"]["correction_table_rad"]["count"] = 70000; }), Catch::Contains("correction_table_rad.count"));
     CHECK_THROWS_WITH(bad([](json& j) {
-                          j["registers"].erase("correction_table");
+                          j["registers"].erase("correction_table_rad");
                       }),
-                      Catch::Contains("correction_offset") && Catch::Contains("needs a correction_table"));
+                      Catch::Contains("correction_offset_rad") && Catch::Contains("needs a correction_table_rad"));
     json aio = fixture_json("generic-aio");
     aio["registers"]["correction_enable"] = {{"address", 300}, {"type", "u16"}};
     CHECK_THROWS_WITH(board_from_json(aio, "b"), Catch::Contains("dut board"));
@@ -172,12 +172,12 @@ TEST_CASE("board correction: the register plan quantises, and refuses what does 
     CHECK(plan.back().raw == 1);
     for (int i = 0; i < 64; ++i) {
         const auto& v = plan[static_cast<std::size_t>(1 + i)];
-        CHECK(v.label() == "correction_table[" + std::to_string(i) + "]");
+        CHECK(v.label() == "correction_table_rad[" + std::to_string(i) + "]");
         CHECK(v.address == 256 + i);
         CHECK(std::fabs(v.raw * v.reg.scale - c.table[static_cast<std::size_t>(i)]) <= v.reg.scale / 2 + 1e-15);
     }
     // No Lissajous stage: the neutral trims.
-    CHECK(plan[68].role == "trim_amplitude_sin");
+    CHECK(plan[68].role == "trim_amplitude_sin_v");
     CHECK(plan[68].raw == 32768);
     // The export states the order and every value.
     const json j = json::parse(modbus_writes_json(dut, plan));
@@ -187,18 +187,18 @@ TEST_CASE("board correction: the register plan quantises, and refuses what does 
     CHECK(j["writes"][1]["type"] == "s16");
     const std::string csv = modbus_writes_csv(dut, plan);
     CHECK(csv.find("role,index,address,table,type,function,raw,words,value,unit") != std::string::npos);
-    CHECK(csv.find("\ncorrection_table,63,319,holding,s16,16,") != std::string::npos);
+    CHECK(csv.find("\ncorrection_table_rad,63,319,holding,s16,16,") != std::string::npos);
 
     est::Correction big = c;
     big.table[17] = 3.5;  // beyond s16 at 2*pi/65536 rad per LSB (3.14 rad)
-    CHECK_THROWS_WITH(plan_correction_writes(dut, big), Catch::Contains("correction_table[17] = 3.5") && Catch::Contains("outside s16") &&
+    CHECK_THROWS_WITH(plan_correction_writes(dut, big), Catch::Contains("correction_table_rad[17] = 3.5") && Catch::Contains("outside s16") &&
                                                             Catch::Contains("nothing written"));
     est::Correction few = table_for(f, 32);
     CHECK_THROWS_WITH(plan_correction_writes(dut, few), Catch::Contains("32 entries") && Catch::Contains("--table-size 64"));
     CHECK_THROWS_WITH(plan_correction_writes(load_board("generic-aio"), c), Catch::Contains("declares no correction registers"));
     // A board without trims cannot take a Lissajous stage; without an offset register the offset is in every entry.
     json j2 = fixture_json("dut-interpolator");
-    for (const char* t : {"trim_offset_sin", "trim_offset_cos", "trim_amplitude_sin", "trim_amplitude_cos", "trim_phase", "correction_offset"}) j2["registers"].erase(t);
+    for (const char* t : {"trim_offset_sin_v", "trim_offset_cos_v", "trim_amplitude_sin_v", "trim_amplitude_cos_v", "trim_phase_rad", "correction_offset_rad"}) j2["registers"].erase(t);
     const auto bare = board_from_json(j2, "bare");
     est::Correction lis = c;
     lis.has_lissajous = true;
@@ -262,7 +262,7 @@ TEST_CASE("board correction: fringe writes it to the emulated DUT, reads it back
     }
     SECTION("a table written one entry per request (function 6)") {
         json j = fixture_json("dut-interpolator");
-        j["registers"]["correction_table"]["write_function"] = 6;
+        j["registers"]["correction_table_rad"]["write_function"] = 6;
         const std::string path = (dir.path / "dut-fc6.json").string();
         std::ofstream(path) << j.dump();
         o.board = path;
@@ -290,7 +290,7 @@ TEST_CASE("board correction: hostile cases are errors naming the register, and a
         auto dev = open(sim.uri("board=dut-interpolator&settle_s=0"));
         est::Correction c = table_for(f, 64);
         c.table[40] = -4.0;
-        CHECK_THROWS_WITH(write_correction(*dev->registers(), c), Catch::Contains("correction_table[40]") && Catch::Contains("outside s16"));
+        CHECK_THROWS_WITH(write_correction(*dev->registers(), c), Catch::Contains("correction_table_rad[40]") && Catch::Contains("outside s16"));
         for (auto w : read_holding(*dev->registers(), 200, 120)) CHECK(w == 0);
     }
     SECTION("an entry count that is not the board's: nothing written") {
@@ -307,20 +307,20 @@ TEST_CASE("board correction: hostile cases are errors naming the register, and a
     SECTION("a board killed in the middle of the table (one entry per request): the error names the entry") {
         TempDir dir("fringe-board-corr");
         json j = fixture_json("dut-interpolator");
-        j["registers"]["correction_table"]["write_function"] = 6;
+        j["registers"]["correction_table_rad"]["write_function"] = 6;
         const std::string path = (dir.path / "dut-fc6.json").string();
         std::ofstream(path) << j.dump();
         o.board = path;
         o.drop_after = 1 + 9;  // enable = 0, entries 0..8; entry 9 finds the board gone
         SimThread sim(o);
         CHECK_THROWS_WITH(write_correction(sim.uri("board=" + path + "&timeout_ms=100&retries=1"), table_for(f, 64)),
-                          Catch::Contains("write correction_table[9] @265"));
+                          Catch::Contains("write correction_table_rad[9] @265"));
     }
     SECTION("a board killed during the table's block write: the error names the block") {
         o.drop_after = 1;
         SimThread sim(o);
         CHECK_THROWS_WITH(write_correction(sim.uri("board=dut-interpolator&timeout_ms=100&retries=1"), table_for(f, 64)),
-                          Catch::Contains("board dut-interpolator at 127.0.0.1:") && Catch::Contains("write correction_table[0..63] @256+64"));
+                          Catch::Contains("board dut-interpolator at 127.0.0.1:") && Catch::Contains("write correction_table_rad[0..63] @256+64"));
     }
     SECTION("a correction the board refuses clears its enable, and fringe says so") {
         SimThread sim(o);
@@ -333,7 +333,7 @@ TEST_CASE("board correction: hostile cases are errors naming the register, and a
         o.exception_every = 3;  // enable = 0, table, then the offset gets the exception
         SimThread sim(o);
         CHECK_THROWS_WITH(write_correction(sim.uri("board=dut-interpolator"), table_for(f, 64)),
-                          Catch::Contains("write correction_offset @201+1") && Catch::Contains("Slave device or server failure"));
+                          Catch::Contains("write correction_offset_rad @201+1") && Catch::Contains("Slave device or server failure"));
     }
 }
 

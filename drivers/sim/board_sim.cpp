@@ -125,16 +125,16 @@ struct Sim {
             return;
         }
         est::Correction c;
-        if (const auto* t = board.find("correction_table"))
+        if (const auto* t = board.find("correction_table_rad"))
             for (int i = 0; i < t->count; ++i) c.table.push_back(decode_register(*t, slot(*t) + i * t->words()));
-        if (board.find("correction_offset")) c.offset_rad = get("correction_offset");
-        if (board.find("trim_offset_sin")) {
+        if (board.find("correction_offset_rad")) c.offset_rad = get("correction_offset_rad");
+        if (board.find("trim_offset_sin_v")) {
             c.has_lissajous = true;
-            c.offset_sin_v = get("trim_offset_sin");
-            c.offset_cos_v = get("trim_offset_cos");
-            c.amplitude_sin_v = get("trim_amplitude_sin");
-            c.amplitude_cos_v = get("trim_amplitude_cos");
-            c.quadrature_error_rad = get("trim_phase");
+            c.offset_sin_v = get("trim_offset_sin_v");
+            c.offset_cos_v = get("trim_offset_cos_v");
+            c.amplitude_sin_v = get("trim_amplitude_sin_v");
+            c.amplitude_cos_v = get("trim_amplitude_cos_v");
+            c.quadrature_error_rad = get("trim_phase_rad");
         }
         try {
             rebuild(&c);
@@ -152,8 +152,8 @@ struct Sim {
     // for it; without it, every write of a correction register applies what they hold at once.
     void on_write(int a, int n) {
         bool corr = false;
-        for (const char* role : {"correction_table", "correction_offset", "trim_offset_sin", "trim_offset_cos", "trim_amplitude_sin", "trim_amplitude_cos",
-                                 "trim_phase", "correction_enable"})
+        for (const char* role : {"correction_table_rad", "correction_offset_rad", "trim_offset_sin_v", "trim_offset_cos_v", "trim_amplitude_sin_v", "trim_amplitude_cos_v",
+                                 "trim_phase_rad", "correction_enable"})
             corr |= covers(board.find(role), a, n);
         if (corr) {
             if (const auto* en = board.find("correction_enable")) {

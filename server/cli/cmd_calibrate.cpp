@@ -42,7 +42,7 @@ std::optional<dev::BoardProfile> target_profile(const BoardTarget& t) {
     dev::BoardProfile b = dev::load_board(name);
     if (!b.has_correction())
         throw ConfigError("--write-board", "board profile " + b.name + " (" + b.path +
-                                               ") declares no correction registers (correction_table, trim_*; docs/modbus.md \"Correction registers\")");
+                                               ") declares no correction registers (correction_table_rad, trim_*; docs/modbus.md \"Correction registers\")");
     return b;
 }
 
@@ -88,13 +88,13 @@ int run_calibrate(const CalibrateCliOptions& o) {
     const auto board = target_profile(o.target);
     std::size_t table_size = o.table_size;
     if (board) {
-        if (const auto* t = board->find("correction_table")) {
+        if (const auto* t = board->find("correction_table_rad")) {
             if (o.table_size_given && o.table_size != static_cast<std::size_t>(t->count))
-                throw ConfigError("--table-size", std::to_string(o.table_size) + " entries, but board " + board->name + "'s correction_table has " +
+                throw ConfigError("--table-size", std::to_string(o.table_size) + " entries, but board " + board->name + "'s correction_table_rad has " +
                                                       std::to_string(t->count) + " (leave --table-size out to use the board's)");
             table_size = static_cast<std::size_t>(t->count);
         }
-        if (!o.no_lissajous && !board->find("trim_offset_sin"))
+        if (!o.no_lissajous && !board->find("trim_offset_sin_v"))
             throw ConfigError("--no-lissajous", "board " + board->name + " has no Lissajous trim registers: calibrate with --no-lissajous (a correction of the angle only)");
     }
     CalibrateOptions co;
@@ -169,7 +169,7 @@ Command add_calibrate(CLI::App& app) {
         ->required()
         ->check(CLI::ExistingFile);
     c->add_option("-o,--output", o->output, "Correction JSON to write (atan2's correction=FILE)")->required();
-    auto* ts = c->add_option("--table-size", o->table_size, "Entries of the angle table over one electrical period (default 64, or the board's correction_table)")
+    auto* ts = c->add_option("--table-size", o->table_size, "Entries of the angle table over one electrical period (default 64, or the board's correction_table_rad)")
                    ->check(CLI::Range(2, 1 << 20));
     c->add_option("--harmonics", o->harmonics, "Harmonic orders of the correction the table is built from")->check(CLI::Range(1, 256));
     c->add_option("--estimator", o->estimator, "Estimator to calibrate (atan2)");
