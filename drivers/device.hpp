@@ -145,6 +145,21 @@ public:
 
 // Step mode (Modbus boards, loopback): set a static sin/cos pair, wait settle_s (< 0: the
 // device's own), read back averaged over `average` readings (<= 0: the device's own).
+struct BoardProfile;
+enum class RegTable;
+
+// Raw register access to a Modbus board (its profile's registers by address), under the driver's
+// retry policy and error naming; what writing a correction to a board uses (modbus_board.hpp).
+class RegisterPort {
+public:
+    virtual ~RegisterPort() = default;
+    virtual const BoardProfile& board() const = 0;
+    // function 16: one request for all the words; 6: one request per word. `what` names the
+    // request in errors ("write correction_table_rad[0..61] @200+62").
+    virtual void write_words(int address, std::span<const std::uint16_t> words, int function, const std::string& what) = 0;
+    virtual void read_words(RegTable table, int address, int count, std::uint16_t* dst, const std::string& what) = 0;
+};
+
 class StepPort {
 public:
     virtual ~StepPort() = default;
@@ -205,6 +220,7 @@ public:
     virtual PlayPort* player() { return nullptr; }
     virtual RecordPort* recorder() { return nullptr; }
     virtual ReplayPort* replay() { return nullptr; }
+    virtual RegisterPort* registers() { return nullptr; }
 
 protected:
     virtual DeviceInfo describe() const = 0;

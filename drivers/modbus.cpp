@@ -49,7 +49,7 @@ bool exception_reply(int e) { return e >= EMBXILFUN && e <= EMBXGTAR; }
 // Steps the run engine reads per block (server/engine/frame_source.cpp): the block deadline's unit.
 constexpr int kBlockSteps = 16;
 
-class ModbusDevice final : public Device, public StepPort {
+class ModbusDevice final : public Device, public StepPort, public RegisterPort {
 public:
     ModbusDevice(const std::string& uri, const std::string& scheme, const std::string& path, const nlohmann::json& s)
         : uri_(uri), rtu_(scheme == "modbus+rtu") {
@@ -131,6 +131,29 @@ public:
 
     // Step mode only: a Modbus board has no streams, no generator memory and no digitizer.
     StepPort* step() override { return this; }
+    RegisterPort* registers() override { return this; }
+
+    // Raw register access (writing a correction), under the same retry policy as the steps.
+    const BoardProfile& board() const override { return board_; }
+    void write_words(int address, std::span<const std::uint16_t> w, int function, const std::string& what) override {
+        if (function == 16) {
+            with_retries(what, [&] { return modbus_write_registers(ctx_, address, static_cast<int>(w.size()), w.data()); });
+            return;
+        }
+        for (std::size_t k = 0; k < w.size(); ++k)
+            with_retries(what + " (function 6, register " + std::to_string(address + static_cast<int>(k)) + ")",
+                         [&] { return modbus_write_register(ctx_, address + static_cast<int>(k), w[k]); });
+    }
+    void read_words(RegTable table, int address, int count, std::uint16_t* dst, const std::string& what) override {
+        with_retries(what, [&] {
+            const int n = table == RegTable::Input ? modbus_read_input_registers(ctx_, address, count, dst) : modbus_read_registers(ctx_, address, count, dst);
+            if (n != -1 && n != count) {
+                errno = EMBBADDATA;
+                return -1;
+            }
+            return n;
+        });
+    }
 
     DeviceInfo describe() const override {
         DeviceInfo i;

@@ -1,15 +1,19 @@
 #include "modbus_board.hpp"
 
+#include "device.hpp"
+
 #include "signal_gen/base/config.hpp"
 #include "signal_gen/base/json_bounded.hpp"
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <stdexcept>
 
 namespace fringe::dev {
 
@@ -18,7 +22,15 @@ using nlohmann::json;
 
 namespace {
 const std::vector<std::string> kRoles = {"sin_out", "cos_out", "sin_in", "cos_in", "position_count", "position_fraction",
-                                         "position_rad", "status", "error_flags"};
+                                         "position_rad", "status", "error_flags", "correction_table_rad", "correction_offset_rad",
+                                         "trim_offset_sin_v", "trim_offset_cos_v", "trim_amplitude_sin_v", "trim_amplitude_cos_v", "trim_phase_rad",
+                                         "correction_enable"};
+// The correction roles (docs/modbus.md "Correction registers"): writable holding registers of a dut board.
+const std::vector<std::string> kTrimRoles = {"trim_offset_sin_v", "trim_offset_cos_v", "trim_amplitude_sin_v", "trim_amplitude_cos_v", "trim_phase_rad"};
+bool correction_role(const std::string& r) {
+    return r == "correction_table_rad" || r == "correction_offset_rad" || r == "correction_enable" ||
+           std::find(kTrimRoles.begin(), kTrimRoles.end(), r) != kTrimRoles.end();
+}
 
 RegType type_of(const std::string& s) {
     if (s == "u16") return RegType::U16;
@@ -127,6 +139,20 @@ BoardProfile board_from_json(const json& j, const std::string& where) {
         RegisterDef d;
         d.role = role;
         read_location(rr, d, order, board_fc);
+        const bool corr = correction_role(role);
+        if (role == "correction_table_rad") {
+            if (!rr.has("count")) throw ConfigError(rr.path_of("count"), "a correction table needs its entry count (e.g. \"count\": 64)");
+            if (!rr.has("scale")) throw ConfigError(rr.path_of("scale"), "a correction table needs its scale in rad per LSB (e.g. 9.587379924285257e-05, 2*pi/65536)");
+            d.count = static_cast<int>(rr.integer("count", 2, 4096));
+            if (d.type == RegType::U16 || d.type == RegType::U32)
+                throw ConfigError(rr.path_of("type"), "a correction table holds signed corrections: s16, s32 or f32");
+            if (d.address + d.count * d.words() > 65536) throw ConfigError(rr.path_of("count"), "the table runs past register 65535");
+        } else if (rr.has("count")) {
+            throw ConfigError(rr.path_of("count"), "only correction_table_rad takes a count");
+        }
+        if (corr && role != "correction_table_rad" && role != "correction_enable" && d.type != RegType::F32 && !rr.has("scale"))
+            throw ConfigError(rr.path_of("scale"), std::string("an integer correction register needs its scale in ") +
+                                                       (role == "correction_offset_rad" || role == "trim_phase_rad" ? "rad" : "V") + " per LSB");
         d.scale = rr.number("scale", 1.0, -1e12, 1e12);
         if (d.scale == 0) throw ConfigError(rr.path_of("scale"), "must not be 0");
         d.offset = rr.number("offset", 0.0, -1e12, 1e12);
@@ -138,6 +164,8 @@ BoardProfile board_from_json(const json& j, const std::string& where) {
         d.readable = access != "w";
         d.writable = access != "r";
         if (d.writable && d.table == RegTable::Input) throw ConfigError(rr.path_of("access"), "input registers are read-only");
+        if (corr && (d.table != RegTable::Holding || !d.writable || !d.readable))
+            throw ConfigError(rr.path_of(d.table != RegTable::Holding ? "table" : "access"), "a correction register is a holding register fringe writes and reads back (access rw)");
         rr.finish();
         b.regs[role] = d;
     }
@@ -174,6 +202,32 @@ BoardProfile board_from_json(const json& j, const std::string& where) {
     }
     if (b.kind == "dut" && !b.has_dut_position())
         throw ConfigError(join_path(where, "registers"), "a dut board needs position_count + position_fraction, or position_rad");
+    // Correction registers: on a dut board, trims all or none, an offset or enable with something to apply, no overlaps.
+    bool any_corr = false;
+    for (const auto& [role, d] : b.regs) any_corr |= correction_role(role);
+    if (any_corr) {
+        const std::string rp = join_path(where, "registers");
+        if (b.kind != "dut") throw ConfigError(rp, "correction registers belong to a dut board (kind \"dut\")");
+        int trims = 0;
+        for (const auto& t : kTrimRoles) trims += b.find(t) ? 1 : 0;
+        if (trims != 0 && trims != static_cast<int>(kTrimRoles.size())) {
+            std::string missing;
+            for (const auto& t : kTrimRoles)
+                if (!b.find(t)) missing += (missing.empty() ? "" : ", ") + t;
+            throw ConfigError(rp, "Lissajous trims come all together: missing " + missing);
+        }
+        if (b.find("correction_offset_rad") && !b.find("correction_table_rad")) throw ConfigError(rp + ".correction_offset_rad", "needs a correction_table_rad");
+        if (b.find("correction_enable") && !b.has_correction()) throw ConfigError(rp + ".correction_enable", "needs a correction_table_rad or the trims");
+        for (const auto& [role, d] : b.regs) {
+            if (!correction_role(role)) continue;
+            const int a0 = d.address, a1 = d.address + d.count * d.words();
+            for (const auto& [other, e] : b.regs) {
+                if (other == role || e.table != RegTable::Holding) continue;
+                const int b0 = e.address, b1 = e.address + e.count * e.words();
+                if (a0 < b1 && b0 < a1) throw ConfigError(rp + "." + role, "overlaps " + other + " (registers " + std::to_string(b0) + ".." + std::to_string(b1 - 1) + ")");
+            }
+        }
+    }
     if (b.kind == "analog-io" && (!b.find("sin_in") || !b.find("cos_in")))
         throw ConfigError(join_path(where, "registers"), "an analog-io board needs sin_in and cos_in");
     return b;
@@ -266,6 +320,215 @@ std::vector<ReadBatch> plan_reads(const std::vector<const RegisterDef*>& regs, i
         }
     }
     return out;
+}
+
+namespace {
+
+std::string num17(double v) {
+    char b[40];
+    std::snprintf(b, sizeof b, "%.17g", v);
+    return b;
+}
+
+const char* type_name(RegType t) {
+    switch (t) {
+        case RegType::U16: return "u16";
+        case RegType::S16: return "s16";
+        case RegType::U32: return "u32";
+        case RegType::S32: return "s32";
+        case RegType::F32: return "f32";
+    }
+    return "?";
+}
+
+// One value quantised to its register: an integer type's range is checked, never clamped.
+RegisterValue quantise(const RegisterDef& r, const std::string& role, int index, int address, double value) {
+    RegisterValue v;
+    v.role = role;
+    v.index = index;
+    v.reg = r;
+    v.address = address;
+    v.value = value;
+    const double raw = (value - r.offset) / r.scale;
+    if (!std::isfinite(raw)) throw std::runtime_error(v.label() + " = " + num17(value) + " is not a finite register value");
+    if (r.type == RegType::F32) {
+        v.raw = static_cast<double>(static_cast<float>(raw));
+    } else {
+        const double lo = r.type == RegType::S16 ? -32768.0 : r.type == RegType::S32 ? -2147483648.0 : 0.0;
+        const double hi = r.type == RegType::U16 ? 65535.0 : r.type == RegType::S16 ? 32767.0 : r.type == RegType::U32 ? 4294967295.0 : 2147483647.0;
+        v.raw = std::nearbyint(raw);
+        if (v.raw < lo || v.raw > hi)
+            throw std::runtime_error(v.label() + " = " + num17(value) + (r.unit.empty() ? "" : " " + r.unit) + " needs raw " + num17(v.raw) + " at register " +
+                                     std::to_string(address) + ", outside " + type_name(r.type) + " " + num17(lo) + ".." + num17(hi) + " at its scale " +
+                                     num17(r.scale) + ": the correction does not fit the register (nothing written; a coarser scale in the profile, or a wider type)");
+    }
+    RegisterDef one = r;
+    one.scale = 1.0;
+    one.offset = 0.0;
+    v.words = encode_register(one, v.raw);
+    return v;
+}
+
+}  // namespace
+
+std::vector<RegisterValue> plan_correction_writes(const BoardProfile& b, const est::Correction& c) {
+    if (!b.has_correction())
+        throw std::runtime_error("board " + b.name + " declares no correction registers (correction_table_rad, or the trim_* registers; docs/modbus.md \"Correction registers\")");
+    std::vector<RegisterValue> out;
+    const RegisterDef* table = b.find("correction_table_rad");
+    const RegisterDef* offset = b.find("correction_offset_rad");
+    const RegisterDef* enable = b.find("correction_enable");
+    const bool trims = b.find("trim_offset_sin_v") != nullptr;
+    if (!table && (!c.table.empty() || !c.cos_k.empty() || c.offset_rad != 0))
+        throw std::runtime_error("board " + b.name + " has trims but no correction_table_rad: the correction's angle table and offset cannot be written (it takes a correction of the Lissajous stage only)");
+    if (table && c.table.size() != static_cast<std::size_t>(table->count))
+        throw std::runtime_error("the correction's table has " + std::to_string(c.table.size()) + " entries, board " + b.name + "'s correction_table_rad " +
+                                 std::to_string(table->count) + ": compute it with that many (fringe calibrate --table-size " + std::to_string(table->count) +
+                                 "); fringe does not resample a table");
+    if (c.has_lissajous && !trims)
+        throw std::runtime_error("the correction has a Lissajous stage (offsets, amplitudes, phase) but board " + b.name +
+                                 " declares no trim registers: compute it without (fringe calibrate --no-lissajous)");
+    if (enable) out.push_back(quantise(*enable, "correction_enable", -1, enable->address, 0));
+    if (table) {
+        const double fold = offset ? 0.0 : c.offset_rad;  // no offset register: the total subtracted in every entry
+        for (int i = 0; i < table->count; ++i)
+            out.push_back(quantise(*table, "correction_table_rad", i, table->address + i * table->words(), c.table[static_cast<std::size_t>(i)] + fold));
+    }
+    if (offset) out.push_back(quantise(*offset, "correction_offset_rad", -1, offset->address, c.offset_rad));
+    if (trims) {
+        // No Lissajous stage: the neutral trims (no offset, equal amplitudes, no phase error).
+        const double vals[5] = {c.has_lissajous ? c.offset_sin_v : 0.0, c.has_lissajous ? c.offset_cos_v : 0.0, c.has_lissajous ? c.amplitude_sin_v : 1.0,
+                                c.has_lissajous ? c.amplitude_cos_v : 1.0, c.has_lissajous ? c.quadrature_error_rad : 0.0};
+        for (int k = 0; k < 5; ++k) {
+            const std::string role = kTrimRoles[static_cast<std::size_t>(k)];
+            const RegisterDef* r = b.find(role);
+            out.push_back(quantise(*r, role, -1, r->address, vals[k]));
+        }
+    }
+    if (enable) out.push_back(quantise(*enable, "correction_enable", -1, enable->address, 1));
+    return out;
+}
+
+std::string modbus_writes_json(const BoardProfile& b, const std::vector<RegisterValue>& w) {
+    json rows = json::array();
+    for (const auto& v : w) {
+        json words = json::array();
+        for (auto x : v.words) words.push_back(x);
+        rows.push_back({{"role", v.role}, {"index", v.index < 0 ? json() : json(v.index)}, {"address", v.address}, {"table", "holding"},
+                        {"type", type_name(v.reg.type)}, {"word_order", v.reg.low_word_first ? "little" : "big"},
+                        {"function", v.reg.write_function}, {"raw", v.raw}, {"words", words}, {"value", v.value}, {"unit", v.reg.unit}});
+    }
+    json j{{"schema", "fringe.modbus_writes"},
+           {"schema_version", 1},
+           {"board", b.name},
+           {"order", "write in the order listed; correction_enable (if any) is cleared first and set last, so the board applies the whole correction at once"},
+           {"addressing", "0-based register addresses (PDU); words are the 16-bit register values in address order"},
+           {"writes", rows}};
+    return j.dump(2) + "\n";
+}
+
+std::string modbus_writes_csv(const BoardProfile& b, const std::vector<RegisterValue>& w) {
+    std::string out = "# fringe Modbus register writes for board " + b.name +
+                      ": write in the order listed (correction_enable cleared first, set last); 0-based holding register addresses; "
+                      "words are the 16-bit register values in address order\n"
+                      "role,index,address,table,type,function,raw,words,value,unit\n";
+    for (const auto& v : w) {
+        std::string words;
+        for (auto x : v.words) {
+            if (!words.empty()) words.push_back(' ');
+            words.append(std::to_string(x));
+        }
+        char row[160];
+        std::snprintf(row, sizeof row, ",%s,%d,holding,%s,%d,%s,", v.index < 0 ? "" : std::to_string(v.index).c_str(), v.address, type_name(v.reg.type),
+                      v.reg.write_function, num17(v.raw).c_str());
+        out.append(v.role).append(row).append(words).append(",").append(num17(v.value)).append(",").append(v.reg.unit).append("\n");
+    }
+    return out;
+}
+
+std::vector<RegisterValue> write_correction(RegisterPort& port, const est::Correction& c) {
+    const BoardProfile& b = port.board();
+    std::vector<RegisterValue> plan = plan_correction_writes(b, c);  // throws before anything is written
+    // Runs of consecutive table entries go in one request (at most 123 registers) where the
+    // register is written with function 16; everything else one value per request.
+    auto run_end = [&](std::size_t i) {
+        std::size_t j = i + 1;
+        if (plan[i].index < 0 || plan[i].reg.write_function != 16) return j;
+        int regs = static_cast<int>(plan[i].words.size());
+        while (j < plan.size() && plan[j].role == plan[i].role && plan[j].index == plan[j - 1].index + 1 &&
+               regs + static_cast<int>(plan[j].words.size()) <= 123) {
+            regs += static_cast<int>(plan[j].words.size());
+            ++j;
+        }
+        return j;
+    };
+    auto what_of = [&](std::size_t i, std::size_t j, const char* verb) {
+        std::size_t regs = 0;
+        for (std::size_t k = i; k < j; ++k) regs += plan[k].words.size();
+        std::string name = plan[i].index < 0 ? plan[i].role
+                         : j - i == 1          ? plan[i].label()
+                                               : plan[i].role + "[" + std::to_string(plan[i].index) + ".." + std::to_string(plan[j - 1].index) + "]";
+        if (plan[i].role == "correction_enable") name += "=" + num17(plan[i].value);
+        return std::string(verb) + " " + name + " @" + std::to_string(plan[i].address) + "+" + std::to_string(regs);
+    };
+    auto words_of = [&](std::size_t i, std::size_t j) {
+        std::vector<std::uint16_t> w;
+        for (std::size_t k = i; k < j; ++k) w.insert(w.end(), plan[k].words.begin(), plan[k].words.end());
+        return w;
+    };
+    // Everything but the final enable, then read back and compare.
+    const std::size_t last = plan.back().role == "correction_enable" ? plan.size() - 1 : plan.size();
+    for (std::size_t i = 0; i < last;) {
+        const std::size_t j = run_end(i);
+        const auto w = words_of(i, j);
+        port.write_words(plan[i].address, w, plan[i].reg.write_function, what_of(i, j, "write"));
+        i = j;
+    }
+    auto verify = [&](std::size_t i, std::size_t j) {
+        const auto want = words_of(i, j);
+        std::vector<std::uint16_t> got(want.size());
+        port.read_words(RegTable::Holding, plan[i].address, static_cast<int>(want.size()), got.data(), what_of(i, j, "read back"));
+        std::size_t at = 0;
+        for (std::size_t k = i; k < j; ++k) {
+            const std::size_t n = plan[k].words.size();
+            if (!std::equal(got.begin() + static_cast<long>(at), got.begin() + static_cast<long>(at + n), plan[k].words.begin())) {
+                const double read = decode_register(plan[k].reg, got.data() + at);
+                throw DeviceError("board " + b.name, plan[k].label() + " @" + std::to_string(plan[k].address) + " reads back " + num17(read) + " (" +
+                                                         std::string(plan[k].reg.unit.empty() ? "" : plan[k].reg.unit + ", ") + "raw " +
+                                                         num17(read / plan[k].reg.scale - plan[k].reg.offset / plan[k].reg.scale) + "), written " + num17(plan[k].raw) +
+                                                         " raw: the board did not keep the value");
+            }
+            at += n;
+        }
+    };
+    for (std::size_t i = 0; i < last;) {
+        std::size_t j = i + 1;
+        if (plan[i].index >= 0) {  // the table in reads of at most 125 registers, whatever its write function
+            int regs = static_cast<int>(plan[i].words.size());
+            while (j < last && plan[j].index == plan[j - 1].index + 1 && plan[j].role == plan[i].role && regs + static_cast<int>(plan[j].words.size()) <= 125) {
+                regs += static_cast<int>(plan[j].words.size());
+                ++j;
+            }
+        }
+        verify(i, j);
+        i = j;
+    }
+    if (last < plan.size()) {
+        port.write_words(plan[last].address, plan[last].words, plan[last].reg.write_function, what_of(last, last + 1, "write"));
+        std::uint16_t got = 0;
+        port.read_words(RegTable::Holding, plan[last].address, 1, &got, what_of(last, last + 1, "read back"));
+        if (got != plan[last].words[0])
+            throw DeviceError("board " + b.name, "correction_enable @" + std::to_string(plan[last].address) + " reads back " + std::to_string(got) +
+                                                     " after writing 1: the board refused the correction (the values read back as written)");
+    }
+    return plan;
+}
+
+std::vector<RegisterValue> write_correction(const std::string& uri, const est::Correction& c) {
+    auto dev = open(uri);
+    RegisterPort* port = dev->registers();
+    if (!port) throw DeviceError(uri, "not a Modbus board: a correction is written to a modbus+tcp or modbus+rtu board whose profile declares correction registers");
+    return write_correction(*port, c);
 }
 
 }  // namespace fringe::dev

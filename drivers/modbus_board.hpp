@@ -7,12 +7,19 @@
 //   position_fraction          DUT position, fraction of a period (u16 scaled 1/65536)
 //   position_rad               DUT position in radians (alternative to count + fraction)
 //   status, error_flags        DUT status words (error_flags != 0 marks the reading invalid)
+//   correction_table_rad       DUT correction: `count` consecutive entries, rad (scale: rad per LSB; docs/modbus.md)
+//   correction_offset_rad      DUT correction: the constant offset, rad
+//   trim_offset_sin_v, trim_offset_cos_v, trim_amplitude_sin_v, trim_amplitude_cos_v, trim_phase_rad
+//                              DUT Lissajous trims applied before its arctangent (V, V, rad)
+//   correction_enable          DUT correction: 0 off; writing non-zero applies what the registers hold
 // physical = raw * scale + offset; 32-bit types span two registers in word_order.
 // Optional per register: the converter's bits over its range (raw units, e.g. volts at the
 // pin), which gives fringe's bounds the quantisation step and makes a write outside the
 // range an error, and the write function (16, or 6 one word per request). Per board: init
 // writes at open (configuration registers) and checks read at open (identity, word order).
 #pragma once
+
+#include "estimator/correction.hpp"
 
 #include <nlohmann/json.hpp>
 
@@ -37,6 +44,7 @@ struct RegisterDef {
     std::string unit;
     bool readable = true, writable = false;
     int write_function = 16;  // 16: write multiple registers; 6: write single register, one request per word
+    int count = 1;            // correction_table_rad: entries, each words() registers, at consecutive addresses
     int bits = 0;             // converter resolution over [range_lo, range_hi] (0: not given)
     bool has_range = false;
     double range_lo = 0, range_hi = 0;  // raw units (what the register holds, e.g. volts at the pin)
@@ -73,6 +81,8 @@ struct BoardProfile {
         auto it = regs.find(role);
         return it == regs.end() ? nullptr : &it->second;
     }
+    // The correction registers (docs/modbus.md "Correction registers"): a table, trims, or both.
+    bool has_correction() const { return find("correction_table_rad") || find("trim_offset_sin_v"); }
     bool has_dut_position() const { return find("position_rad") || (find("position_count") && find("position_fraction")); }
 };
 
@@ -98,5 +108,40 @@ struct ReadBatch {
     std::vector<const RegisterDef*> regs;
 };
 std::vector<ReadBatch> plan_reads(const std::vector<const RegisterDef*>& regs, int max_regs = 125);
+
+// The register writes that put a correction (estimator/correction.hpp) on a board whose profile
+// declares correction registers, in the order they are written: correction_enable = 0 (when
+// declared), the table entries, the offset, the trims, correction_enable = 1. Each value is
+// quantised to its register (raw = round((value - offset) / scale) for integer types); a value
+// that does not fit the type is an error naming the entry, and nothing is planned. Without a
+// correction_offset_rad register the offset is folded into every table entry (the total subtracted).
+// A correction whose table has another entry count than the board's, or a Lissajous stage for a
+// board without trims, is refused (std::runtime_error saying what to do).
+struct RegisterValue {
+    std::string role;  // "correction_table_rad", "correction_offset_rad", "trim_phase_rad", "correction_enable"
+    int index = -1;    // table entry, else -1
+    RegisterDef reg;   // its register (a copy: the plan outlives the device)
+    int address = 0;   // this value's first register
+    double value = 0;  // physical (rad, V, or the enable flag)
+    double raw = 0;    // what the register holds (an integer for integer types)
+    std::vector<std::uint16_t> words;
+    std::string label() const { return index < 0 ? role : role + "[" + std::to_string(index) + "]"; }
+};
+std::vector<RegisterValue> plan_correction_writes(const BoardProfile& b, const est::Correction& c);
+// The same as a file a user without fringe can load on the bench: JSON (schema
+// "fringe.modbus_writes") or, for a path ending in .csv, CSV with one line per value.
+std::string modbus_writes_json(const BoardProfile& b, const std::vector<RegisterValue>& w);
+std::string modbus_writes_csv(const BoardProfile& b, const std::vector<RegisterValue>& w);
+
+class RegisterPort;
+// Writes the planned values to the board (the table in requests of at most 123 registers, or
+// one per word where the register's write_function is 6), reads every one back and compares the
+// words, then writes correction_enable = 1 and reads it back (a board that refuses the correction
+// clears it). Throws DeviceError naming the register on a failed request or a readback that
+// differs; the plan is checked before anything is written. Returns the plan.
+std::vector<RegisterValue> write_correction(RegisterPort& port, const est::Correction& c);
+// Opens the board at uri (a modbus+tcp or modbus+rtu URI: its checks and init writes run first,
+// and it is locked against runs) and writes the correction to it.
+std::vector<RegisterValue> write_correction(const std::string& uri, const est::Correction& c);
 
 }  // namespace fringe::dev

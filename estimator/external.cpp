@@ -4,6 +4,7 @@
 // that answers only after reading a whole block cannot deadlock us; a child that exits or
 // stays silent for timeout_s ends the run with an EstimatorError that says so.
 #include "common.hpp"
+#include "correction.hpp"
 #include "registry_parts.hpp"
 
 #include <fcntl.h>
@@ -17,6 +18,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
 #include <string>
 
 namespace fringe::est {
@@ -35,6 +37,8 @@ public:
              "what the child is, so it is graded like a built-in estimator: memoryless (per-sample CRB), a tracker with a "
              "constant-velocity or constant-acceleration prior (PCRB at natural_freq_hz); unknown: no efficiency"},
             {"natural_freq_hz", "Hz", ParamType::Number, 0.0, 0.0, 1e7, {}, "a tracker's loop natural frequency (its declared prior; required for tracker-cv/-ca)"},
+            {"correction", "", ParamType::String, nullptr, -kInf, kInf, {},
+             "correction file (fringe calibrate -o; docs/calibration.md), checked, then handed to the child as FRINGE_CORRECTION (its absolute path): the child applies it itself"},
         };
     }
     ~External() override { stop(); }
@@ -51,6 +55,16 @@ public:
         fn_hz_ = p.number("natural_freq_hz");
         if ((model_ == "tracker-cv" || model_ == "tracker-ca") && !(fn_hz_ > 0))
             throw ConfigError("params.natural_freq_hz", "a tracker's declared prior needs its natural frequency (> 0 Hz)");
+        correction_path_.clear();
+        if (p.json().contains("correction") && !p.json().at("correction").is_null()) {
+            const std::string given = p.string("correction");
+            try {
+                (void)Correction::load(given);  // a malformed file fails here, naming the field, not in the child
+            } catch (const ConfigError& e) {
+                throw e.prefixed("params");
+            }
+            correction_path_ = std::filesystem::absolute(given).lexically_normal().string();
+        }
         // The encoder and sampling as fringe knows them, for firmware configured like the
         // built-in estimators: a JSON file named by FRINGE_ENCODER_JSON.
         char tmpl[] = "/tmp/fringe-external-XXXXXX";
@@ -60,7 +74,8 @@ public:
         nlohmann::json conf{{"schema", "fringe.external"}, {"schema_version", 1}, {"sample_rate_hz", cfg.sample_rate_hz},
                             {"protocol", binary_ ? "binary" : "text"},
                             {"phase_convention", "theta = 0 where sin = 0 and cos is at its maximum; theta increases with motion; unwrapped, in radians"},
-                            {"encoder", cfg.encoder ? nlohmann::json(*cfg.encoder) : nlohmann::json()}};
+                            {"encoder", cfg.encoder ? nlohmann::json(*cfg.encoder) : nlohmann::json()},
+                            {"correction", correction_path_.empty() ? nlohmann::json() : nlohmann::json(correction_path_)}};
         const std::string text = conf.dump(2, ' ', false, nlohmann::json::error_handler_t::replace) + "\n";
         const bool wrote = ::write(fd, text.data(), text.size()) == static_cast<ssize_t>(text.size());
         ::close(fd);
@@ -82,6 +97,8 @@ public:
             setenv("FRINGE_SAMPLE_RATE_HZ", rate.c_str(), 1);
             setenv("FRINGE_PROTOCOL", proto.c_str(), 1);
             setenv("FRINGE_ENCODER_JSON", config_path_.c_str(), 1);
+            if (correction_path_.empty()) unsetenv("FRINGE_CORRECTION");  // not one inherited from fringe's own environment
+            else setenv("FRINGE_CORRECTION", correction_path_.c_str(), 1);
             signal(SIGPIPE, SIG_DFL);
             execl("/bin/sh", "sh", "-c", command_.c_str(), static_cast<char*>(nullptr));
             _exit(127);
@@ -295,7 +312,7 @@ private:
         if (!config_path_.empty()) { ::unlink(config_path_.c_str()); config_path_.clear(); }
     }
 
-    std::string command_, model_ = "unknown", config_path_;
+    std::string command_, model_ = "unknown", config_path_, correction_path_;
     double fn_hz_ = 0;
     bool binary_ = false;
     int timeout_ms_ = 10000;

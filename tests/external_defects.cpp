@@ -11,6 +11,9 @@
 //   pll FN        a type-2 phase-locked loop of natural frequency FN Hz on atan2 (damping 0.707)
 //   nan-omega     a NaN rate on valid estimates from frame 5000 on
 //   env           exits 3 unless FRINGE_ENCODER_JSON names a readable file with "sample_rate_hz"
+//   correction    exits 4 unless FRINGE_CORRECTION is an absolute path to a readable file of schema
+//                 "fringe.correction" that the configuration file names too; "no-correction":
+//                 exits 4 if FRINGE_CORRECTION is set
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -31,6 +34,16 @@ int main(int argc, char** argv) {
         const std::string text((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
         if (text.find("\"sample_rate_hz\"") == std::string::npos || text.find("\"encoder\"") == std::string::npos) return 3;
     }
+    if (mode == "correction") {
+        const char* p = std::getenv("FRINGE_CORRECTION");
+        const char* conf = std::getenv("FRINGE_ENCODER_JSON");
+        if (!p || p[0] != '/' || !conf) return 4;
+        std::ifstream f(p), g(conf);
+        const std::string text((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+        const std::string ctext((std::istreambuf_iterator<char>(g)), std::istreambuf_iterator<char>());
+        if (text.find("\"fringe.correction\"") == std::string::npos || ctext.find(std::string("\"correction\": \"") + p + "\"") == std::string::npos) return 4;
+    }
+    if (mode == "no-correction" && std::getenv("FRINGE_CORRECTION")) return 4;
     const double two_pi = 6.283185307179586, pi = two_pi / 2;
     double prev = 0, acc = 0;
     double pll_th = 0, pll_om = 0;  // "pll": phase (rad, unwrapped) and rate (rad/s)

@@ -1,5 +1,6 @@
 #include "drivers/sim/board_sim.hpp"
 
+#include "estimator/correction.hpp"
 #include "estimator/estimator.hpp"
 #include "drivers/modbus_board.hpp"
 #include "signal_gen/base/constants.hpp"
@@ -13,6 +14,8 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 #include <chrono>
 #include <cmath>
 #include <memory>
@@ -38,7 +41,7 @@ struct Sim {
 
     explicit Sim(const BoardSimOptions& opt) : o(opt), board(load_board(opt.board)), rng(opt.seed) {
         int hold = 1, in = 1;
-        auto extent = [&](const RegisterDef& r) { (r.table == RegTable::Holding ? hold : in) = std::max(r.table == RegTable::Holding ? hold : in, r.address + r.words()); };
+        auto extent = [&](const RegisterDef& r) { (r.table == RegTable::Holding ? hold : in) = std::max(r.table == RegTable::Holding ? hold : in, r.address + r.count * r.words()); };
         for (const auto& [role, r] : board.regs) extent(r);
         for (const auto& c : board.checks) extent(c.reg);
         for (const auto& w : board.init) extent(w.reg);
@@ -52,10 +55,8 @@ struct Sim {
             std::copy(w.begin(), w.end(), slot(c.reg));
         }
         if (board.has_dut_position()) {
-            est::EstimatorConfig cfg;
-            cfg.sample_rate_hz = 1000.0;  // quasi-static: one conversion per step
-            cfg.params = o.params;
-            dut = est::make(o.estimator, cfg);
+            rebuild(nullptr);
+            rebased = false;
         }
         put("status", 1);
         put("error_flags", 0);
@@ -81,7 +82,87 @@ struct Sim {
         const double q = 2 * o.adc_range_v / std::ldexp(1.0, o.adc_bits);
         return std::clamp(std::round(v / q), -std::ldexp(1.0, o.adc_bits - 1), std::ldexp(1.0, o.adc_bits - 1) - 1) * q;
     }
-    void on_write() {
+    // The on-board estimator, with a correction (what the correction registers hold) or without.
+    // The correction reaches it as fringe's own file format (estimator/correction.hpp), so it is
+    // applied exactly as `atan2 correction=FILE` applies it, at the registers' quantisation.
+    void rebuild(const est::Correction* c) {
+        est::EstimatorConfig cfg;
+        cfg.sample_rate_hz = 1000.0;  // quasi-static: one conversion per step
+        cfg.params = o.params;
+        std::string path;
+        if (c) {
+            char tmpl[] = "/tmp/fringe-board-sim-correction-XXXXXX";
+            const int fd = mkstemp(tmpl);
+            if (fd < 0) throw std::runtime_error("cannot write the correction file");
+            path = tmpl;
+            const std::string text = c->to_json().dump();
+            const bool ok = ::write(fd, text.data(), text.size()) == static_cast<ssize_t>(text.size());
+            ::close(fd);
+            if (!ok) {
+                ::unlink(path.c_str());
+                throw std::runtime_error("cannot write the correction file");
+            }
+            cfg.params["correction"] = path;
+        }
+        std::unique_ptr<est::Estimator> e;
+        try {
+            e = est::make(o.estimator, cfg);
+        } catch (...) {
+            if (!path.empty()) ::unlink(path.c_str());
+            throw;
+        }
+        if (!path.empty()) ::unlink(path.c_str());
+        dut = std::move(e);
+        rebased = true;  // the position keeps its turns across the rebuild
+    }
+    // Applies what the correction registers hold (on) or removes the correction. A correction the
+    // estimator refuses (amplitudes not positive, an estimator without correction=FILE) is not
+    // applied, and correction_enable reads 0 again.
+    void apply_correction(bool on) {
+        if (!dut) return;
+        if (!on) {
+            rebuild(nullptr);
+            return;
+        }
+        est::Correction c;
+        if (const auto* t = board.find("correction_table_rad"))
+            for (int i = 0; i < t->count; ++i) c.table.push_back(decode_register(*t, slot(*t) + i * t->words()));
+        if (board.find("correction_offset_rad")) c.offset_rad = get("correction_offset_rad");
+        if (board.find("trim_offset_sin_v")) {
+            c.has_lissajous = true;
+            c.offset_sin_v = get("trim_offset_sin_v");
+            c.offset_cos_v = get("trim_offset_cos_v");
+            c.amplitude_sin_v = get("trim_amplitude_sin_v");
+            c.amplitude_cos_v = get("trim_amplitude_cos_v");
+            c.quadrature_error_rad = get("trim_phase_rad");
+        }
+        try {
+            rebuild(&c);
+        } catch (const std::exception& e) {
+            std::fprintf(stderr, "board-sim: correction not applied: %s\n", e.what());
+            rebuild(nullptr);
+            put("correction_enable", 0);
+        }
+    }
+    static bool covers(const RegisterDef* r, int a, int n) {
+        return r && r->table == RegTable::Holding && r->address < a + n && a < r->address + r->count * r->words();
+    }
+    // A write of holding registers [a, a + n). With correction_enable declared, the correction is
+    // applied (or removed) when that register is written, and writes of the table or trims wait
+    // for it; without it, every write of a correction register applies what they hold at once.
+    void on_write(int a, int n) {
+        bool corr = false;
+        for (const char* role : {"correction_table_rad", "correction_offset_rad", "trim_offset_sin_v", "trim_offset_cos_v", "trim_amplitude_sin_v", "trim_amplitude_cos_v",
+                                 "trim_phase_rad", "correction_enable"})
+            corr |= covers(board.find(role), a, n);
+        if (corr) {
+            if (const auto* en = board.find("correction_enable")) {
+                if (covers(en, a, n)) apply_correction(get("correction_enable") != 0);
+            } else {
+                apply_correction(true);
+            }
+            if (!covers(board.find("sin_out"), a, n) && !covers(board.find("cos_out"), a, n)) return;  // no new drive: no new conversion
+        }
         // The drive registers hold what the DAC outputs; the analog path adds the board's flaws.
         analog_s = (1 + o.gain_mismatch / 2) * get("sin_out") + o.offset_sin_v;
         analog_c = (1 - o.gain_mismatch / 2) * get("cos_out") + o.offset_cos_v;
@@ -90,6 +171,12 @@ struct Sim {
             double th = 0, om = 0;
             std::uint8_t valid = 0;
             dut->process({std::span(&s, 1), std::span(&c, 1)}, {std::span(&th, 1), std::span(&om, 1), std::span(&valid, 1)});
+            if (rebased) {  // a rebuilt estimator starts within a turn: keep the position's turns
+                turns_rad = kTwoPi * std::round((last_theta - th) / kTwoPi);
+                rebased = false;
+            }
+            th += turns_rad;
+            last_theta = th;
             const double periods = th / kTwoPi;
             const double whole = std::floor(periods);
             put("position_count", whole);
@@ -101,6 +188,8 @@ struct Sim {
         }
     }
     long long conversions = 0;
+    bool rebased = false;
+    double turns_rad = 0, last_theta = 0;
     // A read request (function, address, count) that covers an ADC register (sin_in, cos_in).
     bool reads_adc(const std::uint8_t* pdu) const {
         const RegTable t = pdu[0] == MODBUS_FC_READ_INPUT_REGISTERS ? RegTable::Input : RegTable::Holding;
@@ -164,7 +253,10 @@ Served serve_one(Sim& sim, modbus_t* ctx, const std::uint8_t* query, int len, lo
     // registers, or holding registers on boards with one address space, like a LabJack).
     if ((fc == MODBUS_FC_READ_INPUT_REGISTERS || (fc == MODBUS_FC_READ_HOLDING_REGISTERS && sim.adc_in_holding)) && sim.reads_adc(query + hl)) sim.on_read_inputs();
     reply([&] { modbus_reply(ctx, query, len, sim.map); });
-    if (fc == MODBUS_FC_WRITE_SINGLE_REGISTER || fc == MODBUS_FC_WRITE_MULTIPLE_REGISTERS || fc == MODBUS_FC_WRITE_AND_READ_REGISTERS) sim.on_write();
+    const std::uint8_t* pdu = query + hl;
+    if (fc == MODBUS_FC_WRITE_SINGLE_REGISTER) sim.on_write(pdu[1] << 8 | pdu[2], 1);
+    else if (fc == MODBUS_FC_WRITE_MULTIPLE_REGISTERS) sim.on_write(pdu[1] << 8 | pdu[2], pdu[3] << 8 | pdu[4]);
+    else if (fc == MODBUS_FC_WRITE_AND_READ_REGISTERS) sim.on_write(pdu[5] << 8 | pdu[6], pdu[7] << 8 | pdu[8]);
     return Served::Ok;
 }
 

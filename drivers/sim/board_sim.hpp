@@ -2,7 +2,10 @@
 // for trying fringe without hardware. Written DAC values (sin_out, cos_out) pass through a
 // simulated analog path (gain mismatch, offsets, noise, ADC bits) into the input registers
 // (sin_in, cos_in: a fresh conversion per read) and, for a DUT board, into an on-board
-// estimator (any registered one) whose position appears in the position registers.
+// estimator (any registered one) whose position appears in the position registers. A DUT
+// profile's correction registers (trims, angle table, offset) are applied to that estimator as
+// fringe's correction file when correction_enable is written non-zero (at every write of them
+// on a profile without one).
 // Fault injection: exception replies, reply delays (all or some requests), replies trickled a
 // byte at a time, a board that stops answering (frozen), is killed or restarts on its port, ADC
 // registers that stop updating (repeating old data) or turn to NaN.

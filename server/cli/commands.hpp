@@ -16,5 +16,6 @@ Command add_devices(CLI::App& app);
 Command add_instrument_sim(CLI::App& app);
 Command add_metrics(CLI::App& app);
 Command add_calibrate(CLI::App& app);
+Command add_write_correction(CLI::App& app);
 
 }  // namespace fringe::cli

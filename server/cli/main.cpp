@@ -66,7 +66,8 @@ int main(int argc, char** argv) {
     app.require_subcommand(1);
     const std::vector<cli::Command> commands{cli::add_gen(app),   cli::add_estimate(app), cli::add_run(app),       cli::add_runs(app),
                                              cli::add_sweep(app), cli::add_serve(app),    cli::add_board_sim(app), cli::add_devices(app),
-                                             cli::add_instrument_sim(app), cli::add_metrics(app), cli::add_calibrate(app)};
+                                             cli::add_instrument_sim(app), cli::add_metrics(app), cli::add_calibrate(app),
+                                             cli::add_write_correction(app)};
 
     try {
         app.parse(argc, argv);
