@@ -181,6 +181,13 @@ TEST_CASE("calibrated run: the scenario's calibrate block is checked with the re
     refused(cap, "calibrate.verify.device", "name another capture");
     cap["calibrate"]["verify"] = {{"device", "capture:/nonexistent/a.fcap"}};
     refused(cap, "calibrate.verify.device", "the same capture");
+    // a service's budget counts both passes
+    RunBudget budget;
+    budget.max_samples = 150000;
+    json one = paper_with({{"lane", "atan2"}});
+    CHECK_THROWS_WITH(plan_run(scenario(one), budget), Catch::Contains("2e+05 samples over its before and after passes"));
+    one.erase("calibrate");
+    CHECK_NOTHROW(plan_run(scenario(one), budget));
     // keys and values, like every other key
     auto bad_key = [](const json& j, const std::string& field, const std::string& words) {
         try {

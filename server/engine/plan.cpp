@@ -162,11 +162,13 @@ void check_calibration(const Scenario& sc) {
 
 void check_budget(const Scenario& sc, const RunBudget& b) {
     // In double: duration_s * sample_rate_hz may not fit an integer at all.
-    const double samples = sc.duration_s * sc.sample_rate_hz;
+    // A calibrated run is two passes of it (the after pass on another capture of that length).
+    const double passes = sc.calibrate ? 2.0 : 1.0;
+    const double samples = sc.duration_s * sc.sample_rate_hz * passes;
     if (!(samples <= b.max_samples)) {
         char msg[256];
-        std::snprintf(msg, sizeof msg, "duration_s %g s at sample_rate_hz %g Hz is %.4g samples; this service runs at most %.4g per run",
-                      sc.duration_s, sc.sample_rate_hz, samples, b.max_samples);
+        std::snprintf(msg, sizeof msg, "duration_s %g s at sample_rate_hz %g Hz is %.4g samples%s; this service runs at most %.4g per run",
+                      sc.duration_s, sc.sample_rate_hz, samples, sc.calibrate ? " over its before and after passes" : "", b.max_samples);
         throw RunTooLarge("too_many_samples", "duration_s", msg);
     }
     if (sc.estimators.size() > b.max_estimators)
