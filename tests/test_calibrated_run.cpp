@@ -261,6 +261,7 @@ TEST_CASE("calibrated run: too few cycles for a correction: none, the reason, an
     CHECK_FALSE(c.contains("correction"));
     CHECK(c["after"].is_null());
     CHECK(c["before"]["status"] == "done");
+    CHECK_THAT(c["limits"].get<std::string>(), Catch::Contains("no after pass") && Catch::Contains("the verdict is not theirs"));
     // nothing was left in the folder: no correction file, no capture
     CHECK(std::filesystem::is_empty(d.path));
 }

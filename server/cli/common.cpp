@@ -243,9 +243,9 @@ void print_calibration_summary(const json& r) {
     const json& ver = c.value("verified_on", json());
     std::printf("calibration of %s: %s\n", str(c["lane"]).c_str(), str(c["status"]).c_str());
     if (c.value("why", json()).is_string()) std::printf("  %s\n", str(c["why"]).c_str());
-    std::printf("  computed on the before pass (seed %s, %s, %s error)\n", str(on.value("seed", json())).c_str(),
+    std::printf("  computed on the before pass (seed %s, %s%s)\n", str(on.value("seed", json())).c_str(),
                 on.contains("capture") && on["capture"].is_string() ? ("capture " + str(on["capture"])).c_str() : str(on.value("device", json())).c_str(),
-                on.value("error_source", json()).is_string() ? (on["error_source"] == "truth" ? "truth-scored" : "self-referenced") : "no");
+                on.value("error_source", json()).is_string() ? (on["error_source"] == "truth" ? ", truth-scored error" : ", self-referenced error") : "");
     if (ver.is_object())
         std::printf("  verified on the after pass (seed %s, %s)\n", str(ver.value("seed", json())).c_str(),
                     ver.contains("capture") && ver["capture"].is_string() ? ("capture " + str(ver["capture"])).c_str() : str(ver.value("device", json())).c_str());
