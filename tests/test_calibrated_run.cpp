@@ -265,3 +265,20 @@ TEST_CASE("calibrated run: too few cycles for a correction: none, the reason, an
     // nothing was left in the folder: no correction file, no capture
     CHECK(std::filesystem::is_empty(d.path));
 }
+
+TEST_CASE("calibrated run: verified at another speed in the other direction, with the seed the before pass had", "[calibration][calrun]") {
+    TempDir d;
+    const json r = run(paper_with({{"lane", "atan2"}, {"verify", {{"seed", 1}, {"motion", {{"kind", "constant"}, {"electrical_freq_hz", -80.0}}}}}}), d);
+    REQUIRE(r["status"] == "done");
+    const json& c = r["calibration"];
+    REQUIRE(c["status"] == "verified");
+    CHECK(c["computed_on"]["seed"] == 1);
+    CHECK(c["verified_on"]["seed"] == 1);
+    CHECK(c["computed_on"]["motion"] != c["verified_on"]["motion"]);
+    CHECK(c["verified_on"]["motion"] == r["scenario"]["motion"]);
+    const json& a = lane(r, "atan2");
+    const double after = a["after"]["rms_rad"].get<double>(), crb = a["after"]["per_sample_crb_rad"].get<double>();
+    INFO("atan2 before " << a["before"]["rms_rad"] << " (+106.7 Hz), after " << after << " (-80 Hz), CRB " << crb);
+    CHECK(a["before"]["rms_rad"].get<double>() > 50 * crb);
+    CHECK(after < 2 * crb);
+}
