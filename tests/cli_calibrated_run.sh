@@ -10,7 +10,7 @@ fail() { echo "FAIL: $*" >&2; exit 1; }
 ok() { echo "ok - $*"; }
 
 set +e
-out=$("$FRINGE" run "$SRC/fixtures/scenarios/paper-duty1p6-calibrate.json" --no-db --report "$dir/r.json" --html "$dir/r.html" 2>&1)
+out=$("$FRINGE" run "$SRC/fixtures/scenarios/paper-duty1p6-calibrate.json" --no-db --report "$dir/r.json" --html "$dir/r.html" --junit "$dir/r.xml" 2>&1)
 rc=$?
 set -e
 echo "$out"
@@ -40,12 +40,16 @@ assert af < 2 * crb, (af, crb)
 assert p["after"]["rms_rad"] < p["before"]["rms_rad"] / 20
 assert c["before"]["estimators"][0]["metrics"]["rms"]["rad"] == b
 # no capture left behind: only the report, the HTML and the correction
-assert sorted(os.listdir(sys.argv[2])) == sorted(["r.json", "r.html", os.path.basename(path)]), os.listdir(sys.argv[2])
+assert sorted(os.listdir(sys.argv[2])) == sorted(["r.json", "r.html", "r.xml", os.path.basename(path)]), os.listdir(sys.argv[2])
 PY
 ok "before and after in one report, the correction beside it"
 grep -q '<table id="calibration-lanes">' "$dir/r.html" || fail "the HTML has no before/after table"
 grep -q 'id="calibration-status" class="PASS">verified' "$dir/r.html" || fail "the HTML does not say verified"
 ok "the HTML report's calibration section"
+grep -q '<property name="calibration.status" value="verified"/>' "$dir/r.xml" || fail "JUnit: no calibration.status"
+grep -qE '<property name="calibration.atan2.rms_after_rad" value="0.000252[0-9]* \(truth\)"/>' "$dir/r.xml" || fail "JUnit: no atan2 rms after"
+grep -q '<property name="calibration.verified_on" value="seed 2, device loopback:"/>' "$dir/r.xml" || fail "JUnit: no verified_on"
+ok "JUnit's calibration properties"
 
 # Refused with the scenario: exit 2, nothing run.
 $PY - "$SRC" "$dir" <<'PY'

@@ -131,6 +131,21 @@ std::string junit_xml(const json& r) {
         if (c.interval_95) v += " (95 % " + interval(json::array({c.interval_95->first, c.interval_95->second})) + ")";
         x << "      <property name=\"metric." << xml_escape(c.lane + "." + c.info->name) << "\" value=\"" << xml_escape(v) << "\"/>\n";
     }
+    // A calibrated run: its status, both captures, and each lane's rms before and after.
+    if (const json c = r.value("calibration", json()); c.is_object()) {
+        auto prop = [&](const std::string& n, const std::string& v) { x << "      <property name=\"" << xml_escape(n) << "\" value=\"" << xml_escape(v) << "\"/>\n"; };
+        prop("calibration.status", c.value("status", std::string()) + (c.value("why", json()).is_string() ? ": " + c["why"].get<std::string>() : ""));
+        for (const char* k : {"computed_on", "verified_on"})
+            if (const json p = c.value(k, json()); p.is_object())
+                prop(std::string("calibration.") + k, "seed " + p.value("seed", json()).dump() + ", device " + p.value("device", std::string()) +
+                                                          (p.value("capture", json()).is_string() ? ", capture " + p["capture"].get<std::string>() : ""));
+        for (const auto& l : c.value("lanes", json::array())) {
+            const std::string lane = l.value("label", std::string());
+            for (const char* pass : {"before", "after"})
+                if (const json f = l.value(pass, json()); f.is_object() && f.value("rms_rad", json()).is_number())
+                    prop("calibration." + lane + ".rms_" + pass + "_rad", num(f["rms_rad"]) + " (" + f.value("error_source", std::string()) + ")");
+        }
+    }
     x << "    </properties>\n";
     if (run_error)
         x << "    <testcase classname=\"" << xml_escape(name) << "\" name=\"run\"><error message=\""
