@@ -38,10 +38,13 @@ json pass_identity(const Scenario& sc, const char* pass) {
     return j;
 }
 
-// The before pass's own record, kept whole beside the after pass's.
+// The before pass's own record beside the after pass's: all of it but its plot data (the
+// traces, and each lane's error spectrum).
 json before_json(const RunReport& b) {
     json w = json::array();
     for (const auto& f : b.warnings) w.push_back(f);
+    json lanes = estimators_json(b.estimators);
+    for (auto& l : lanes) l.erase("spectrum");
     return {{"status", to_string(b.status)},
             {"verdict", b.verdict ? json(to_string(*b.verdict)) : json()},
             {"error", b.error.empty() ? json() : json(b.error)},
@@ -52,7 +55,7 @@ json before_json(const RunReport& b) {
             {"samples", {{"planned", b.samples_planned}, {"processed", b.samples_processed}}},
             {"signal", b.signal},
             {"warnings", std::move(w)},
-            {"estimators", estimators_json(b.estimators)},
+            {"estimators", std::move(lanes)},
             {"measurements", b.measurements}};
 }
 
