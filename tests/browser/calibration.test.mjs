@@ -4,7 +4,7 @@
 // whose after pass failed: the section says so and keeps the before figures.
 // usage: node tests/browser/calibration.test.mjs FRINGE_BINARY
 import { spawn } from 'node:child_process';
-import { mkdtempSync, mkdirSync, readFileSync, rmSync } from 'node:fs';
+import { existsSync, mkdtempSync, mkdirSync, readFileSync, rmSync } from 'node:fs';
 import { tmpdir } from 'node:os';
 import { join } from 'node:path';
 import { chromium } from 'playwright-core';
@@ -79,6 +79,10 @@ try {
   const good = await runScenario(fixture);
   const report = await api('GET', `runs/${good}/report.json`);
   check(report.calibration && report.calibration.status === 'verified', 'the service ran the fixture before and after, verified');
+  const corrPath = report.calibration.correction.path;
+  // (a service's reports name its data folder DATA, never the host's path)
+  check(corrPath === `DATA/corrections/${good}.correction.json` && existsSync(join(data, 'corrections', `${good}.correction.json`)),
+    `the service wrote the correction to DATA/corrections (${corrPath})`);
   const bad = await runScenario({ ...fixture, name: 'after-fails', limits: [], calibrate: { ...fixture.calibrate, verify: { device: 'loopback:?drop_after=50000&drop_count=10' } } });
 
   browser = await chromium.launch({
