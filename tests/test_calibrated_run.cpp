@@ -141,11 +141,12 @@ TEST_CASE("calibrated run: a capture without truth, calibrated self-referenced a
                  {"device", "capture:" + bare.string()},
                  {"encoder", "../encoders/paper-d2-duty1p6.json"},
                  {"estimators", json::array({json{{"name", "atan2"}}})},
-                 {"calibrate", {{"lane", "atan2"}, {"verify", {{"device", "capture:" + b.string()}}}}}};
+                 {"calibrate", {{"lane", "atan2"}, {"lissajous", GENERATE(true, false)}, {"verify", {{"device", "capture:" + b.string()}}}}}};
     const json r = run(j, d);
     REQUIRE(r["status"] == "done");
     const json& c = r["calibration"];
     REQUIRE(c["status"] == "verified");
+    CHECK(c["correction"]["file"].contains("lissajous") == j["calibrate"]["lissajous"].get<bool>());
     CHECK(c["computed_on"]["error_source"] == "self_reference");
     CHECK(c["computed_on"]["capture"] == bare.string());
     CHECK(c["verified_on"]["capture"] == b.string());
@@ -153,7 +154,7 @@ TEST_CASE("calibrated run: a capture without truth, calibrated self-referenced a
     CHECK(a["before"]["error_source"] == "self_reference");
     CHECK(a["after"]["error_source"] == "truth");
     const double after = a["after"]["rms_rad"].get<double>(), crb = a["after"]["per_sample_crb_rad"].get<double>();
-    INFO("self-referenced before " << a["before"]["rms_rad"] << ", after (truth) " << after << " CRB " << crb);
+    INFO("Lissajous stage " << j["calibrate"]["lissajous"] << ": self-referenced before " << a["before"]["rms_rad"] << ", after (truth) " << after << " CRB " << crb);
     CHECK(after < 3 * crb);
     CHECK(r["samples"]["planned"] == 100000);  // the after pass took its own capture's length
 }
@@ -282,4 +283,19 @@ TEST_CASE("calibrated run: verified at another speed in the other direction, wit
     INFO("atan2 before " << a["before"]["rms_rad"] << " (+106.7 Hz), after " << after << " (-80 Hz), CRB " << crb);
     CHECK(a["before"]["rms_rad"].get<double>() > 50 * crb);
     CHECK(after < 2 * crb);
+}
+
+TEST_CASE("calibrated run: with --record the before pass's capture is the recording, kept and named as the capture the correction was computed on", "[calibration][calrun]") {
+    TempDir d;
+    RunOptions o;
+    o.calibration_dir = (d.path / "corr").string();
+    o.record_path = (d.path / "before.fcap").string();
+    o.threads = 2;
+    const json r = execute_run(plan_run(scenario(paper_with({{"lane", "atan2"}}))), o);
+    REQUIRE(r["calibration"]["status"] == "verified");
+    CHECK(r["calibration"]["computed_on"]["capture"] == o.record_path);
+    CHECK(r["calibration"]["calibrated_from"]["capture"] == o.record_path);
+    CHECK(std::filesystem::exists(o.record_path));  // the user's recording stays
+    CHECK(std::filesystem::exists(r["calibration"]["correction"]["path"].get<std::string>()));  // the folder is made when missing
+    CHECK(r["calibration"]["verified_on"].value("capture", json()).is_null());  // the after pass is not recorded over it
 }
