@@ -299,3 +299,24 @@ TEST_CASE("calibrated run: with --record the before pass's capture is the record
     CHECK(std::filesystem::exists(r["calibration"]["correction"]["path"].get<std::string>()));  // the folder is made when missing
     CHECK(r["calibration"]["verified_on"].value("capture", json()).is_null());  // the after pass is not recorded over it
 }
+
+TEST_CASE("calibrated run: an external estimator's lane is given the correction only where it declares correction=FILE, and says which", "[calibration][calrun]") {
+    TempDir d;
+    json j = paper_with({{"lane", "atan2"}}, json::array({json{{"name", "atan2"}},
+                                                          json{{"name", "external"}, {"label", "ext"}, {"params", {{"command", FRINGE_EXTERNAL_HELPER}, {"model", "memoryless"}}}}}));
+    j["duration_s"] = 0.5;
+    const json r = run(j, d);
+    REQUIRE(r["calibration"]["status"] == "verified");
+    const json& e = lane(r, "ext");
+    CHECK(e["correction"]["kind"] == "external_env");
+    const json after_params = r["scenario"]["estimators"][1]["params"];
+    if (e["correction"]["applied"] == true) {
+        CHECK(after_params["correction"] == r["calibration"]["correction"]["path"]);
+    } else {
+        CHECK_THAT(e["correction"]["why_not"].get<std::string>(), Catch::StartsWith("not yet"));
+        CHECK_FALSE(after_params.contains("correction"));
+        // it ran as before: its error is atan2's uncorrected one, on another capture
+        CHECK(e["after"]["rms_rad"].get<double>() == Approx(e["before"]["rms_rad"].get<double>()).epsilon(0.05));
+    }
+    CHECK(lane(r, "atan2")["after"]["rms_rad"].get<double>() < lane(r, "atan2")["before"]["rms_rad"].get<double>() / 20);
+}

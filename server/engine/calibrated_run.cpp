@@ -67,7 +67,14 @@ json apply_to_software_lane(EstimatorSpec& lane, const std::string& correction_p
     return {{"kind", "estimator_param"}, {"applied", true}, {"how", "params.correction = the correction file"}};
 }
 
-json apply_to_external_lane(EstimatorSpec&, const std::string&) {
+json apply_to_external_lane(EstimatorSpec& lane, const std::string& correction_path) {
+    // An external estimator that declares correction=FILE hands the file to its child (its
+    // environment); one that does not cannot be given it.
+    if (takes_correction(lane.name)) {
+        if (!lane.params.is_object()) lane.params = json::object();
+        lane.params["correction"] = correction_path;
+        return {{"kind", "external_env"}, {"applied", true}, {"how", "params.correction = the correction file, handed to the child process"}};
+    }
     return {{"kind", "external_env"}, {"applied", false},
             {"why_not", "not yet: an external estimator is not handed the correction file's path; it ran as before"}};
 }
@@ -80,13 +87,13 @@ json apply_to_board(const Scenario&, const std::string&) {
 json apply_correction(EstimatorSpec& lane, const std::string& correction_path) {
     if (lane.params.is_object() && lane.params.contains("correction") && !lane.params["correction"].is_null())
         return {{"kind", "estimator_param"}, {"applied", false}, {"why_not", "applies a correction of its own (params.correction), kept"}};
-    if (takes_correction(lane.name)) return apply_to_software_lane(lane, correction_path);
     bool child = false;
     try {
         child = est::traits_of(lane.name).child_process;
     } catch (const std::exception&) {
     }
     if (child) return apply_to_external_lane(lane, correction_path);
+    if (takes_correction(lane.name)) return apply_to_software_lane(lane, correction_path);
     return {{"kind", "none"}, {"applied", false}, {"why_not", lane.name + " takes no correction of an arctangent; it ran as before"}};
 }
 

@@ -31,8 +31,8 @@ RunReport execute_calibrated_run(RunPlan plan, const RunOptions& o);
 //
 // An estimator in this process that takes correction=FILE (atan2, pll2): the parameter is set.
 nlohmann::json apply_to_software_lane(EstimatorSpec& lane, const std::string& correction_path);
-// An estimator run as a child process (`external`): not yet (the correction file's path in its
-// environment).
+// An estimator run as a child process (`external`): its correction=FILE parameter where it
+// declares one (the child is handed the file's path in its environment), else not yet.
 nlohmann::json apply_to_external_lane(EstimatorSpec& lane, const std::string& correction_path);
 // A board's own position (the lane "dut"): not yet (its correction registers written).
 nlohmann::json apply_to_board(const Scenario& after, const std::string& correction_path);
