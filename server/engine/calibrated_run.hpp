@@ -7,7 +7,8 @@
 //    (calibrate.hpp: the same path as `fringe calibrate`): the Lissajous stage from the before
 //    pass's signals, the periodic stage from atan2's truth-scored error (self-referenced without
 //    truth). Written to RUN_ID.correction.json in RunOptions::calibration_dir.
-// 3. Applied to every lane that can take it, one function per kind of lane (below).
+// 3. Applied to every lane that can take it, one function per kind of lane (below): estimator
+//    parameters, an external child's environment, a board's registers (not yet).
 // 4. The after pass on another capture (another seed by default; the verify block's motion or
 //    device), whose limits give the verdict. The report is the after pass's, with "calibration":
 //    the before pass, the correction, both captures' identities and each lane side by side.
