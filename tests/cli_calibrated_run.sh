@@ -83,7 +83,7 @@ import json, sys
 src, d = sys.argv[1], sys.argv[2]
 s = json.load(open(f"{src}/fixtures/scenarios/paper-duty1p6-calibrate.json"))
 s["encoder"] = f"{src}/fixtures/encoders/paper-d2-duty1p6.json"
-s["duration_s"] = 0.15
+s["duration_s"] = 0.108
 json.dump(s, open(f"{d}/short.json", "w"))
 PY
 set +e

@@ -18,7 +18,7 @@ struct CalibrateCliOptions {
     std::string capture, output, csv, c_header, encoder, estimator = "atan2", name = "fringe_correction";
     std::size_t table_size = 64;
     int harmonics = 16;
-    double lsb_rad = kTwoPi / 65536.0, settle_s = 0.1, min_cycles = 10;
+    double lsb_rad = kTwoPi / 65536.0, settle_s = 0.1, min_cycles = 1;
     bool no_lissajous = false, quiet = false;
 };
 

@@ -28,7 +28,7 @@ struct CalibrateOptions {
     int harmonics = 16;
     bool lissajous = true;     // false: keep the estimator's nominal calibration, fit only the periodic stage
     double settle_s = 0.1;
-    double min_cycles = 10;    // electrical cycles the error record needs (fewer: refused, no correction)
+    double min_cycles = 1;     // electrical cycles the error record needs: every angle seen (fewer: refused, no correction)
     std::optional<EncoderProfile> encoder;  // what atan2 is told (default: the capture's metadata)
     CaptureOptions capture;    // a capture: device URI's settings (channel map, size cap)
 };

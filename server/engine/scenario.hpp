@@ -52,7 +52,7 @@ struct CalibrateSpec {
     std::size_t table_size = 64;   // N entries over an electrical period
     int harmonics = 16;            // K orders of the correction the table is built from
     bool lissajous = true;         // false: keep the lane's calibration, correct the angle only
-    double min_cycles = 10;        // electrical cycles the error record needs for a correction
+    double min_cycles = 1;         // electrical cycles the error record needs for a correction (every angle seen)
     struct Verify {
         std::optional<std::uint64_t> seed;  // default: the scenario's seed + 1
         std::optional<MotionProfile> motion;  // default: the scenario's
