@@ -7,6 +7,7 @@ import { h, showError, errorText, scroller } from './dom.js';
 import { sig, withUnit, limitText } from './format.js';
 import { newRun } from './editor.js';
 import { signalPage } from './signal.js';
+import { calibrationSection } from './calibration.js';
 
 const view = document.getElementById('view');
 let cleanup = [];  // closers for the current view (event streams, timers)
@@ -305,6 +306,7 @@ async function report(id, into) {
       h('a', { href: `${base}/report.xml?download=1`, download: '', id: 'dl-junit' }, 'JUnit XML'),
       h('a', { href: `${base}/report.html?download=1`, download: '', id: 'dl-html' }, 'HTML'),
       h('a', { href: `#/compare/${id}` }, 'compare with…')),
+    calibrationSection(r),
     h('h2', {}, 'Measurements'), measurementsTable(r),
     h('h2', {}, 'Estimators'), selfRefSummary(r, mt), estimatorsTable(mt, truthless), signals, allMetricsTable(mt), harmonicsTable(r),
     h('h2', {}, 'Plots'), plotBox);

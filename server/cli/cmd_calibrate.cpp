@@ -69,7 +69,7 @@ struct CalibrateCliOptions {
     std::string capture, output, csv, c_header, encoder, estimator = "atan2", name = "fringe_correction";
     std::size_t table_size = 64;
     int harmonics = 16;
-    double lsb_rad = kTwoPi / 65536.0, settle_s = 0.1;
+    double lsb_rad = kTwoPi / 65536.0, settle_s = 0.1, min_cycles = 1;
     bool no_lissajous = false, quiet = false;
 };
 
@@ -104,6 +104,7 @@ int run_calibrate(const CalibrateCliOptions& o) {
     co.harmonics = o.harmonics;
     co.lissajous = !o.no_lissajous;
     co.settle_s = o.settle_s;
+    co.min_cycles = o.min_cycles;
     if (!o.encoder.empty()) co.encoder = load_encoder(o.encoder);
     const CalibrateResult r = calibrate_capture(co);
     // Every export is formed before anything is written (an entry that does not fit int16 writes nothing).
@@ -175,6 +176,7 @@ Command add_calibrate(CLI::App& app) {
     c->add_option("--estimator", o->estimator, "Estimator to calibrate (atan2)");
     c->add_option("--encoder", o->encoder, "Encoder profile JSON the estimator is told (default: the capture's metadata)")->check(CLI::ExistingFile);
     c->add_option("--settle-s", o->settle_s, "Seconds from the start excluded from the error record")->check(kFiniteNonNegative);
+    c->add_option("--min-cycles", o->min_cycles, "Electrical cycles the error record needs (fewer: no correction)")->check(CLI::Range(1.0, 1e12))->capture_default_str();
     c->add_flag("--no-lissajous", o->no_lissajous, "No ellipse fit: keep the nominal calibration, correct the angle only");
     c->add_option("--csv", o->csv, "Also write the table as CSV: angle_rad,correction_rad");
     c->add_option("--c-header", o->c_header, "Also write the table as a C header of int16 entries");

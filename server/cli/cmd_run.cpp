@@ -25,7 +25,7 @@ namespace {
 using nlohmann::json;
 
 struct RunCliOptions {
-    std::string scenario, report, junit, html, data, record, device, server, token_file, store;
+    std::string scenario, report, junit, html, data, record, device, server, token_file, store, calibration_dir;
     std::string bench, dut, dut_part, operator_name;
     double forward_wait_s = 10;
     std::int64_t seed = -1;
@@ -96,6 +96,10 @@ int run_run(const RunCliOptions& o) {
     RunOptions ro;
     ro.run_id = new_run_id();
     ro.record_path = o.record;
+    // A scenario's "calibrate" writes its correction file beside the report (or where asked).
+    ro.calibration_dir = !o.calibration_dir.empty() ? o.calibration_dir
+                         : !o.report.empty()         ? std::filesystem::absolute(o.report).parent_path().string()
+                                                     : std::string();
     ProvenanceDefaults pd = provenance_defaults();
     if (!o.bench.empty()) pd.bench = o.bench;
     if (!o.operator_name.empty()) pd.operator_name = o.operator_name;
@@ -185,6 +189,8 @@ Command add_run(CLI::App& app) {
     rn->add_flag("--no-db", o->no_db, "Do not record the run in the history");
     rn->add_option("--device", o->device, "Override the scenario's device URI (e.g. modbus+tcp://127.0.0.1:1502?board=dut-interpolator)");
     rn->add_option("--record", o->record, "Record the device input with aligned truth to this capture (.csv or .fcap)");
+    rn->add_option("--calibration-dir", o->calibration_dir, "A scenario with \"calibrate\": write the correction (RUN_ID.correction.json) here "
+                                                            "(default: beside --report, else a folder under the system's temporary folder)");
     rn->add_flag("-q,--quiet", o->quiet, "No summary or progress");
     rn->add_flag("--metrics", o->metrics, "Also print every metric of every estimator (fringe metrics describes them)");
     rn->add_option("--server", o->server, "Run it on a fringe serve at this URL (http://HOST:PORT): the scenario is checked here, run there, its report fetched");

@@ -226,6 +226,54 @@ void print_signal_bands(const json& r) {
 }
 
 // Every string here comes from a report: a scenario file, a client or a device wrote it.
+namespace {
+
+// A scenario's "calibrate": the before and after passes side by side, per lane.
+void print_calibration_summary(const json& r) {
+    const json c = r.value("calibration", json());
+    if (!c.is_object()) return;
+    const auto str = [](const json& v) { return term_escape(v.is_string() ? v.get<std::string>() : v.dump()); };
+    const auto num = [](const json& v, const char* f = "%.4g") {
+        if (!v.is_number()) return std::string("-");
+        char b[32];
+        std::snprintf(b, sizeof b, f, v.get<double>());
+        return std::string(b);
+    };
+    const json& on = c.value("computed_on", json::object());
+    const json& ver = c.value("verified_on", json());
+    std::printf("calibration of %s: %s\n", str(c["lane"]).c_str(), str(c["status"]).c_str());
+    if (c.value("why", json()).is_string()) std::printf("  %s\n", str(c["why"]).c_str());
+    std::printf("  computed on the before pass (seed %s, %s%s)\n", str(on.value("seed", json())).c_str(),
+                on.contains("capture") && on["capture"].is_string() ? ("capture " + str(on["capture"])).c_str() : str(on.value("device", json())).c_str(),
+                on.value("error_source", json()).is_string() ? (on["error_source"] == "truth" ? ", truth-scored error" : ", self-referenced error") : "");
+    if (ver.is_object())
+        std::printf("  verified on the after pass (seed %s, %s)\n", str(ver.value("seed", json())).c_str(),
+                    ver.contains("capture") && ver["capture"].is_string() ? ("capture " + str(ver["capture"])).c_str() : str(ver.value("device", json())).c_str());
+    if (c.value("correction", json()).is_object()) {
+        const json& f = c["correction"]["file"];
+        std::printf("  correction: %s (%zu entries%s), predicted %s rad rms\n", str(c["correction"]["path"]).c_str(),
+                    f.value("table_rad", json::array()).size(), f.contains("lissajous") ? ", Lissajous stage" : "",
+                    num(c.value("predicted_rms_rad", json())).c_str());
+    }
+    std::printf("  %-20s %-9s %11s %11s %11s %11s %11s %9s  %s\n", "lane", "error", "rms before", "rms after", "max before", "max after",
+                "CRB", "after/CRB", "correction");
+    for (const auto& l : c.value("lanes", json::array())) {
+        const json b = l.value("before", json::object()), a = l.value("after", json());
+        const json src = a.is_object() && a.value("error_source", json()).is_string() ? a["error_source"] : b.value("error_source", json());
+        const json cor = l.value("correction", json());
+        std::string applied = !cor.is_object() ? "-" : cor.value("applied", false) ? "applied (" + str(cor["kind"]) + ")" : "not applied: " + str(cor.value("why_not", json()));
+        const json crb = a.is_object() && a.value("per_sample_crb_rad", json()).is_number() ? a["per_sample_crb_rad"] : b.value("per_sample_crb_rad", json());
+        std::printf("  %-20s %-9s %11s %11s %11s %11s %11s %9s  %s\n", str(l["label"]).c_str(),
+                    src.is_string() ? (src == "truth" ? "truth" : "self-ref") : "-", num(b.value("rms_rad", json())).c_str(),
+                    a.is_object() ? num(a.value("rms_rad", json())).c_str() : "-", num(b.value("max_abs_rad", json())).c_str(),
+                    a.is_object() ? num(a.value("max_abs_rad", json())).c_str() : "-", num(crb).c_str(),
+                    a.is_object() ? num(a.value("rms_over_crb", json()), "%.3g").c_str() : "-", applied.c_str());
+    }
+    std::printf("  limits: %s\n", str(c.value("limits", json("-"))).c_str());
+}
+
+}  // namespace
+
 void print_run_summary(const json& r, const std::string& name, bool all_metrics) {
     const auto str = [](const json& v) { return term_escape(v.is_string() ? v.get<std::string>() : v.dump()); };
     std::printf("run %s: %s %s (%s)\n", str(r["id"]).c_str(), term_escape(name).c_str(), str(r["verdict"]).c_str(), str(r["status"]).c_str());
@@ -264,6 +312,7 @@ void print_run_summary(const json& r, const std::string& name, bool all_metrics)
             if (!line.empty()) std::printf("  %-20s %s\n", std::string(group) == "error" ? str(e["label"]).c_str() : "", line.c_str());
         }
     }
+    print_calibration_summary(r);
     print_signal_summary(r);
     if (all_metrics) std::printf("%s", term_escape(metrics_text(r), true).c_str());
     for (const auto& e : r["estimators"])

@@ -5,6 +5,7 @@
 #include "server/engine/capture_run.hpp"
 #include "signal_gen/fastmath.hpp"
 
+#include <cstdio>
 #include <stdexcept>
 
 namespace fringe {
@@ -17,7 +18,7 @@ namespace {
 // ellipse fit of a distorted signal is biased): the offset that keeps the corrected angle's mean
 // where the estimator's, with the calibration it is told, had it over the capture.
 double kept_zero(const CalibrateOptions& o, const est::Correction& c) {
-    CaptureReader reader(o.capture_path);
+    CaptureReader reader(o.capture_path, o.capture);
     std::optional<EncoderProfile> told = o.encoder;
     if (!told && reader.meta().is_object() && reader.meta().contains("encoder"))
         told = encoder_from_json(reader.meta()["encoder"], "capture.encoder");
@@ -53,7 +54,7 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
     json lis;
     if (o.lissajous) {
         LissajousIdentifier id;
-        CaptureReader reader(o.capture_path);
+        CaptureReader reader(o.capture_path, o.capture);
         CaptureData d;
         while (reader.read(65536, d)) id.add(d.size(), d.sin_v.data(), d.cos_v.data());
         est::Calibration cal;
@@ -75,6 +76,7 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
     ro.params = params;
     ro.encoder = o.encoder;
     ro.settle_s = o.settle_s;
+    ro.capture = o.capture;
     const RunReport rep = run_capture(ro);
     if (rep.status != RunStatus::Done || rep.estimators.empty())
         throw std::runtime_error("the run of " + o.estimator + " on the capture failed: " + rep.error);
@@ -83,7 +85,18 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
     std::vector<ErrorHarmonic> h;
     double mean = 0;
     json rests;
-    if (m.contains("harmonics") && m.at("harmonics").is_array() && !m.at("harmonics").empty()) {
+    // Too short a record fits its noise: a correction needs min_cycles electrical cycles under it.
+    auto enough = [&](double cycles, const char* what) {
+        if (!(cycles >= o.min_cycles)) {
+            char msg[256];
+            std::snprintf(msg, sizeof msg, "too few electrical cycles for a correction: %.3g %s after the settle time (at least %g)", cycles, what, o.min_cycles);
+            throw std::runtime_error(msg);
+        }
+    };
+    if (m.value("scored", std::uint64_t{0}) > 0) {  // the capture has truth
+        enough(m.at("evidence").value("scored_cycles", 0.0), "scored");
+        if (!m.contains("harmonics") || !m.at("harmonics").is_array() || m.at("harmonics").empty())
+            throw std::runtime_error("the error's harmonics were not fitted: " + m.at("harmonic_analysis").value("note", std::string("no reason given")));
         res.source = "truth";
         for (const auto& x : m.at("harmonics"))
             h.push_back({x.at("order").get<int>(), x.at("amplitude").at("rad").get<double>(), x.at("phase_rad").get<double>()});
@@ -97,6 +110,7 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
         if (!sr.is_object() || !sr.value("measured", false))
             throw std::runtime_error("the capture has no truth and no self-referenced error: " +
                                      (sr.is_object() ? sr.value("why_not", std::string("not measured")) : std::string("not measured")));
+        enough(sr.value("cycles", 0.0), "in the self-referenced windows");
         res.source = "self_reference";
         for (const auto& x : sr.at("harmonics"))
             h.push_back({x.at("order").get<int>(), x.at("amplitude_rad").get<double>(), x.at("phase_rad").get<double>()});

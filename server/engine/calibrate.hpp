@@ -10,6 +10,7 @@
 //    atan2 with its told calibration had it (the Lissajous stage would move it).
 #pragma once
 
+#include "drivers/capture_file.hpp"
 #include "estimator/correction.hpp"
 #include "signal_gen/encoder.hpp"
 
@@ -27,7 +28,9 @@ struct CalibrateOptions {
     int harmonics = 16;
     bool lissajous = true;     // false: keep the estimator's nominal calibration, fit only the periodic stage
     double settle_s = 0.1;
+    double min_cycles = 1;     // electrical cycles the error record needs: every angle seen (fewer: refused, no correction)
     std::optional<EncoderProfile> encoder;  // what atan2 is told (default: the capture's metadata)
+    CaptureOptions capture;    // a capture: device URI's settings (channel map, size cap)
 };
 
 struct CalibrateResult {
@@ -43,7 +46,8 @@ struct CalibrateResult {
 };
 
 // Throws ConfigError on bad options, std::runtime_error when the record is not usable (no truth
-// and no self-referenced error, an ellipse fit rejected, a run that failed).
+// and no self-referenced error, fewer than min_cycles under it, an ellipse fit rejected, a run
+// that failed). `fringe calibrate` and a run's "calibrate" (calibrated_run.hpp) both come here.
 CalibrateResult calibrate_capture(const CalibrateOptions& o);
 
 }  // namespace fringe

@@ -115,13 +115,60 @@ dev::UriParts check_device_uris(const Scenario& sc) {
     return input;
 }
 
+// "calibrate": the lane is an atan2 lane of this scenario without a correction of its own, and
+// the after pass runs on another capture than the before pass (docs/calibration.md "In one run").
+void check_calibration(const Scenario& sc) {
+    if (!sc.calibrate) return;
+    const CalibrateSpec& c = *sc.calibrate;
+    const EstimatorSpec* lane = nullptr;
+    std::string labels;
+    for (const auto& e : sc.estimators) {
+        if (e.label == c.lane) lane = &e;
+        labels += (labels.empty() ? "'" : ", '") + e.label + "'";
+    }
+    if (!lane) throw ConfigError("calibrate.lane", "no estimator labelled '" + c.lane + "' in this scenario (its lanes: " + labels + ")");
+    if (lane->name != "atan2") {
+        const bool takes = lane->name == "pll2";
+        throw ConfigError("calibrate.lane", "'" + c.lane + "' runs " + lane->name + ": " +
+                                                (takes ? "not yet: a correction is computed from atan2's reading of the signals (pll2 lanes take it in the after pass); "
+                                                         "name an atan2 lane"
+                                                       : "a correction can only be computed for atan2 (and applied to atan2 and pll2); name an atan2 lane"));
+    }
+    if (lane->params.is_object() && lane->params.contains("correction") && !lane->params["correction"].is_null())
+        throw ConfigError("calibrate.lane", "'" + c.lane + "' already applies a correction (params.correction): calibrate it without one");
+    const std::string before_device = sc.instruments ? std::string() : sc.device;
+    const std::string after_device = c.verify.device.empty() ? before_device : c.verify.device;
+    if (!c.verify.device.empty()) {
+        if (sc.instruments) throw ConfigError("calibrate.verify.device", "not yet with separate output and input instruments");
+        try {
+            (void)dev::check_uri(c.verify.device);
+        } catch (const ConfigError& e) {
+            throw ConfigError("calibrate.verify.device", e.message());
+        }
+    }
+    // Never verified on the capture it was computed on: a replayed capture is the same signals
+    // whatever the seed, and the same seed and motion on a generator are the same noise.
+    if (before_device.rfind("capture:", 0) == 0) {
+        if (c.verify.device.empty())
+            throw ConfigError("calibrate.verify.device", "the before pass replays a capture: name another capture to verify the correction on "
+                                                         "(a correction verified on the capture it was computed on also fits its noise)");
+        if (after_device == before_device)
+            throw ConfigError("calibrate.verify.device", "the same capture as the before pass: a correction is verified on another capture");
+    } else if (after_device == before_device && c.verify.seed.value_or(sc.seed + 1) == sc.seed && !c.verify.motion) {
+        throw ConfigError("calibrate.verify.seed", "the scenario's own seed with its motion and device is the same capture as the before pass: "
+                                                   "give another seed, or another motion");
+    }
+}
+
 void check_budget(const Scenario& sc, const RunBudget& b) {
     // In double: duration_s * sample_rate_hz may not fit an integer at all.
-    const double samples = sc.duration_s * sc.sample_rate_hz;
+    // A calibrated run is two passes of it (the after pass on another capture of that length).
+    const double passes = sc.calibrate ? 2.0 : 1.0;
+    const double samples = sc.duration_s * sc.sample_rate_hz * passes;
     if (!(samples <= b.max_samples)) {
         char msg[256];
-        std::snprintf(msg, sizeof msg, "duration_s %g s at sample_rate_hz %g Hz is %.4g samples; this service runs at most %.4g per run",
-                      sc.duration_s, sc.sample_rate_hz, samples, b.max_samples);
+        std::snprintf(msg, sizeof msg, "duration_s %g s at sample_rate_hz %g Hz is %.4g samples%s; this service runs at most %.4g per run",
+                      sc.duration_s, sc.sample_rate_hz, samples, sc.calibrate ? " over its before and after passes" : "", b.max_samples);
         throw RunTooLarge("too_many_samples", "duration_s", msg);
     }
     if (sc.estimators.size() > b.max_estimators)
@@ -169,6 +216,7 @@ RunPlan plan_run(Scenario sc, const RunBudget& budget) {
     check_budget(sc, budget);
     RunPlan p;
     p.scenario = std::move(sc);
+    check_calibration(p.scenario);
     build_estimators(p);
     check_limits(p);
     const dev::UriParts input = check_device_uris(p.scenario);

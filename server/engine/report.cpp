@@ -56,6 +56,7 @@ void to_json(json& j, const RunReport& r) {
              {"traces", r.traces}};
     if (!r.provenance.is_null()) j["provenance"] = r.provenance;
     if (!r.capture.is_null()) j["capture"] = r.capture;
+    if (!r.calibration.is_null()) j["calibration"] = r.calibration;
 }
 
 }  // namespace fringe

@@ -69,6 +69,9 @@ struct RunReport {
     nlohmann::json measurements = nlohmann::json::array();  // evaluate_limits (limits.hpp)
     nlohmann::json traces = nlohmann::json::object();       // TraceRecorder::to_json
     nlohmann::json capture;                 // a capture run's own facts (capture_run.hpp); null: omitted
+    // A scenario's "calibrate" (calibrated_run.hpp): the before pass, the correction, the
+    // captures it was computed and verified on, and each lane before and after; null: omitted.
+    nlohmann::json calibration;
 };
 
 // The report's "estimators" array (what the limits read, and to_json below).

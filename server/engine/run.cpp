@@ -23,6 +23,7 @@
 #include <random>
 #include <thread>
 
+#include "server/engine/calibrated_run.hpp"
 #include "server/engine/provenance.hpp"
 
 namespace fringe {
@@ -271,6 +272,11 @@ dev::DeviceInfo combined_info(const Scenario& sc, const dev::DeviceInfo& out, co
 RunReport execute_run(const Scenario& sc, const RunOptions& o) { return execute_run(plan_run(sc), o); }
 
 RunReport execute_run(RunPlan plan, const RunOptions& o) {
+    if (plan.scenario.calibrate) return execute_calibrated_run(std::move(plan), o);
+    return execute_pass(std::move(plan), o);
+}
+
+RunReport execute_pass(RunPlan plan, const RunOptions& o) {
     RunReport report;
     report.scenario = std::move(plan.scenario);
     const Scenario& sc = report.scenario;

@@ -41,6 +41,10 @@ struct RunOptions {
         estimates;
     // Filled when the run ends: seconds spent inside the first estimator (its throughput).
     double* estimator_s = nullptr;
+    // A scenario's "calibrate": the folder the correction file (RUN_ID.correction.json) is
+    // written to, and the before pass's capture while the correction is computed from it;
+    // empty: a folder of its own under the system's temporary folder.
+    std::string calibration_dir;
 };
 
 // Executes a run plan (plan.hpp: the scenario checked once, its estimators built). Never
@@ -48,7 +52,10 @@ struct RunOptions {
 // exception end the run with status "error" or "aborted" and a report of what was processed
 // until then.
 // The report converts to JSON (report.hpp to_json): `json j = execute_run(plan);`.
+// A scenario with "calibrate" runs twice, before and after (calibrated_run.hpp), in one report.
 RunReport execute_run(RunPlan plan, const RunOptions& o = {});
+// One pass of the plan, whatever its "calibrate" says (the before and the after pass).
+RunReport execute_pass(RunPlan plan, const RunOptions& o);
 // plan_run, then the plan: throws plan_run's ConfigError.
 RunReport execute_run(const Scenario& sc, const RunOptions& o = {});
 

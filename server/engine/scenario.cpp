@@ -112,6 +112,13 @@ const KeyTable& scenario_keys() {
         key_integer("scoring.max_slipped_samples", "", d.scoring.max_slipped_samples, 0, 9007199254740992.0, "evidence: scored samples off by more than pi at most", false),
         key_boolean("scoring.self_reference", d.scoring.self_reference,
                     "also measure each estimator's error without truth, against a reference built from its own output (on for a capture without truth)", false),
+        key_string("calibrate.lane", nullptr, "calibrate, apply, re-run: the label of the atan2 lane a correction is computed for (docs/calibration.md)", false),
+        key_integer("calibrate.table_size", "", static_cast<double>(CalibrateSpec{}.table_size), 2, 1 << 20, "entries of the correction table over an electrical period", false),
+        key_integer("calibrate.harmonics", "", CalibrateSpec{}.harmonics, 1, 256, "harmonic orders of the correction the table is built from", false),
+        key_boolean("calibrate.lissajous", CalibrateSpec{}.lissajous, "identify offsets, gains and quadrature (ellipse fit) before the table", false),
+        key_number("calibrate.min_cycles", "", CalibrateSpec{}.min_cycles, 1.0, 1e12, "electrical cycles the error record needs for a correction", false),
+        key_integer("calibrate.verify.seed", "", nullptr, 0, 9007199254740992.0, "the after pass's noise seed (default: the scenario's seed + 1)", false),
+        key_string("calibrate.verify.device", "", "the after pass's device URI (default: the scenario's; a capture: device needs another capture)", false),
     });
     return t;
 }
@@ -188,6 +195,24 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
         s.scoring.max_slipped_samples = static_cast<std::uint64_t>(k.integer(sr, "scoring.max_slipped_samples"));
         s.scoring.self_reference = k.boolean(sr, "scoring.self_reference");
         sr.finish();
+    }
+    if (r.has("calibrate")) {
+        JsonReader cr = r.object("calibrate");
+        CalibrateSpec c;
+        c.table_size = static_cast<std::size_t>(k.integer(cr, "calibrate.table_size"));
+        c.harmonics = static_cast<int>(k.integer(cr, "calibrate.harmonics"));
+        c.lissajous = k.boolean(cr, "calibrate.lissajous");
+        c.min_cycles = k.number(cr, "calibrate.min_cycles");
+        if (cr.has("verify")) {
+            JsonReader vr = cr.object("verify");
+            if (vr.has("seed")) c.verify.seed = static_cast<std::uint64_t>(k.integer(vr, "calibrate.verify.seed"));
+            c.verify.device = k.string(vr, "calibrate.verify.device");
+            if (vr.has("motion")) c.verify.motion = motion_from_json(vr.raw("motion"), base_dir, s.encoder.lines_per_rev, "calibrate.verify.motion");
+            vr.finish();
+        }
+        c.lane = k.string(cr, "calibrate.lane");  // after the values: a value out of range is named first
+        cr.finish();
+        s.calibrate = std::move(c);
     }
     if (r.has("estimators")) {
         const json& arr = r.raw("estimators");
@@ -279,6 +304,15 @@ void to_json(json& j, const Scenario& s) {
         lim.push_back(x);
     }
     j["limits"] = lim;
+    if (s.calibrate) {
+        const CalibrateSpec& c = *s.calibrate;
+        json v = json::object();
+        if (c.verify.seed) v["seed"] = *c.verify.seed;
+        if (c.verify.motion) v["motion"] = *c.verify.motion;
+        if (!c.verify.device.empty()) v["device"] = c.verify.device;
+        j["calibrate"] = {{"lane", c.lane}, {"table_size", c.table_size}, {"harmonics", c.harmonics}, {"lissajous", c.lissajous},
+                          {"min_cycles", c.min_cycles}, {"verify", v}};
+    }
 }
 
 }  // namespace fringe

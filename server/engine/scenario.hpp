@@ -43,6 +43,23 @@ struct ScoringRules {
     bool self_reference = false;            // also measure each lane's error without truth (docs/self-reference.md)
 };
 
+// "Calibrate, apply, re-run" (docs/calibration.md "In one run"): after the run (the before
+// pass), a correction for the lane named is computed from the before pass's signals and error
+// record, applied to every lane that can take it, and the scenario runs again (the after pass)
+// on another capture: another seed by default, or the motion or device the verify block says.
+struct CalibrateSpec {
+    std::string lane;              // a label of an atan2 lane
+    std::size_t table_size = 64;   // N entries over an electrical period
+    int harmonics = 16;            // K orders of the correction the table is built from
+    bool lissajous = true;         // false: keep the lane's calibration, correct the angle only
+    double min_cycles = 1;         // electrical cycles the error record needs for a correction (every angle seen)
+    struct Verify {
+        std::optional<std::uint64_t> seed;  // default: the scenario's seed + 1
+        std::optional<MotionProfile> motion;  // default: the scenario's
+        std::string device;        // default: the scenario's (a capture: device needs another capture here)
+    } verify;
+};
+
 struct Scenario {
     std::string name = "unnamed";
     std::string description;
@@ -80,6 +97,7 @@ struct Scenario {
     std::string dut;  // DUT / board id (serial) for the history; default: the device's
     std::string dut_part;  // DUT part number (provenance); default: the bench's
     ScoringRules scoring;
+    std::optional<CalibrateSpec> calibrate;  // none: one pass, as always
 
     std::uint64_t samples() const;
     // The device(s) in one line: the URI, or "OUTPUT -> INPUT" (run lists, history).

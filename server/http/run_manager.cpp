@@ -187,6 +187,7 @@ void RunManager::worker() {
         ro.run_id = job->snap.id;
         ro.cancel = &job->cancel;
         ro.provenance = job->provenance;
+        ro.calibration_dir = calibration_dir;
         ro.progress = [this, job](std::uint64_t done, std::uint64_t total) {
             {
                 std::lock_guard<std::mutex> l(mu_);

@@ -79,6 +79,9 @@ public:
     // The service's bench, host, DUT and operator (a scenario's dut / dut_part win): each
     // run's report["provenance"] and row.
     ProvenanceDefaults provenance = provenance_defaults();
+    // Where a calibrated run writes its correction file (RunOptions::calibration_dir; the
+    // service's DATA/corrections); empty: the engine's temporary folder.
+    std::string calibration_dir;
 
 private:
     struct Job {

@@ -83,6 +83,7 @@ Service::Service(ServiceConfig cfg) : cfg_(std::move(cfg)) {
     runs_->max_report_bytes = cfg_.max_report_bytes;
     runs_->max_queued = cfg_.max_queued_runs;
     runs_->provenance = cfg_.provenance;
+    runs_->calibration_dir = (fs::path(cfg_.data_dir) / "corrections").string();  // created by the first calibrated run
     if (auto* fwd = dynamic_cast<ForwardingStore*>(store_.get())) fwd->start();  // forwards what earlier runs left pending, too
     if (!cfg_.web_dir.empty() && fs::is_directory(cfg_.web_dir)) {
         // The UI is read once: requests look files up by exact name, never build paths.

@@ -131,6 +131,21 @@ std::string junit_xml(const json& r) {
         if (c.interval_95) v += " (95 % " + interval(json::array({c.interval_95->first, c.interval_95->second})) + ")";
         x << "      <property name=\"metric." << xml_escape(c.lane + "." + c.info->name) << "\" value=\"" << xml_escape(v) << "\"/>\n";
     }
+    // A calibrated run: its status, both captures, and each lane's rms before and after.
+    if (const json c = r.value("calibration", json()); c.is_object()) {
+        auto prop = [&](const std::string& n, const std::string& v) { x << "      <property name=\"" << xml_escape(n) << "\" value=\"" << xml_escape(v) << "\"/>\n"; };
+        prop("calibration.status", c.value("status", std::string()) + (c.value("why", json()).is_string() ? ": " + c["why"].get<std::string>() : ""));
+        for (const char* k : {"computed_on", "verified_on"})
+            if (const json p = c.value(k, json()); p.is_object())
+                prop(std::string("calibration.") + k, "seed " + p.value("seed", json()).dump() + ", device " + p.value("device", std::string()) +
+                                                          (p.value("capture", json()).is_string() ? ", capture " + p["capture"].get<std::string>() : ""));
+        for (const auto& l : c.value("lanes", json::array())) {
+            const std::string lane = l.value("label", std::string());
+            for (const char* pass : {"before", "after"})
+                if (const json f = l.value(pass, json()); f.is_object() && f.value("rms_rad", json()).is_number())
+                    prop("calibration." + lane + ".rms_" + pass + "_rad", num(f["rms_rad"]) + " (" + f.value("error_source", std::string()) + ")");
+        }
+    }
     x << "    </properties>\n";
     if (run_error)
         x << "    <testcase classname=\"" << xml_escape(name) << "\" name=\"run\"><error message=\""
@@ -1054,6 +1069,71 @@ std::string metrics_text(const json& r) {
     return o.str();
 }
 
+// A scenario's "calibrate": both passes' captures, the correction, and each lane before and after.
+static std::string calibration_section_html(const json& r) {
+    const json c = r.value("calibration", json());
+    if (!c.is_object()) return "";
+    auto num3 = [](const json& v) { return v.is_number() ? fmt_num(v.get<double>()) : std::string("-"); };
+    auto str = [](const json& v) { return xml_escape(v.is_string() ? v.get<std::string>() : v.is_null() ? std::string("-") : v.dump()); };
+    auto pass = [&](const json& p) {
+        if (!p.is_object()) return std::string("-");
+        std::string t = "seed " + str(p.value("seed", json())) + ", device <code>" + str(p.value("device", json())) + "</code>";
+        if (p.value("capture", json()).is_string()) t += ", capture <code>" + str(p["capture"]) + "</code>";
+        if (p.value("motion", json()).is_object()) t += ", motion <code>" + xml_escape(p["motion"].dump()) + "</code>";
+        if (p.value("error_source", json()).is_string()) t += p["error_source"] == "truth" ? ", truth-scored error" : ", self-referenced error";
+        return t;
+    };
+    std::ostringstream h;
+    const std::string status = c.value("status", std::string());
+    h << "<h2>Calibration: before and after</h2><div id=\"calibration\">\n<p>Lane <code>" << str(c["lane"]) << "</code>: <span id=\"calibration-status\" class=\""
+      << (status == "verified" ? "PASS" : "ERROR") << "\">" << xml_escape(status) << "</span>";
+    if (c.value("why", json()).is_string()) h << " &mdash; " << str(c["why"]);
+    h << "</p>\n<ul><li>computed on the before pass: " << pass(c.value("computed_on", json())) << "</li>\n<li>verified on the after pass: "
+      << pass(c.value("verified_on", json())) << "</li>\n";
+    if (c.value("correction", json()).is_object()) {
+        const json& f = c["correction"]["file"];
+        h << "<li>correction <code>" << str(c["correction"]["path"]) << "</code> (sha256 <code>" << str(c["correction"]["sha256"]).substr(0, 16)
+          << "&hellip;</code>): " << f.value("table_rad", json::array()).size() << " entries" << (f.contains("lissajous") ? ", Lissajous stage" : "")
+          << ", offset " << num3(f.value("offset_rad", json())) << " rad, predicted residual " << num3(c.value("predicted_rms_rad", json())) << " rad rms</li>\n";
+    }
+    h << "<li>" << str(c.value("limits", json())) << "</li></ul>\n";
+    h << "<div class=\"table-wrap\"><table id=\"calibration-lanes\"><tr><th>lane</th><th>error</th><th>rms before (rad)</th><th>rms after (rad)</th>"
+         "<th>max before (rad)</th><th>max after (rad)</th><th>per-sample CRB (rad)</th><th>after / CRB</th><th>predicted (rad)</th><th>correction</th></tr>\n";
+    for (const auto& l : c.value("lanes", json::array())) {
+        const json b = l.value("before", json::object()), a = l.value("after", json());
+        const bool has_after = a.is_object();
+        const json src = has_after && a.value("error_source", json()).is_string() ? a["error_source"] : b.value("error_source", json());
+        const json crb = has_after && a.value("per_sample_crb_rad", json()).is_number() ? a["per_sample_crb_rad"] : b.value("per_sample_crb_rad", json());
+        const json cor = l.value("correction", json());
+        const std::string applied = !cor.is_object() ? "-" : cor.value("applied", false) ? "applied (" + str(cor["kind"]) + ")" : "not applied: " + str(cor.value("why_not", json()));
+        h << "<tr><td>" << str(l["label"]) << "</td><td>" << (src.is_string() ? (src == "truth" ? "truth" : "self-referenced") : "-") << "</td><td>"
+          << num3(b.value("rms_rad", json())) << "</td><td>" << (has_after ? num3(a.value("rms_rad", json())) : "-") << "</td><td>"
+          << num3(b.value("max_abs_rad", json())) << "</td><td>" << (has_after ? num3(a.value("max_abs_rad", json())) : "-") << "</td><td>" << num3(crb)
+          << "</td><td>" << (has_after ? num3(a.value("rms_over_crb", json())) : "-") << "</td><td>" << num3(l.value("predicted_rms_rad", json())) << "</td><td>"
+          << applied << "</td></tr>\n";
+    }
+    h << "</table></div>\n";
+    // The error harmonics of each lane, before and after (the first 8 orders the passes fitted).
+    h << "<div class=\"table-wrap\"><table id=\"calibration-harmonics\"><tr><th>lane</th><th>order</th><th>before (rad)</th><th>after (rad)</th></tr>\n";
+    for (const auto& l : c.value("lanes", json::array())) {
+        const json hb = l.value("before", json::object()).value("harmonics", json::array());
+        const json a = l.value("after", json());
+        const json ha = a.is_object() ? a.value("harmonics", json::array()) : json::array();
+        for (std::size_t i = 0; i < std::max(hb.size(), ha.size()) && i < 8; ++i) {
+            const json& x = i < hb.size() ? hb[i] : ha[i];
+            h << "<tr><td>" << str(l["label"]) << "</td><td>" << str(x["order"]) << "x</td><td>" << (i < hb.size() ? num3(hb[i]["amplitude_rad"]) : "-")
+              << "</td><td>" << (i < ha.size() ? num3(ha[i]["amplitude_rad"]) : "-") << "</td></tr>\n";
+        }
+    }
+    h << "</table></div>\n";
+    const json before = c.value("before", json());
+    if (before.is_object())
+        h << "<p>The before pass: " << str(before.value("status", json())) << ", verdict " << str(before.value("verdict", json())) << ", seed "
+          << str(before.value("seed", json())) << " (its lanes and measurements are in the report's <code>calibration.before</code>).</p>\n";
+    h << "</div>\n";
+    return h.str();
+}
+
 std::string report_html(const json& r) {
     std::ostringstream h;
     // Values for people: 3 significant digits (the JSON and JUnit keep every digit).
@@ -1079,6 +1159,7 @@ std::string report_html(const json& r) {
             h << "<li><code>" << xml_escape(w.value("code", std::string())) << "</code> " << xml_escape(w.value("message", std::string())) << "</li>\n";
         h << "</ul>\n";
     }
+    h << calibration_section_html(r);
     h << "<h2>Measurements</h2><div class=\"table-wrap\"><table id=\"measurements\"><tr><th>estimator</th><th>metric</th><th>value</th><th>unit</th><th>limit</th><th>outcome</th></tr>\n";
     for (const auto& m : r["measurements"]) {
         std::string lim;
