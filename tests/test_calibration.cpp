@@ -276,3 +276,53 @@ TEST_CASE("calibration: the 1.6 % duty-cycle signal, calibrated from a capture w
     INFO("Lissajous stage " << o.lissajous << ": rms after " << rms_after << " predicted " << r.predicted_rms_rad << " CRB " << crb);
     CHECK(rms_after < 3 * crb);
 }
+
+TEST_CASE("calibration: with truth the offset leaves the corrected record's mean at zero when the record samples the angles unevenly (a step sweep over one and a half periods)", "[calibration][capture]") {
+    // A sweep of one and a half periods in steps of 1/64 of a period: the first half of the
+    // period is sampled twice, the second once. Noise-free signals with a 1x error of 0.03 rad after any
+    // ellipse fit: s = sin(theta + e), c = cos(theta + e), e = 0.03 sin(theta) + 0.01 cos(3 theta).
+    // The table's mean over these angles is not zero: an offset of the error's mean alone left
+    // the corrected mean at 6e-3 rad.
+    TempDir d;
+    const auto cap = d.path / "steps.fcap", corr = d.path / "corr.json";
+    Block b;
+    b.resize(96, false);
+    const double step_rad = kTwoPi / 64;
+    for (std::size_t i = 0; i < b.size(); ++i) {
+        const double th = step_rad * static_cast<double>(i);
+        const double e = 0.03 * std::sin(th) + 0.01 * std::cos(3 * th);
+        b.t_s[i] = 1e-3 * static_cast<double>(i);
+        b.theta_rad[i] = th;
+        b.omega_rad_s[i] = 0;
+        b.phi_rad[i] = th;
+        b.sin_v[i] = std::sin(th + e);
+        b.cos_v[i] = std::cos(th + e);
+    }
+    EncoderProfile ideal = load_encoder(FRINGE_SOURCE_DIR "/fixtures/encoders/ideal.json");
+    {
+        CaptureWriter w(cap.string(), CaptureColumns{true, true, false}, json{{"sample_rate_hz", 1000.0}, {"t0_s", 0.0}, {"encoder", ideal}});
+        w.write(b);
+        w.close();
+    }
+    CalibrateOptions o;
+    o.capture_path = cap.string();
+    o.encoder = ideal;
+    o.settle_s = 0;
+    o.lissajous = false;  // the signals' amplitude is 1 V, as the ideal profile says
+    const CalibrateResult r = calibrate_capture(o);
+    REQUIRE(r.source == "truth");
+    std::ofstream(corr) << r.correction.to_json().dump();
+    CaptureRunOptions ro;
+    ro.estimator = "atan2";
+    ro.capture_path = cap.string();
+    ro.encoder = ideal;
+    ro.settle_s = 0;
+    ro.params = {{"correction", corr.string()}};
+    const RunReport rep = run_capture(ro);
+    REQUIRE(rep.status == RunStatus::Done);
+    const json after = rep.estimators.at(0);
+    const double mean_rad = after["metrics"]["mean"]["rad"].get<double>(), rms_rad = after["metrics"]["rms"]["rad"].get<double>();
+    INFO("offset " << r.correction.offset_rad << " rad; after: mean " << mean_rad << " rms " << rms_rad);
+    CHECK(std::fabs(mean_rad) < 1e-6);
+    CHECK(rms_rad < 2e-4);  // what a 64-entry linear table leaves of these harmonics, sampled at its entries
+}

@@ -127,7 +127,7 @@ int run_calibrate(const CalibrateCliOptions& o) {
                         c.quadrature_error_rad);
         std::printf("  error after the Lissajous stage: %.4g rad rms (periodic %.4g, the rest %.4g)\n", r.before_rms_rad,
                     r.periodic_rms_rad, r.noise_rms_rad);
-        std::printf("  offset: %.4g rad (%s)\n", c.offset_rad, r.source == "truth"    ? "the error's mean against the truth"
+        std::printf("  offset: %.4g rad (%s)\n", c.offset_rad, r.source == "truth"    ? "the error's mean against the truth, less the table's mean over the record"
                     : c.has_lissajous ? "no truth: keeps the zero atan2 had with the calibration it is told"
                                       : "none: no truth to measure it against");
         std::printf("  table: %zu entries, linear interpolation, from %d harmonics; leaves %.4g rad rms of the periodic error\n",
