@@ -478,10 +478,15 @@ std::vector<RegisterValue> write_correction(RegisterPort& port, const est::Corre
     };
     // Everything but the final enable, then read back and compare.
     const std::size_t last = plan.back().role == "correction_enable" ? plan.size() - 1 : plan.size();
+    // Once correction_enable is cleared (the first write), a failure leaves the board without its
+    // correction: the error says so (a user re-ran the write and found the board uncorrected).
+    bool cleared = false;
+    try {
     for (std::size_t i = 0; i < last;) {
         const std::size_t j = run_end(i);
         const auto w = words_of(i, j);
         port.write_words(plan[i].address, w, plan[i].reg.write_function, what_of(i, j, "write"));
+        if (i == 0 && plan[0].role == "correction_enable") cleared = true;
         i = j;
     }
     auto verify = [&](std::size_t i, std::size_t j) {
@@ -520,6 +525,13 @@ std::vector<RegisterValue> write_correction(RegisterPort& port, const est::Corre
         if (got != plan[last].words[0])
             throw DeviceError("board " + b.name, "correction_enable @" + std::to_string(plan[last].address) + " reads back " + std::to_string(got) +
                                                      " after writing 1: the board refused the correction (the values read back as written)");
+    }
+    } catch (const Cancelled&) {
+        throw;
+    } catch (const DeviceError& e) {
+        if (!cleared) throw;
+        throw DeviceError(e.device(), std::string(e.what()).substr(e.device().size() + 2) +
+                                          "; correction_enable was cleared first: the board applies no correction until a write succeeds");
     }
     return plan;
 }

@@ -4,7 +4,9 @@
 #include "signal_gen/base/config.hpp"
 
 #include <cmath>
+#include <filesystem>
 #include <fstream>
+#include <iterator>
 
 namespace fringe::est {
 
@@ -95,6 +97,18 @@ Correction Correction::from_json(const nlohmann::json& j) {
     }
     c.table = number_array(j, "table_rad", p);
     if (j.contains("offset_rad")) c.offset_rad = number(j, "offset_rad", p);
+    // An interpolator's error is a fraction of a period: a correction of more than half a period
+    // at an angle (or an offset of more than a whole one) is not one; 1e300 in a table made
+    // the estimate not finite, and offset_rad 1e308 a constant output that scored as no error.
+    constexpr double kHalfPeriodRad = kTwoPiC / 2;
+    for (std::size_t i = 0; i < c.table.size(); ++i)
+        if (!(std::fabs(c.table[i]) <= kHalfPeriodRad))
+            throw ConfigError(p + ".table_rad[" + std::to_string(i) + "]", "must be within [-pi, pi] rad (a correction is a fraction of a period)");
+    double sum_abs_rad = 0;
+    for (std::size_t k = 0; k < c.cos_k.size(); ++k) sum_abs_rad += std::fabs(c.cos_k[k]) + std::fabs(c.sin_k[k]);
+    if (!(sum_abs_rad <= kHalfPeriodRad))
+        throw ConfigError(p + ".harmonics", "the harmonics' amplitudes add up to more than pi rad (a correction is a fraction of a period)");
+    if (!(std::fabs(c.offset_rad) <= kTwoPiC)) throw ConfigError(p + ".offset_rad", "must be within [-2 pi, 2 pi] rad");
     return c;
 }
 
@@ -127,11 +141,17 @@ std::unique_ptr<Correction> correction_from_params(const fringe::Params& p, Cali
 }
 
 Correction Correction::load(const std::string& path) {
+    // A regular file only: a folder gave the stream library's own words, a FIFO waited forever.
+    std::error_code ec;
+    const auto st = std::filesystem::status(path, ec);
+    if (ec || !std::filesystem::exists(st)) throw ConfigError("correction", "cannot open " + path + " (no such file)");
+    if (!std::filesystem::is_regular_file(st)) throw ConfigError("correction", path + " is not a regular file");
     std::ifstream f(path);
     if (!f) throw ConfigError("correction", "cannot open " + path);
+    const std::string text((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
     nlohmann::json j;
     try {
-        f >> j;
+        j = nlohmann::json::parse(text);  // the whole file: trailing text after the object is an error too
     } catch (const nlohmann::json::exception& e) {
         throw ConfigError("correction", path + ": not JSON (" + e.what() + ")");
     }

@@ -38,8 +38,8 @@ run_to before
 # 128 steps at 1 kHz: no settle time to leave out.
 out=$("$FRINGE" calibrate "$dir/before.fcap" -o "$dir/corr.json" --settle-s 0 --write-board "$URI" --modbus-writes "$dir/writes.csv") || fail "calibrate --write-board: $out"
 echo "$out"
-echo "$out" | grep -qF "table: 64 entries" || fail "the table has the board's 64 entries"
-echo "$out" | grep -qF "wrote the correction to $URI: 72 values (72 registers), read back and verified; correction_enable = 1" || fail "the write is reported"
+grep -qF "table: 64 entries" <<<"$out" || fail "the table has the board's 64 entries"
+grep -qF "wrote the correction to $URI: 72 values (72 registers), read back and verified; correction_enable = 1" <<<"$out" || fail "the write is reported"
 run_to after
 before=$(dut_rms "$dir/before.json"); after=$(dut_rms "$dir/after.json")
 echo "DUT rms before $before rad, after $after rad"
@@ -89,17 +89,20 @@ ok "write-correction"
 expect_error() {  # expect_error WHAT PATTERN CMD...
   local what=$1 pat=$2; shift 2
   set +e; msg=$("$@" 2>&1); rc=$?; set -e
-  [ $rc -eq 2 ] && echo "$msg" | grep -qF -- "$pat" || fail "$what: exit $rc, $msg"
+  [ $rc -eq 2 ] && grep -qF -- "$pat" <<<"$msg" || fail "$what: exit $rc, $msg"
   ok "$what"
 }
 sim aio --modbus tcp://127.0.0.1:0 --board generic-aio
 expect_error "a board without correction registers" "declares no correction registers" \
   "$FRINGE" write-correction "$dir/corr.json" --device "modbus+tcp://127.0.0.1:$(port_of "$SIM_AT")?board=generic-aio"
+grep -qF -- "--device" <<<"$msg" && ! grep -qF -- "--write-board" <<<"$msg" || fail "write-correction's error names calibrate's option: $msg"
 expect_error "a table size that is not the board's" "--table-size" \
   "$FRINGE" calibrate "$dir/before.fcap" -o "$dir/x.json" --settle-s 0 --table-size 32 --write-board "$URI"
 [ ! -e "$dir/x.json" ] || fail "a refused calibrate wrote its file"
 sim drop --modbus tcp://127.0.0.1:0 --board dut-interpolator --drop-after 1
 expect_error "a board killed during the table write" "write correction_table_rad[0..63] @256+64" \
   "$FRINGE" write-correction "$dir/corr.json" --device "modbus+tcp://127.0.0.1:$(port_of "$SIM_AT")?board=dut-interpolator&timeout_ms=200&retries=1"
+grep -qF "correction_enable was cleared first: the board applies no correction until a write succeeds" <<<"$msg" \
+  || fail "a write that failed after clearing correction_enable does not say the board is now uncorrected: $msg"
 expect_error "a correction file that is not one" "correction" \
   "$FRINGE" write-correction "$dir/writes.json" --device "$URI"

@@ -14,7 +14,7 @@ ok() { echo "ok - $*"; }
 out=$("$FRINGE" calibrate "$dir/a.fcap" -o "$dir/corr.json" --csv "$dir/corr.csv" --c-header "$dir/corr.h" --name enc_corr)
 echo "$out"
 for want in "truth-scored error" "Lissajous: offsets" "table: 64 entries, linear interpolation" "predicted residual:" "x the per-sample CRB"; do
-  echo "$out" | grep -qF "$want" || fail "summary lacks '$want'"
+  grep -qF "$want" <<<"$out" || fail "summary lacks '$want'"
 done
 [ "$(head -1 "$dir/corr.csv")" = "angle_rad,correction_rad" ] || fail "CSV header"
 [ "$(wc -l < "$dir/corr.csv")" -eq 65 ] || fail "CSV rows"
@@ -51,11 +51,49 @@ ok "verified on another capture"
 
 # Bad input exits 2 and writes nothing: an LSB at which the table does not fit int16.
 set +e; msg=$("$FRINGE" calibrate "$dir/a.fcap" -o "$dir/x.json" --c-header "$dir/x.h" --lsb-rad 1e-7 2>&1); rc=$?; set -e
-[ $rc -eq 2 ] && echo "$msg" | grep -q "does not fit int16" || fail "int16 overflow: exit $rc, $msg"
+[ $rc -eq 2 ] && grep -q "does not fit int16" <<<"$msg" || fail "int16 overflow: exit $rc, $msg"
 [ ! -e "$dir/x.json" ] && [ ! -e "$dir/x.h" ] || fail "files written despite the error"
 ok "an entry that does not fit int16 is refused, nothing written"
 set +e; msg=$("$FRINGE" calibrate "$dir/a.fcap" -o "$dir/a.fcap" 2>&1); rc=$?; set -e
 [ $rc -eq 2 ] || fail "overwriting the capture: exit $rc, $msg"
 set +e; msg=$("$FRINGE" calibrate "$dir/a.fcap" -o "$dir/y.json" --estimator pll2 2>&1); rc=$?; set -e
-[ $rc -eq 2 ] && echo "$msg" | grep -q "only atan2" || fail "pll2: exit $rc, $msg"
+[ $rc -eq 2 ] && grep -q "only atan2" <<<"$msg" || fail "pll2: exit $rc, $msg"
 ok "the capture is not overwritten; an estimator it cannot calibrate is named"
+
+# Found by a hostile trial: an LSB coarser than the whole correction (a header of zeros), a C
+# array name that is not an identifier (pasted into C source), an output over a CSV capture's
+# sidecar (the capture became unreadable), a correction file with values no error can have.
+set +e; msg=$("$FRINGE" calibrate "$dir/a.fcap" -o "$dir/x.json" --c-header "$dir/x.h" --lsb-rad 1 2>&1); rc=$?; set -e
+[ $rc -eq 2 ] && grep -q "every entry would round to 0" <<<"$msg" || fail "--lsb-rad 1: exit $rc, $msg"
+[ ! -e "$dir/x.json" ] && [ ! -e "$dir/x.h" ] || fail "files written despite the coarse LSB"
+for name in "x y" "1abc" "int" 'x[1];int y' '*/' ""; do
+  set +e; msg=$("$FRINGE" calibrate "$dir/a.fcap" -o "$dir/x.json" --c-header "$dir/x.h" --name "$name" 2>&1); rc=$?; set -e
+  [ $rc -ne 0 ] && grep -qi "identifier\|keyword" <<<"$msg" || fail "--name '$name': exit $rc, $msg"
+  [ ! -e "$dir/x.h" ] || fail "--name '$name' wrote a header"
+done
+"$FRINGE" gen "$SRC/fixtures/scenarios/paper-duty1p6.json" -o "$dir/c.csv" -q --seed 3
+cp "$dir/c.json" "$dir/c.json.orig"
+for opt in "-o $dir/c.json" "-o $dir/y.json --csv $dir/c.json"; do
+  set +e; msg=$("$FRINGE" calibrate "$dir/c.csv" $opt 2>&1); rc=$?; set -e
+  [ $rc -eq 2 ] && grep -q "sidecar" <<<"$msg" || fail "calibrate $opt over the sidecar: exit $rc, $msg"
+  cmp -s "$dir/c.json" "$dir/c.json.orig" || fail "the sidecar was changed by calibrate $opt"
+done
+$PY - "$dir/corr.json" "$dir" <<'PY' || fail "writing the damaged corrections"
+import json, sys
+c = json.load(open(sys.argv[1]))
+for name, key, value in [("big-offset", "offset_rad", 1e308), ("big-entry", "table_rad", None)]:
+    d = json.loads(json.dumps(c))
+    if value is None:
+        d["table_rad"][3] = 1e300
+    else:
+        d[key] = value
+    json.dump(d, open(f"{sys.argv[2]}/{name}.json", "w"))
+PY
+for bad in big-offset big-entry; do
+  set +e; msg=$("$FRINGE" estimate "$dir/b.fcap" --estimator atan2 --param "correction=$dir/$bad.json" -q 2>&1); rc=$?; set -e
+  [ $rc -eq 2 ] && grep -q "correction\.\(offset_rad\|table_rad\[3\]\)" <<<"$msg" || fail "$bad: exit $rc, $msg"
+done
+mkfifo "$dir/fifo.json"
+set +e; msg=$(timeout 20 "$FRINGE" estimate "$dir/b.fcap" --estimator atan2 --param "correction=$dir/fifo.json" -q 2>&1); rc=$?; set -e
+[ $rc -eq 2 ] && grep -q "not a regular file" <<<"$msg" || fail "a FIFO as the correction: exit $rc, $msg"
+ok "hostile exports and correction files are refused, nothing written or changed"

@@ -17,7 +17,7 @@ echo "$out"
 [ "$rc" -eq 0 ] || fail "exit $rc (the after pass's limit should pass)"
 for want in "calibration of atan2: verified" "computed on the before pass (seed 1" "truth-scored error" "verified on the after pass (seed 2" \
             "rms before" "after/CRB" "applied (estimator_param)" "limits: the verdict and measurements are the after pass's"; do
-  echo "$out" | grep -qF "$want" || fail "summary lacks '$want'"
+  grep -qF "$want" <<<"$out" || fail "summary lacks '$want'"
 done
 $PY - "$dir/r.json" "$dir" <<'PY' || fail "the report's calibration"
 import json, sys, os, hashlib
@@ -69,7 +69,7 @@ check_refused() {
   rc=$?
   set -e
   [ "$rc" -eq 2 ] || fail "$1: exit $rc"
-  echo "$msg" | grep -qF "$2" || fail "$1: '$msg' lacks '$2'"
+  grep -qF "$2" <<<"$msg" || fail "$1: '$msg' lacks '$2'"
   ok "$1 refused: $2"
 }
 check_refused nolane "no estimator labelled 'atan3' in this scenario (its lanes: 'atan2', 'pll2', 'ekf')"
@@ -91,6 +91,6 @@ out=$("$FRINGE" run "$dir/short.json" --no-db --report "$dir/short-report.json" 
 rc=$?
 set -e
 [ "$rc" -eq 2 ] || fail "short: exit $rc"
-echo "$out" | grep -qF "calibration of atan2: no_correction" || fail "short: $out"
-echo "$out" | grep -qF "too few electrical cycles for a correction" || fail "short: no reason"
+grep -qF "calibration of atan2: no_correction" <<<"$out" || fail "short: $out"
+grep -qF "too few electrical cycles for a correction" <<<"$out" || fail "short: no reason"
 ok "too few cycles: no correction, exit 2"

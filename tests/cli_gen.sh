@@ -27,21 +27,21 @@ set +e
 msg=$("$FRINGE" gen "$dir/bad.json" -o "$dir/y.csv" 2>&1); rc=$?
 set -e
 [ $rc -eq 2 ] || fail "unknown key: exit $rc"
-echo "$msg" | grep -q "sampel_rate_hz: unknown key" || fail "message: $msg"
+grep -q "sampel_rate_hz: unknown key" <<<"$msg" || fail "message: $msg"
 echo '{"name": ' > "$dir/broken.json"
 set +e; msg=$("$FRINGE" gen "$dir/broken.json" -o "$dir/y.csv" 2>&1); rc=$?; set -e
 [ $rc -eq 2 ] || fail "malformed JSON: exit $rc"
-echo "$msg" | grep -q "malformed JSON" || fail "message: $msg"
+grep -q "malformed JSON" <<<"$msg" || fail "message: $msg"
 # seeds: 0 to 2^53, in a scenario and on the command line (not clamped, not rounded)
 sed 's/"seed": 1/"seed": 9007199254740993/' "$SRC/fixtures/scenarios/paper-duty1p6.json" > "$dir/seed.json"
 sed -i "s|\"\.\./encoders/|\"$SRC/fixtures/encoders/|" "$dir/seed.json"
 set +e; msg=$("$FRINGE" gen "$dir/seed.json" -o "$dir/y.csv" 2>&1); rc=$?; set -e
 [ $rc -eq 2 ] || fail "seed 2^53+1 in a scenario: exit $rc"
-echo "$msg" | grep -q "seed: value 9007199254740993 out of range" || fail "message: $msg"
+grep -q "seed: value 9007199254740993 out of range" <<<"$msg" || fail "message: $msg"
 for s in 9007199254740993 18446744073709551615; do
   set +e; msg=$("$FRINGE" gen "$SRC/fixtures/scenarios/paper-duty1p6.json" -o "$dir/y.csv" --samples 10 --seed $s 2>&1); rc=$?; set -e
   [ $rc -eq 2 ] || fail "--seed $s: exit $rc"
-  echo "$msg" | grep -q -- "--seed" || fail "message: $msg"
+  grep -q -- "--seed" <<<"$msg" || fail "message: $msg"
 done
 "$FRINGE" gen "$SRC/fixtures/scenarios/paper-duty1p6.json" -o "$dir/y.csv" --samples 10 --seed 9007199254740992 -q
 grep -q '"seed": 9007199254740992' "$dir/y.json" || fail "seed 2^53 not kept exactly"

@@ -68,7 +68,7 @@ set +e
 out=$("$FRINGE" run "$dir/loss.json" --data "$dir/data" --report "$dir/loss-r.json" 2>&1); rc=$?
 set -e
 [ $rc -eq 2 ] || fail "sample loss: exit $rc, want 2"
-echo "$out" | grep -q "sample loss: 3 input samples dropped" || fail "loss message: $out"
+grep -q "sample loss: 3 input samples dropped" <<<"$out" || fail "loss message: $out"
 
 # bad scenario: exit 2 naming the key
 $PY -c 'import json,sys; s=json.load(open(sys.argv[1])); s["limits"][0]["metric"]="rms"; s["encoder"]=sys.argv[1].rsplit("/",1)[0]+"/"+s["encoder"]; json.dump(s,open(sys.argv[2],"w"))' \
@@ -77,7 +77,7 @@ set +e
 out=$("$FRINGE" run "$dir/bad.json" --data "$dir/data" 2>&1); rc=$?
 set -e
 [ $rc -eq 2 ] || fail "bad scenario: exit $rc"
-echo "$out" | grep -q "limits\[0\].metric" || fail "bad scenario message: $out"
+grep -q "limits\[0\].metric" <<<"$out" || fail "bad scenario message: $out"
 
 # kill -9 during a long run: completed reports survive, the killed run shows as interrupted
 $PY -c 'import json,sys; s=json.load(open(sys.argv[1])); s["duration_s"]=600; s["name"]="long-run"; s["encoder"]=sys.argv[1].rsplit("/",1)[0]+"/"+s["encoder"]; json.dump(s,open(sys.argv[2],"w"))' \

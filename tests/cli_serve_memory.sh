@@ -98,7 +98,7 @@ check_memory bomb
 [ "$(field bomb status)" = 413 ] || fail "the bomb should be 413, got $(field bomb status): $(field bomb body)"
 [ "$(body bomb error.code)" = capture_too_large ] || fail "bomb: error code $(body bomb error.code)"
 msg=$(body bomb error.message)
-echo "$msg" | grep -q "1073741824 bytes" && echo "$msg" | grep -q "512 MiB" && echo "$msg" | grep -q -- "--max-upload-expanded-mb" \
+grep -q "1073741824 bytes" <<<"$msg" && grep -q "512 MiB" <<<"$msg" && grep -q -- "--max-upload-expanded-mb" <<<"$msg" \
   || fail "bomb: the message should name its size, the limit and the option: $msg"
 
 upload "$dir/lie.sr" lie
@@ -137,7 +137,7 @@ expect_error() {  # expect_error PATTERN cmd...
   local pat="$1"; shift
   set +e; msg=$(timeout 120 "$@" 2>&1); rc=$?; set -e
   [ $rc -eq 2 ] || fail "expected exit 2, got $rc: $* ($msg)"
-  echo "$msg" | grep -q -- "$pat" || fail "expected '$pat' in: $msg"
+  grep -q -- "$pat" <<<"$msg" || fail "expected '$pat' in: $msg"
 }
 expect_error "nests deeper than 128" "$FRINGE" estimate "$dir/deep.fcap" --estimator atan2 -q -o "$dir/e.csv"
 expect_error "more than its declared size" "$FRINGE" estimate "$dir/lie.sr" --estimator atan2 -q -o "$dir/e.csv"

@@ -12,7 +12,7 @@ expect_error() {  # expect_error PATTERN cmd...: exit 2 and stderr contains PATT
   local pat="$1"; shift
   set +e; msg=$("$@" 2>&1); rc=$?; set -e
   [ $rc -eq 2 ] || fail "expected exit 2, got $rc: $*"
-  echo "$msg" | grep -q -- "$pat" || fail "expected '$pat' in: $msg"
+  grep -q -- "$pat" <<<"$msg" || fail "expected '$pat' in: $msg"
 }
 
 "$FRINGE" gen "$SRC/fixtures/scenarios/paper-duty1p6.json" -o "$dir/gen.csv" -q --samples 30000

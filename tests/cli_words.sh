@@ -24,8 +24,8 @@ PY
 # An unknown estimator is reported at the key the user wrote: estimators[i].name.
 scenario "$dir/est.json" 's["estimators"][1]["name"] = "atan3"'
 set +e; msg=$("$FRINGE" run "$dir/est.json" --no-db -q 2>&1); rc=$?; set -e
-[ $rc -eq 2 ] && echo "$msg" | grep -q "estimators\[1\]\.name: unknown estimator 'atan3'" || fail "unknown estimator: exit $rc, $msg"
-echo "$msg" | grep -q "estimators\[1\]\.estimator" && fail "still reported at .estimator: $msg"
+[ $rc -eq 2 ] && grep -q "estimators\[1\]\.name: unknown estimator 'atan3'" <<<"$msg" || fail "unknown estimator: exit $rc, $msg"
+grep -q "estimators\[1\]\.estimator" <<<"$msg" && fail "still reported at .estimator: $msg"
 ok "unknown estimator named at estimators[1].name"
 
 # "speed_rpm" in a motion: the unknown key is named with the keys a constant motion takes.
@@ -33,16 +33,16 @@ scenario "$dir/rpm.json" 's["motion"] = {"kind": "constant", "speed_rpm": 600}'
 set +e; msg=$("$FRINGE" run "$dir/rpm.json" --no-db -q 2>&1); rc=$?; set -e
 [ $rc -eq 2 ] || fail "speed_rpm: exit $rc"
 for want in "motion.speed_rpm: unknown key" "velocity_rad_s" "electrical_freq_hz" "600 rpm is 62.83 rad/s"; do
-  echo "$msg" | grep -qF "$want" || fail "speed_rpm message lacks '$want': $msg"
+  grep -qF "$want" <<<"$msg" || fail "speed_rpm message lacks '$want': $msg"
 done
-echo "$msg" | grep -q "required key is missing" && fail "speed_rpm still says a key is missing: $msg"
+grep -q "required key is missing" <<<"$msg" && fail "speed_rpm still says a key is missing: $msg"
 ok "speed_rpm: $(echo "$msg" | head -1 | cut -c1-150)"
 
 # 600 rad/s typed for 600 rpm on 1024 lines at 100 kHz: undersampled, and the speed in rpm shown.
 scenario "$dir/fast.json" 's["motion"] = {"kind": "constant", "velocity_rad_s": 600}'
 set +e; msg=$("$FRINGE" run "$dir/fast.json" --no-db -q 2>&1); rc=$?; set -e
-[ $rc -eq 2 ] && echo "$msg" | grep -q "undersampled" || fail "600 rad/s: exit $rc, $msg"
-echo "$msg" | grep -qE "600 rad/s = 5730 rpm" || fail "undersampling message without the speed in rpm: $msg"
+[ $rc -eq 2 ] && grep -q "undersampled" <<<"$msg" || fail "600 rad/s: exit $rc, $msg"
+grep -qE "600 rad/s = 5730 rpm" <<<"$msg" || fail "undersampling message without the speed in rpm: $msg"
 ok "undersampled at 600 rad/s = 5730 rpm"
 
 # JUnit failure messages carry the limit; the offline HTML prints no literal null (atan2-ellipse
@@ -91,7 +91,7 @@ with open(sys.argv[1], "w") as f:
 PY
 printf '{"sample_rate_hz": 100000}\n' > "$dir/c.json"
 out=$("$FRINGE" estimate "$dir/c.csv" --estimator atan2-ellipse 2>&1) || fail "estimate: $out"
-echo "$out" | grep -q "read its notes below" && fail "estimate still points at notes that do not follow: $out"
-echo "$out" | grep -q "warning: atan2-ellipse marked .* of the samples invalid: ellipse fit ok" || fail "estimate's warning names no reason: $out"
+grep -q "read its notes below" <<<"$out" && fail "estimate still points at notes that do not follow: $out"
+grep -q "warning: atan2-ellipse marked .* of the samples invalid: ellipse fit ok" <<<"$out" || fail "estimate's warning names no reason: $out"
 ok "estimate: $(echo "$out" | grep warning | cut -c1-160)"
 echo "PASS"

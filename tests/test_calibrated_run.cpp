@@ -20,6 +20,7 @@
 using namespace fringe;
 using nlohmann::json;
 using test::TempDir;
+namespace fs = std::filesystem;
 
 namespace {
 
@@ -183,6 +184,33 @@ TEST_CASE("calibrated run: the scenario's calibrate block is checked with the re
     refused(cap, "calibrate.verify.device", "name another capture");
     cap["calibrate"]["verify"] = {{"device", "capture:/nonexistent/a.fcap"}};
     refused(cap, "calibrate.verify.device", "the same capture");
+    // The same capture or noise written another way (found by a hostile trial): the scenario's
+    // motion copied into the verify block, the device in another spelling, the capture by another
+    // path, a link or a copy.
+    json same_motion = paper_with({{"lane", "atan2"}});
+    same_motion["calibrate"]["verify"] = {{"seed", 1}, {"motion", scenario(same_motion).motion}};
+    refused(same_motion, "calibrate.verify.seed", "same capture as the before pass");
+    json same_device = paper_with({{"lane", "atan2"}});
+    same_device["device"] = "loopback:";
+    same_device["calibrate"]["verify"] = {{"seed", 1}, {"device", "loopback:?"}};
+    refused(same_device, "calibrate.verify.seed", "same capture as the before pass");
+    {
+        TempDir d;
+        const Scenario gen = scenario(paper_with({{"lane", "atan2"}}));
+        fs::create_directories(d.path / "sub");
+        test::write_generated_capture(gen.encoder, gen.motion, gen.sample_rate_hz, 1, 20000, d.path / "a.fcap", true);
+        fs::create_symlink(d.path / "a.fcap", d.path / "link.fcap");
+        fs::copy_file(d.path / "a.fcap", d.path / "copy.fcap");
+        test::write_generated_capture(gen.encoder, gen.motion, gen.sample_rate_hz, 2, 20000, d.path / "b.fcap", true);
+        json c2 = paper_with({{"lane", "atan2"}});
+        c2["device"] = "capture:" + (d.path / "a.fcap").string();
+        for (const std::string& other : std::vector<std::string>{(d.path / "sub" / ".." / "a.fcap").string(), (d.path / "link.fcap").string(), (d.path / "copy.fcap").string()}) {
+            c2["calibrate"]["verify"] = {{"device", "capture:" + other}};
+            refused(c2, "calibrate.verify.device", "the same capture");
+        }
+        c2["calibrate"]["verify"] = {{"device", "capture:" + (d.path / "b.fcap").string()}};
+        CHECK_NOTHROW(plan_run(scenario(c2)));
+    }
     // a service's budget counts both passes
     RunBudget budget;
     budget.max_samples = 150000;

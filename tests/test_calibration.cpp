@@ -124,6 +124,28 @@ TEST_CASE("calibration: the correction file round trips exactly, and a malformed
     bad["lissajous"]["amplitude_cos_v"] = -1;
     CHECK_THROWS_WITH(est::Correction::from_json(bad), Catch::Contains("amplitudes must be positive"));
     CHECK_THROWS_WITH(est::Correction::from_json(json{{"table_rad", json::array()}}), Catch::Contains("correction.schema"));
+    // Values no interpolator's error can have: refused (1e300 in the table made the estimate not
+    // finite; offset_rad 1e308 a constant output). The edges themselves are taken.
+    bad = c.to_json();
+    bad["table_rad"][7] = 1e300;
+    CHECK_THROWS_WITH(est::Correction::from_json(bad), Catch::Contains("correction.table_rad[7]"));
+    bad["table_rad"][7] = -kPi;
+    CHECK_NOTHROW(est::Correction::from_json(bad));
+    bad["table_rad"][7] = std::nextafter(-kPi, -4.0);
+    CHECK_THROWS_WITH(est::Correction::from_json(bad), Catch::Contains("correction.table_rad[7]"));
+    bad = c.to_json();
+    bad["offset_rad"] = 1e308;
+    CHECK_THROWS_WITH(est::Correction::from_json(bad), Catch::Contains("correction.offset_rad"));
+    bad["offset_rad"] = kTwoPi;
+    CHECK_NOTHROW(est::Correction::from_json(bad));
+    bad = c.to_json();
+    bad["harmonics"][0]["cos_rad"] = 4.0;
+    CHECK_THROWS_WITH(est::Correction::from_json(bad), Catch::Contains("correction.harmonics"));
+    // Not a file, or more than one JSON value in it.
+    CHECK_THROWS_WITH(est::Correction::load(d.path.string()), Catch::Contains("is not a regular file"));
+    CHECK_THROWS_WITH(est::Correction::load((d.path / "none.json").string()), Catch::Contains("no such file"));
+    std::ofstream(d.path / "trailing.json") << c.to_json().dump() << " {}";
+    CHECK_THROWS_WITH(est::Correction::load((d.path / "trailing.json").string()), Catch::Contains("not JSON"));
 }
 
 TEST_CASE("calibration: the periodic correction is the error at the angle read (the inversion), and what the table leaves is its figure", "[calibration]") {

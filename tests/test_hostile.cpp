@@ -360,6 +360,40 @@ TEST_CASE("hostile: device URIs over HTTP are sandboxed", "[service][hostile][so
         sc["device"] = "usb:";
         check_error(s2.post("/api/v1/runs", json{{"scenario", sc}}.dump()), 403, "device_not_allowed");
     }
+    SECTION("a calibrated run's after pass and a correction file are held to the same policy (found by a hostile trial)") {
+        json csc = json::parse(fixture_text("fig10c-loopback"));
+        csc["estimators"] = json::array({json{{"name", "atan2"}}});
+        csc["calibrate"] = {{"lane", "atan2"}};
+        auto post_verify = [&](const json& verify) {
+            csc["calibrate"]["verify"] = verify;
+            return s.post("/api/v1/runs", json{{"scenario", csc}}.dump());
+        };
+        // An unlisted board for the after pass, a file on the server replayed as its capture,
+        // a motion file outside the fixtures: refused as they are at the scenario's top level.
+        auto r = post_verify({{"device", "modbus+tcp://10.0.0.1:1502?board=generic-aio"}});
+        check_error(r, 403, "device_not_allowed");
+        CHECK(r.error()["field"] == "scenario.calibrate.verify.device");
+        r = post_verify({{"device", "capture:" + (d.path / "secret.json").string()}});
+        check_error(r, 400, "invalid");
+        CHECK(r.error()["field"] == "scenario.calibrate.verify.device");
+        no_leak(r);
+        r = post_verify({{"motion", {{"kind", "table"}, {"file", "/etc/passwd"}}}});
+        check_error(r, 400, "invalid");
+        CHECK(r.error()["field"] == "scenario.calibrate.verify.motion.file");
+        no_leak(r);
+        r = post_verify({{"device", 42}});
+        check_error(r, 400, "invalid");
+        // A correction file: a fixture, never a path to any file.
+        csc["calibrate"].erase("verify");
+        json plain = json::parse(fixture_text("fig10c-loopback"));
+        for (const std::string& f : std::vector<std::string>{"/etc/passwd", (d.path / "secret.json").string(), "../../../etc/passwd"}) {
+            plain["estimators"] = json::array({json{{"name", "atan2"}, {"params", {{"correction", f}}}}});
+            r = s.post("/api/v1/runs", json{{"scenario", plain}}.dump());
+            check_error(r, 400, "invalid");
+            CHECK(r.error()["field"] == "scenario.estimators[0].params.correction");
+            no_leak(r);
+        }
+    }
     SECTION("errors name files relative to the fixtures, not by absolute path") {
         json fsc = json::parse(fixture_text("fig10c-loopback"));
         fsc["encoder"] = "../encoders/no-such-encoder.json";

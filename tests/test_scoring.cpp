@@ -270,3 +270,26 @@ TEST_CASE("uncertainty: the correlation time and the 95 % intervals against clos
         CHECK_THAT(u["note"].get<std::string>(), Catch::Contains("correlation time"));
     }
 }
+
+TEST_CASE("scorer: an estimate further off than 1e9 rad keeps its error (a constant 1e300 is every sample slipped, never an rms of 0)", "[scoring]") {
+    // Removing the nearest whole cycles from 1e300 - theta_true rounds the truth away and
+    // leaves exactly 0: a constant output, or a correction file with offset_rad 1e308, scored
+    // rms 0 and passed its limits.
+    for (const double out_rad : {1e300, -1e20, 1e12}) {
+        auto s = make(20000, 1e5, 500.0, [&](double th, std::size_t) { return out_rad - th; });
+        const auto m = score(s, 0.0);
+        INFO("estimate " << out_rad << " rad: rms " << m.rms_rad << ", removed cycles " << m.removed_cycles);
+        CHECK(m.removed_cycles == 0.0);
+        CHECK(m.unremoved_error_rad != 0.0);
+        CHECK(m.slipped_samples == m.scored);
+        CHECK(!(m.rms_rad < 1.0));  // huge or not finite: no limit on rms_rad passes it
+        CHECK(to_json(m, 0).contains("cycles_not_removed"));
+    }
+    // Within the bound the cycles are removed as before, and the error keeps its precision.
+    auto s = make(20000, 1e5, 500.0, [&](double, std::size_t) { return kTwoPi * 1.5e8 + 1e-3; });
+    const auto m = score(s, 0.0);
+    CHECK(m.removed_cycles == 1.5e8);
+    CHECK(m.mean_rad == Approx(1e-3).margin(1e-6));
+    CHECK(m.unremoved_error_rad == 0.0);
+    CHECK_FALSE(to_json(m, 0).contains("cycles_not_removed"));
+}

@@ -22,7 +22,7 @@ export function calibrationSection(r) {
     const src = (a && a.error_source) || b.error_source;
     const crb = a && a.per_sample_crb_rad != null ? a.per_sample_crb_rad : b.per_sample_crb_rad;
     const cor = l.correction;
-    const applied = !cor ? '-' : cor.applied ? `applied (${cor.kind})` : `not applied: ${cor.why_not || ''}`;
+    const applied = !cor ? '-' : cor.applied ? (cor.kind === 'external_env' ? 'handed to the child (external_env)' : `applied (${cor.kind})`) : `not applied: ${cor.why_not || ''}`;
     const num = (v, label, extra = {}) => h('td', { class: 'num', 'data-label': label, 'data-value': v == null ? '' : String(v), ...extra }, v == null ? '-' : withUnit(v, 'rad'));
     return h('tr', { 'data-lane': l.label, 'data-applied': cor && cor.applied ? '1' : '' },
       h('td', { 'data-label': 'lane' }, l.label),

@@ -173,7 +173,12 @@ void Scorer::decide() {
         if (pending_ok_[k]) tmp.push_back(pending_e_[k]);
     if (!tmp.empty()) {
         std::nth_element(tmp.begin(), tmp.begin() + static_cast<long>(tmp.size() / 2), tmp.end());
-        offset_rad_ = kTwoPi * std::round(tmp[tmp.size() / 2] / kTwoPi);
+        const double median_rad = tmp[tmp.size() / 2];
+        // Whole cycles are removed only while the error keeps its precision: an estimate 1e308
+        // rad off (a constant output, a corrupted correction) would otherwise lose the truth in
+        // rounding, and its error would become exactly 0 after the removal (a false PASS).
+        if (std::fabs(median_rad) <= kMaxRemovableRad) offset_rad_ = kTwoPi * std::round(median_rad / kTwoPi);
+        else m_.unremoved_error_rad = median_rad;
     }
     decided_ = true;
     if (!pending_e_.empty()) process(pending_e_.size(), pending_e_.data(), pending_th_.data(), pending_ok_.data());
@@ -618,6 +623,10 @@ nlohmann::json to_json(const ErrorMetrics& m, int lines) {
            {"mean", stat(m.mean_rad)}, {"std", stat(m.std_rad)},
            {"rms", stat(m.rms_rad)}, {"max_abs", stat(m.max_abs_rad)},
            {"max_dev", stat(m.max_dev_rad)}};
+    if (m.unremoved_error_rad != 0)
+        j["cycles_not_removed"] = {{"median_error_rad", m.unremoved_error_rad},
+                                   {"why", "the estimate is further from the truth than 1e9 rad: removing whole cycles would round "
+                                           "the error away; scored as it is"}};
     const auto vf = m.valid_fraction();
     j["evidence"] = {{"samples_after_settle", m.after_settle}, {"scored_samples", m.scored},
                      {"scored_cycles", m.cycles_scored}, {"valid_fraction", vf ? json(*vf) : json()}};

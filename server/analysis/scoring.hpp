@@ -41,6 +41,9 @@ struct ErrorMetrics {
     std::uint64_t invalid_after_settle = 0;
     double cycles_scored = 0;           // electrical cycles of truth traversed over the scored samples
     double removed_cycles = 0;          // multiple of 2*pi removed
+    // The median error when it was too large for whole cycles to be removed (kMaxRemovableRad):
+    // 0 when they were. The errors are then scored as they are (every sample slipped).
+    double unremoved_error_rad = 0;
     double mean_rad = 0, std_rad = 0, rms_rad = 0, max_abs_rad = 0, max_dev_rad = 0;
     std::uint64_t slipped_samples = 0;  // |e| > pi after the multiple is removed
     // Harmonics 1x..Kx, empty when they could not be separated (harmonics_note says why).
@@ -74,6 +77,9 @@ struct ErrorMetrics {
 class Scorer {
 public:
     static constexpr std::size_t kMedianWindow = 65536;
+    // Beyond this the whole cycles are not removed: at 1e9 rad a double's step is 1.2e-7 rad,
+    // still below any error worth measuring; far beyond, the truth is lost in the rounding.
+    static constexpr double kMaxRemovableRad = 1e9;
     static constexpr int kMaxHarmonic = 64;
     static constexpr int kAngleBins = 1024;  // distinct-angle coverage, for the harmonic order
     explicit Scorer(double settle_s);

@@ -10,6 +10,9 @@
 #include "server/engine/scenario.hpp"
 #include "signal_gen/fastmath.hpp"
 
+#include <algorithm>
+#include <cctype>
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <optional>
@@ -23,6 +26,7 @@ namespace {
 // register writes as a file, for the board profile named by the URI or by --board.
 struct BoardTarget {
     std::string uri, board, writes;
+    std::string uri_option = "--write-board";  // the option that gave the URI, for messages (write-correction: --device)
     bool any() const { return !uri.empty() || !writes.empty(); }
 };
 
@@ -30,18 +34,18 @@ struct BoardTarget {
 std::optional<dev::BoardProfile> target_profile(const BoardTarget& t) {
     if (!t.uri.empty() && !t.board.empty()) throw ConfigError("--board", "give the board by --write-board's URI or by --board, not both");
     if (!t.writes.empty() && t.uri.empty() && t.board.empty())
-        throw ConfigError("--modbus-writes", "needs the board profile: --board NAME (or --write-board URI)");
+        throw ConfigError("--modbus-writes", "needs the board profile: --board NAME (or " + t.uri_option + " URI)");
     std::string name = t.board;
     if (!t.uri.empty()) {
         const dev::UriParts u = dev::check_uri(t.uri);
         if (u.scheme != "modbus+tcp" && u.scheme != "modbus+rtu")
-            throw ConfigError("--write-board", "a correction is written to a Modbus board (modbus+tcp://HOST:PORT?board=NAME), not '" + u.scheme + "'");
+            throw ConfigError(t.uri_option, "a correction is written to a Modbus board (modbus+tcp://HOST:PORT?board=NAME), not '" + u.scheme + "'");
         name = u.settings.value("board", std::string("generic-aio"));
     }
     if (name.empty()) return std::nullopt;
     dev::BoardProfile b = dev::load_board(name);
     if (!b.has_correction())
-        throw ConfigError("--write-board", "board profile " + b.name + " (" + b.path +
+        throw ConfigError(t.uri.empty() ? "--board" : t.uri_option, "board profile " + b.name + " (" + b.path +
                                                ") declares no correction registers (correction_table_rad, trim_*; docs/modbus.md \"Correction registers\")");
     return b;
 }
@@ -80,6 +84,12 @@ void write_file(const std::string& path, const std::string& text) {
     if (!f.flush()) throw std::runtime_error("cannot write " + path);
 }
 
+std::string fmt_g(double v) {
+    char b[32];
+    std::snprintf(b, sizeof b, "%.4g", v);
+    return b;
+}
+
 int run_calibrate(const CalibrateCliOptions& o) {
     refuse_overwrite({{"correction", o.output}, {"CSV table", o.csv}, {"C header", o.c_header}, {"Modbus writes", o.target.writes}},
                      {{"capture", o.capture}, {"encoder profile", o.encoder}});
@@ -108,6 +118,14 @@ int run_calibrate(const CalibrateCliOptions& o) {
     if (!o.encoder.empty()) co.encoder = load_encoder(o.encoder);
     const CalibrateResult r = calibrate_capture(co);
     // Every export is formed before anything is written (an entry that does not fit int16 writes nothing).
+    if (!o.c_header.empty()) {
+        // An LSB coarser than the whole correction writes a table of zeros: refused, not written.
+        double largest_rad = 0;
+        for (const double v : r.correction.table) largest_rad = std::max(largest_rad, std::fabs(v + r.correction.offset_rad));
+        if (largest_rad > 0 && largest_rad < o.lsb_rad / 2)
+            throw ConfigError("--lsb-rad", "an LSB of " + fmt_g(o.lsb_rad) + " rad is coarser than the whole correction (largest entry " +
+                                               fmt_g(largest_rad) + " rad): every entry would round to 0");
+    }
     const std::string header = o.c_header.empty() ? std::string() : correction_c_header(r.correction, o.lsb_rad, o.name);
     std::vector<dev::RegisterValue> plan;
     if (board) plan = dev::plan_correction_writes(*board, r.correction);  // a value that does not fit its register writes nothing
@@ -142,7 +160,7 @@ int run_calibrate(const CalibrateCliOptions& o) {
 }
 
 struct WriteCorrectionOptions {
-    BoardTarget target;
+    BoardTarget target{{}, {}, {}, "--device"};
     std::string correction;
     bool quiet = false;
 };
@@ -181,7 +199,23 @@ Command add_calibrate(CLI::App& app) {
     c->add_option("--csv", o->csv, "Also write the table as CSV: angle_rad,correction_rad");
     c->add_option("--c-header", o->c_header, "Also write the table as a C header of int16 entries");
     c->add_option("--lsb-rad", o->lsb_rad, "The C header's LSB in rad (default 2*pi/65536)")->check(kFinitePositive);
-    c->add_option("--name", o->name, "The C header's array name");
+    c->add_option("--name", o->name, "The C header's array name (a C identifier)")
+        ->check(CLI::Validator(
+            [](std::string& v) -> std::string {
+                // It is pasted into C source: only an identifier that is not a keyword (a name with
+                // a space, a bracket or a comment marker wrote code into the header).
+                static const char* const kKeywords[] = {"auto", "break", "case", "char", "const", "continue", "default", "do", "double", "else",
+                                                        "enum", "extern", "float", "for", "goto", "if", "inline", "int", "long", "register",
+                                                        "restrict", "return", "short", "signed", "sizeof", "static", "struct", "switch",
+                                                        "typedef", "union", "unsigned", "void", "volatile", "while", "bool", "true", "false"};
+                const bool ident = !v.empty() && v.size() <= 63 && !std::isdigit(static_cast<unsigned char>(v[0])) &&
+                                   std::all_of(v.begin(), v.end(), [](char ch) { return std::isalnum(static_cast<unsigned char>(ch)) || ch == '_'; });
+                if (!ident) return "must be a C identifier (letters, digits and _, not starting with a digit, at most 63 characters)";
+                for (const char* k : kKeywords)
+                    if (v == k) return "'" + v + "' is a C keyword";
+                return {};
+            },
+            "C identifier"));
     c->add_option("--write-board", o->target.uri, "Write the correction to this Modbus board and read it back (modbus+tcp://HOST:PORT?board=NAME; docs/modbus.md)");
     c->add_option("--modbus-writes", o->target.writes, "Also write the board's register writes as a file (JSON, or CSV for a .csv name)");
     c->add_option("--board", o->target.board, "The board profile for --modbus-writes without --write-board");

@@ -1,5 +1,6 @@
 // What the fringe commands share (common.hpp).
 #include "common.hpp"
+#include "drivers/capture_file.hpp"
 #include "server/analysis/metrics.hpp"
 #include "server/report/report_formats.hpp"
 #include "signal_gen/base/text.hpp"
@@ -80,7 +81,19 @@ CLI::Validator finite_number(bool allow_zero) {
         allow_zero ? "NUMBER >= 0" : "NUMBER > 0");
 }
 
-void refuse_overwrite(const std::vector<NamedPath>& outputs, const std::vector<NamedPath>& inputs) {
+void refuse_overwrite(const std::vector<NamedPath>& outputs, std::vector<NamedPath> inputs) {
+    // A CSV or sigrok capture is two files: its sidecar is an input too (calibrate -o x.json on
+    // x.csv replaced the sidecar and left the capture unreadable).
+    const std::size_t n_in = inputs.size();
+    for (std::size_t k = 0; k < n_in; ++k)
+        if (inputs[k].role == "capture" && !inputs[k].path.empty()) {
+            bool sidecar = false;
+            try {
+                sidecar = capture_format_for(inputs[k].path) != CaptureFormat::Binary;
+            } catch (const std::exception&) {  // not a capture's name: the reader says so later
+            }
+            if (sidecar) inputs.push_back({"capture's sidecar", sidecar_path(inputs[k].path)});
+        }
     for (std::size_t i = 0; i < outputs.size(); ++i) {
         const auto& o = outputs[i];
         if (o.path.empty()) continue;
@@ -261,7 +274,7 @@ void print_calibration_summary(const json& r) {
         const json b = l.value("before", json::object()), a = l.value("after", json());
         const json src = a.is_object() && a.value("error_source", json()).is_string() ? a["error_source"] : b.value("error_source", json());
         const json cor = l.value("correction", json());
-        std::string applied = !cor.is_object() ? "-" : cor.value("applied", false) ? "applied (" + str(cor["kind"]) + ")" : "not applied: " + str(cor.value("why_not", json()));
+        std::string applied = !cor.is_object() ? "-" : cor.value("applied", false) ? (str(cor["kind"]) == "external_env" ? std::string("handed to the child (external_env)") : "applied (" + str(cor["kind"]) + ")") : "not applied: " + str(cor.value("why_not", json()));
         const json crb = a.is_object() && a.value("per_sample_crb_rad", json()).is_number() ? a["per_sample_crb_rad"] : b.value("per_sample_crb_rad", json());
         std::printf("  %-20s %-9s %11s %11s %11s %11s %11s %9s  %s\n", str(l["label"]).c_str(),
                     src.is_string() ? (src == "truth" ? "truth" : "self-ref") : "-", num(b.value("rms_rad", json())).c_str(),

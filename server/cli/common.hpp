@@ -57,7 +57,7 @@ struct NamedPath {
 };
 // Throws a ConfigError naming both when an output would overwrite an input or another output:
 // the same file (links included) or the same path once made absolute. Empty paths are skipped.
-void refuse_overwrite(const std::vector<NamedPath>& outputs, const std::vector<NamedPath>& inputs);
+void refuse_overwrite(const std::vector<NamedPath>& outputs, std::vector<NamedPath> inputs);  // a capture's sidecar is an input too
 
 // Ctrl-C and SIGTERM set this flag (install_cancel_handlers); runs end as ABORTED with their report.
 std::atomic<bool>& cancel_flag();

@@ -73,7 +73,9 @@ json apply_to_external_lane(EstimatorSpec& lane, const std::string& correction_p
     if (takes_correction(lane.name)) {
         if (!lane.params.is_object()) lane.params = json::object();
         lane.params["correction"] = correction_path;
-        return {{"kind", "external_env"}, {"applied", true}, {"how", "params.correction = the correction file, handed to the child process"}};
+        return {{"kind", "external_env"}, {"applied", true},
+                {"how", "params.correction = the correction file, handed to the child process (FRINGE_CORRECTION): whether the child applies it "
+                        "shows only in its figures after"}};
     }
     return {{"kind", "external_env"}, {"applied", false},
             {"why_not", "not yet: an external estimator is not handed the correction file's path; it ran as before"}};
@@ -283,6 +285,18 @@ RunReport execute_calibrated_run(RunPlan plan, const RunOptions& o) {
             if (a.label == e.label) row["after"] = lane_figures(json(a));
         row["correction"] = applied.contains(e.label) ? applied[e.label] : json();
         if (e.label == spec.lane) row["predicted_rms_rad"] = cr.predicted_rms_rad;
+        // "verified" says both passes ran; whether the correction helped is each lane's change.
+        const json& b = row["before"];
+        const json& a = row["after"];
+        if (row["correction"].is_object() && row["correction"].value("applied", false) && a.is_object() && b["rms_rad"].is_number() &&
+            a["rms_rad"].is_number()) {
+            const double rb = b["rms_rad"].get<double>(), ra = a["rms_rad"].get<double>();
+            row["change"] = ra < rb ? "better" : "worse";
+            if (!(ra < rb))
+                r.warnings.push_back({false, "calibration_worse", "calibrate",
+                                      "lane " + e.label + ": the correction left its error larger than before (" + std::to_string(rb) + " -> " +
+                                          std::to_string(ra) + " rad rms): it does not fit this signal (table_size, harmonics or the record it came from)"});
+        }
         cal["lanes"].push_back(std::move(row));
     }
     if (r.status == RunStatus::Done) {

@@ -5,9 +5,15 @@
 #include "server/engine/limits.hpp"
 #include "signal_gen/base/config.hpp"
 
+#include <algorithm>
 #include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <vector>
 
 namespace fringe {
+
+namespace fs = std::filesystem;
 
 namespace {
 
@@ -117,6 +123,43 @@ dev::UriParts check_device_uris(const Scenario& sc) {
 
 // "calibrate": the lane is an atan2 lane of this scenario without a correction of its own, and
 // the after pass runs on another capture than the before pass (docs/calibration.md "In one run").
+
+// The capture a capture: URI names: the same file by any path or link, or a byte-identical copy.
+bool same_capture_file(const std::string& a_uri, const std::string& b_uri) {
+    const auto path_of = [](const std::string& uri) {
+        const std::string rest = uri.substr(std::string("capture:").size());
+        return fs::path(rest.substr(0, rest.find('?')));
+    };
+    if (a_uri.rfind("capture:", 0) != 0 || b_uri.rfind("capture:", 0) != 0) return false;
+    const fs::path a = path_of(a_uri), b = path_of(b_uri);
+    if (a.lexically_normal() == b.lexically_normal()) return true;
+    std::error_code ec;
+    if (fs::equivalent(a, b, ec)) return true;
+    const auto na = fs::file_size(a, ec);
+    if (ec) return false;
+    const auto nb = fs::file_size(b, ec);
+    if (ec || na != nb) return false;
+    std::ifstream fa(a, std::ios::binary), fb(b, std::ios::binary);
+    std::vector<char> ba(1 << 16), bb(1 << 16);
+    while (fa && fb) {
+        fa.read(ba.data(), static_cast<std::streamsize>(ba.size()));
+        fb.read(bb.data(), static_cast<std::streamsize>(bb.size()));
+        if (fa.gcount() != fb.gcount() || !std::equal(ba.begin(), ba.begin() + fa.gcount(), bb.begin())) return false;
+    }
+    return fa.eof() && fb.eof();
+}
+
+// Two device URIs for the same device and settings ("loopback:" and "loopback:?").
+bool same_device(const std::string& a, const std::string& b) {
+    if (a == b) return true;
+    try {
+        const auto pa = dev::check_uri(a), pb = dev::check_uri(b);
+        return pa.scheme == pb.scheme && pa.path == pb.path && pa.settings == pb.settings;
+    } catch (const std::exception&) {
+        return false;
+    }
+}
+
 void check_calibration(const Scenario& sc) {
     if (!sc.calibrate) return;
     const CalibrateSpec& c = *sc.calibrate;
@@ -147,14 +190,17 @@ void check_calibration(const Scenario& sc) {
         }
     }
     // Never verified on the capture it was computed on: a replayed capture is the same signals
-    // whatever the seed, and the same seed and motion on a generator are the same noise.
+    // whatever the seed, and the same seed and motion on a generator are the same noise. Compared
+    // as what they mean, not as text: the same file by another path, link or copy, the same
+    // device with its settings in another spelling, the same motion written another way.
     if (before_device.rfind("capture:", 0) == 0) {
         if (c.verify.device.empty())
             throw ConfigError("calibrate.verify.device", "the before pass replays a capture: name another capture to verify the correction on "
                                                          "(a correction verified on the capture it was computed on also fits its noise)");
-        if (after_device == before_device)
-            throw ConfigError("calibrate.verify.device", "the same capture as the before pass: a correction is verified on another capture");
-    } else if (after_device == before_device && c.verify.seed.value_or(sc.seed + 1) == sc.seed && !c.verify.motion) {
+        if (same_capture_file(before_device, after_device))
+            throw ConfigError("calibrate.verify.device", "the same capture as the before pass (the same file, or a copy of it): a correction is verified on another capture");
+    } else if (same_device(after_device, before_device) && c.verify.seed.value_or(sc.seed + 1) == sc.seed &&
+               (!c.verify.motion || nlohmann::json(*c.verify.motion) == nlohmann::json(sc.motion))) {
         throw ConfigError("calibrate.verify.seed", "the scenario's own seed with its motion and device is the same capture as the before pass: "
                                                    "give another seed, or another motion");
     }

@@ -229,6 +229,12 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
                 throw ConfigError(path + ".label", "'" + e.label + "' is reserved (\"run\": the run's own figures, \"*\": every estimator, "
                                                    "\"dut\": a board's own position; an empty label names nothing): give another label");
             if (er.has("params")) e.params = er.raw("params");
+            // A correction file is found beside the scenario, as its encoder is (not in the
+            // current folder: a scenario run from elsewhere, or on the service, read another file).
+            if (e.params.is_object() && e.params.contains("correction") && e.params["correction"].is_string() && !base_dir.empty()) {
+                const fs::path cp(e.params["correction"].get<std::string>());
+                if (cp.is_relative() && !cp.empty()) e.params["correction"] = (fs::path(base_dir) / cp).lexically_normal().string();
+            }
             if (er.has("encoder")) e.encoder = encoder_from_json(resolve_json_ref(er.raw("encoder"), base_dir), path + ".encoder");
             er.finish();
             for (const auto& other : s.estimators)

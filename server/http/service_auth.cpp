@@ -127,10 +127,25 @@ json Service::sandbox_scenario(json j) const {
             if (!e.is_object()) continue;
             const std::string f = "scenario.estimators[" + std::to_string(i) + "]";
             if (e.contains("encoder")) check_ref(e["encoder"], base, root, f + ".encoder");
+            // A correction file (docs/calibration.md) is a file on this host: a fixture, like the
+            // encoder (an absolute path read any file, and its parse error quoted it).
+            if (e.contains("params") && e["params"].is_object() && e["params"].contains("correction"))
+                check_ref(e["params"]["correction"], base, root, f + ".params.correction");
             const std::string name = e.contains("name") && e["name"].is_string() ? e["name"].get<std::string>() : "";
             if (est::traits_of(name).child_process && !cfg_.allow_external)
                 throw ConfigError(f + ".name", "the " + name + " estimator runs a command on this host; start the service with --allow-external to permit it");
         }
+    // A calibrated run's after pass (docs/calibration.md): its motion file and its device are held
+    // to the same policy as the scenario's own.
+    if (j.contains("calibrate") && j["calibrate"].is_object() && j["calibrate"].contains("verify") && j["calibrate"]["verify"].is_object()) {
+        auto& v = j["calibrate"]["verify"];
+        if (v.contains("motion") && v["motion"].is_object() && v["motion"].contains("file"))
+            check_ref(v["motion"]["file"], base, root, "scenario.calibrate.verify.motion.file");
+        if (v.contains("device") && v["device"].is_string())
+            v["device"] = sandbox_device(v["device"].get<std::string>(), "scenario.calibrate.verify.device");
+        else if (v.contains("device") && !v["device"].is_null())
+            throw ConfigError("scenario.calibrate.verify.device", "expected a device URI (a string)");
+    }
     if (j.contains("device") && j["device"].is_string()) j["device"] = sandbox_device(j["device"].get<std::string>());
     // Output and input instruments: each on its own is held to the same policy.
     if (j.contains("device") && j["device"].is_object())

@@ -1105,7 +1105,7 @@ static std::string calibration_section_html(const json& r) {
         const json src = has_after && a.value("error_source", json()).is_string() ? a["error_source"] : b.value("error_source", json());
         const json crb = has_after && a.value("per_sample_crb_rad", json()).is_number() ? a["per_sample_crb_rad"] : b.value("per_sample_crb_rad", json());
         const json cor = l.value("correction", json());
-        const std::string applied = !cor.is_object() ? "-" : cor.value("applied", false) ? "applied (" + str(cor["kind"]) + ")" : "not applied: " + str(cor.value("why_not", json()));
+        const std::string applied = !cor.is_object() ? "-" : cor.value("applied", false) ? (str(cor["kind"]) == "external_env" ? std::string("handed to the child (external_env)") : "applied (" + str(cor["kind"]) + ")") : "not applied: " + str(cor.value("why_not", json()));
         h << "<tr><td>" << str(l["label"]) << "</td><td>" << (src.is_string() ? (src == "truth" ? "truth" : "self-referenced") : "-") << "</td><td>"
           << num3(b.value("rms_rad", json())) << "</td><td>" << (has_after ? num3(a.value("rms_rad", json())) : "-") << "</td><td>"
           << num3(b.value("max_abs_rad", json())) << "</td><td>" << (has_after ? num3(a.value("max_abs_rad", json())) : "-") << "</td><td>" << num3(crb)
