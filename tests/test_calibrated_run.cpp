@@ -362,9 +362,12 @@ TEST_CASE("calibrated run: a Modbus DUT the correction cannot be written to runs
     std::string board = "dut-interpolator";
     json cal{{"lane", "atan2"}};
     std::string why;
-    SECTION("a table of another entry count than the board's") {
-        cal["table_size"] = 32;
-        why = "32";
+    SECTION("a board with a table but no Lissajous trims, and a correction with a Lissajous stage") {
+        json b = load_json_file(FRINGE_SOURCE_DIR "/fixtures/boards/dut-interpolator.json");
+        for (auto it = b["registers"].begin(); it != b["registers"].end();) it = it.key().rfind("trim", 0) == 0 ? b["registers"].erase(it) : std::next(it);
+        board = (d.path / "table-only-dut.json").string();
+        std::ofstream(board) << b.dump();
+        why = "--no-lissajous";
     }
     SECTION("a board profile without correction registers") {
         json b = load_json_file(FRINGE_SOURCE_DIR "/fixtures/boards/dut-interpolator.json");
@@ -392,4 +395,32 @@ TEST_CASE("calibrated run: a Modbus DUT the correction cannot be written to runs
     CHECK(dut["after"]["rms_rad"].get<double>() > 0.5 * dut["before"]["rms_rad"].get<double>());
     // the software lane is corrected all the same
     CHECK(lane(r, "atan2")["after"]["rms_rad"].get<double>() < lane(r, "atan2")["before"]["rms_rad"].get<double>() / 10);
+}
+
+TEST_CASE("calibrated run: a board with a correction table takes the correction at its own entry count, and another count given is refused with the scenario", "[calibration][calrun][modbus]") {
+    TempDir d;
+    json b = load_json_file(FRINGE_SOURCE_DIR "/fixtures/boards/dut-interpolator.json");
+    b["registers"]["correction_table_rad"]["count"] = 32;
+    const std::string board = (d.path / "dut-32.json").string();
+    std::ofstream(board) << b.dump();
+    json j = load_json_file(FRINGE_SOURCE_DIR "/fixtures/scenarios/modbus-step-sweep.json");
+    j["device"] = "modbus+tcp://127.0.0.1:1?board=" + board;  // nothing is opened when the scenario is checked
+    j["calibrate"] = {{"lane", "atan2"}};
+    const RunPlan p = plan_run(scenario(j));
+    CHECK(p.scenario.calibrate->table_size == 32);
+    CHECK(json(p.scenario)["calibrate"]["table_size"] == 32);
+    // left out, it is not written back: a service that reads the scenario again takes the board's too
+    CHECK_FALSE(json(scenario(j))["calibrate"].contains("table_size"));
+    j["calibrate"]["table_size"] = 64;
+    try {
+        (void)plan_run(scenario(j));
+        FAIL("accepted");
+    } catch (const ConfigError& e) {
+        CHECK(e.field() == "calibrate.table_size");
+        CHECK_THAT(e.message(), Catch::Contains("64 entries, but the board the after pass runs on holds 32"));
+    }
+    // a software-only run keeps the default
+    j["device"] = "loopback:";
+    j["calibrate"].erase("table_size");
+    CHECK(plan_run(scenario(j)).scenario.calibrate->table_size == 64);
 }
