@@ -422,5 +422,7 @@ TEST_CASE("calibrated run: a board with a correction table takes the correction 
     // a software-only run keeps the default
     j["device"] = "loopback:";
     j["calibrate"].erase("table_size");
-    CHECK(plan_run(scenario(j)).scenario.calibrate->table_size == 64);
+    const RunPlan q = plan_run(scenario(j));
+    CHECK(q.scenario.calibrate->table_size == 64);
+    CHECK(json(q.scenario)["calibrate"]["table_size"] == 64);  // the report's scenario says the size used
 }

@@ -161,8 +161,8 @@ void check_calibration(Scenario& sc) {
             throw ConfigError("calibrate.table_size", std::to_string(c.table_size) + " entries, but the board the after pass runs on holds " + std::to_string(*n) +
                                                           " (its correction_table_rad count): leave table_size out, or give " + std::to_string(*n));
         c.table_size = *n;
-        c.table_size_given = true;
     }
+    c.table_size_given = true;  // as planned: the report's scenario says the size used
     const std::string before_device = sc.instruments ? std::string() : sc.device;
     const std::string after_device = c.verify.device.empty() ? before_device : c.verify.device;
     if (!c.verify.device.empty()) {
