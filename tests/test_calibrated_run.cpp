@@ -2,6 +2,7 @@
 // docs/calibration.md "In one run"): the before and after passes in one report against the
 // per-sample CRB, on the paper's signal, a Lissajous-distorted one and a capture without truth;
 // what is refused when the scenario is checked; and the report when there is no after pass.
+#include "board_sim_thread.hpp"
 #include "helpers.hpp"
 
 #include "server/engine/plan.hpp"
@@ -347,4 +348,109 @@ TEST_CASE("calibrated run: an external estimator's lane is given the correction 
         CHECK(e["after"]["rms_rad"].get<double>() == Approx(e["before"]["rms_rad"].get<double>()).epsilon(0.05));
     }
     CHECK(lane(r, "atan2")["after"]["rms_rad"].get<double>() < lane(r, "atan2")["before"]["rms_rad"].get<double>() / 20);
+}
+
+TEST_CASE("calibrated run: on the emulated Modbus DUT, one fringe run writes the correction to its registers and its error drops as fringe's atan2 with it does", "[calibration][calrun][modbus][socket]") {
+    TempDir d;
+    dev::BoardSimOptions o;
+    o.board = "dut-interpolator";
+    o.offset_sin_v = 0.03;
+    o.offset_cos_v = -0.02;
+    o.gain_mismatch = 0.04;
+    o.noise_v = 2e-4;
+    o.seed = 3;
+    test::SimThread sim(o);
+    REQUIRE(sim.failure.empty());
+    json j = load_json_file(FRINGE_SOURCE_DIR "/fixtures/scenarios/modbus-step-sweep.json");
+    j["device"] = sim.uri("board=dut-interpolator");
+    j["calibrate"] = {{"lane", "atan2"}};
+    j.erase("limits");
+    const json r = run(j, d);
+    REQUIRE(r["status"] == "done");
+    const json& c = r["calibration"];
+    REQUIRE(c["status"] == "verified");
+    const json& dut = lane(r, "dut");
+    CHECK(dut["correction"]["kind"] == "board_registers");
+    CHECK(dut["correction"]["applied"] == true);
+    CHECK_THAT(dut["correction"]["how"].get<std::string>(), Catch::Contains("read back and verified; correction_enable = 1"));
+    const double before = dut["before"]["rms_rad"].get<double>(), after = dut["after"]["rms_rad"].get<double>();
+    const double sw = lane(r, "atan2")["after"]["rms_rad"].get<double>();
+    INFO("DUT rms before " << before << " after " << after << "; fringe's atan2 with the file on the same pass " << sw << ", predicted " << c["predicted_rms_rad"]);
+    CHECK(before > 0.02);
+    CHECK(before / after > 30);
+    // The board applies the file as atan2 does, at its registers' quantisation (2*pi/65536 rad per LSB).
+    CHECK(std::fabs(after - sw) < 0.25 * sw + 5e-5);
+}
+
+TEST_CASE("calibrated run: a Modbus DUT the correction cannot be written to runs uncorrected, and its lane says why", "[calibration][calrun][modbus][socket]") {
+    TempDir d;
+    dev::BoardSimOptions o;
+    o.offset_sin_v = 0.03;
+    o.gain_mismatch = 0.04;
+    std::string board = "dut-interpolator";
+    json cal{{"lane", "atan2"}};
+    std::string why;
+    SECTION("a board with a table but no Lissajous trims, and a correction with a Lissajous stage") {
+        json b = load_json_file(FRINGE_SOURCE_DIR "/fixtures/boards/dut-interpolator.json");
+        for (auto it = b["registers"].begin(); it != b["registers"].end();) it = it.key().rfind("trim", 0) == 0 ? b["registers"].erase(it) : std::next(it);
+        board = (d.path / "table-only-dut.json").string();
+        std::ofstream(board) << b.dump();
+        why = "--no-lissajous";
+    }
+    SECTION("a board profile without correction registers") {
+        json b = load_json_file(FRINGE_SOURCE_DIR "/fixtures/boards/dut-interpolator.json");
+        for (auto it = b["registers"].begin(); it != b["registers"].end();)
+            it = it.key().rfind("correction", 0) == 0 || it.key().rfind("trim", 0) == 0 ? b["registers"].erase(it) : std::next(it);
+        board = (d.path / "bare-dut.json").string();
+        std::ofstream(board) << b.dump();
+        why = "declares no correction registers";
+    }
+    o.board = board;
+    test::SimThread sim(o);
+    REQUIRE(sim.failure.empty());
+    json j = load_json_file(FRINGE_SOURCE_DIR "/fixtures/scenarios/modbus-step-sweep.json");
+    j["device"] = sim.uri("board=" + board);
+    j["calibrate"] = cal;
+    j.erase("limits");
+    const json r = run(j, d);
+    REQUIRE(r["status"] == "done");
+    REQUIRE(r["calibration"]["status"] == "verified");
+    const json& dut = lane(r, "dut");
+    CHECK(dut["correction"]["kind"] == "board_registers");
+    CHECK(dut["correction"]["applied"] == false);
+    CHECK_THAT(dut["correction"]["why_not"].get<std::string>(), Catch::Contains(why) && Catch::Contains("its own position ran as before"));
+    INFO("DUT rms before " << dut["before"]["rms_rad"] << " after " << dut["after"]["rms_rad"]);
+    CHECK(dut["after"]["rms_rad"].get<double>() > 0.5 * dut["before"]["rms_rad"].get<double>());
+    // the software lane is corrected all the same
+    CHECK(lane(r, "atan2")["after"]["rms_rad"].get<double>() < lane(r, "atan2")["before"]["rms_rad"].get<double>() / 10);
+}
+
+TEST_CASE("calibrated run: a board with a correction table takes the correction at its own entry count, and another count given is refused with the scenario", "[calibration][calrun][modbus]") {
+    TempDir d;
+    json b = load_json_file(FRINGE_SOURCE_DIR "/fixtures/boards/dut-interpolator.json");
+    b["registers"]["correction_table_rad"]["count"] = 32;
+    const std::string board = (d.path / "dut-32.json").string();
+    std::ofstream(board) << b.dump();
+    json j = load_json_file(FRINGE_SOURCE_DIR "/fixtures/scenarios/modbus-step-sweep.json");
+    j["device"] = "modbus+tcp://127.0.0.1:1?board=" + board;  // nothing is opened when the scenario is checked
+    j["calibrate"] = {{"lane", "atan2"}};
+    const RunPlan p = plan_run(scenario(j));
+    CHECK(p.scenario.calibrate->table_size == 32);
+    CHECK(json(p.scenario)["calibrate"]["table_size"] == 32);
+    // left out, it is not written back: a service that reads the scenario again takes the board's too
+    CHECK_FALSE(json(scenario(j))["calibrate"].contains("table_size"));
+    j["calibrate"]["table_size"] = 64;
+    try {
+        (void)plan_run(scenario(j));
+        FAIL("accepted");
+    } catch (const ConfigError& e) {
+        CHECK(e.field() == "calibrate.table_size");
+        CHECK_THAT(e.message(), Catch::Contains("64 entries, but the board the after pass runs on holds 32"));
+    }
+    // a software-only run keeps the default
+    j["device"] = "loopback:";
+    j["calibrate"].erase("table_size");
+    const RunPlan q = plan_run(scenario(j));
+    CHECK(q.scenario.calibrate->table_size == 64);
+    CHECK(json(q.scenario)["calibrate"]["table_size"] == 64);  // the report's scenario says the size used
 }

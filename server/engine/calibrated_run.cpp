@@ -1,9 +1,11 @@
 #include "server/engine/calibrated_run.hpp"
 
 #include "drivers/device.hpp"
+#include "drivers/modbus_board.hpp"
 #include "estimator/estimator.hpp"
 #include "server/engine/calibrate.hpp"
 #include "server/engine/provenance.hpp"
+#include "server/engine/scenario.hpp"
 #include "signal_gen/base/config.hpp"
 
 #include <algorithm>
@@ -81,9 +83,31 @@ json apply_to_external_lane(EstimatorSpec& lane, const std::string& correction_p
             {"why_not", "not yet: an external estimator is not handed the correction file's path; it ran as before"}};
 }
 
-json apply_to_board(const Scenario&, const std::string&) {
-    return {{"kind", "board_registers"}, {"applied", false},
-            {"why_not", "not yet: the correction is not written to the board's registers; its own position ran as before"}};
+json apply_to_board(const Scenario& after, const std::string& correction_path) {
+    auto not_applied = [&](const std::string& why) { return json{{"kind", "board_registers"}, {"applied", false}, {"why_not", why}}; };
+    if (after.instruments) return not_applied("not yet with separate output and input instruments; its own position ran as before");
+    dev::UriParts u;
+    try {
+        u = dev::check_uri(after.device);
+    } catch (const std::exception& e) {
+        return not_applied(e.what());
+    }
+    if (u.scheme != "modbus+tcp" && u.scheme != "modbus+rtu") return not_applied("the device is not a Modbus board; nothing to write");
+    try {
+        const dev::BoardProfile b = dev::load_board(u.settings.value("board", std::string("generic-aio")));
+        if (!b.has_correction())
+            return not_applied("board profile " + b.name + " declares no correction registers (docs/modbus.md \"Correction registers\"); its own position ran as before");
+        const est::Correction c = est::Correction::from_json(load_json_file(correction_path));
+        // Written, read back and verified, correction_enable set last: the after pass opens the board with it on.
+        const auto plan = dev::write_correction(after.device, c);
+        std::size_t regs = 0;
+        for (const auto& v : plan) regs += v.words.size();
+        return {{"kind", "board_registers"}, {"applied", true},
+                {"how", "written to " + after.device + ": " + std::to_string(plan.size()) + " values (" + std::to_string(regs) +
+                            " registers), read back and verified; correction_enable = 1"}};
+    } catch (const std::exception& e) {
+        return not_applied(std::string("the correction could not be written to the board: ") + e.what() + "; its own position ran as before");
+    }
 }
 
 json apply_correction(EstimatorSpec& lane, const std::string& correction_path) {

@@ -8,7 +8,7 @@
 //    pass's signals, the periodic stage from atan2's truth-scored error (self-referenced without
 //    truth). Written to RUN_ID.correction.json in RunOptions::calibration_dir.
 // 3. Applied to every lane that can take it, one function per kind of lane (below): estimator
-//    parameters, an external child's environment, a board's registers (not yet).
+//    parameters, an external child's environment, a Modbus board's correction registers.
 // 4. The after pass on another capture (another seed by default; the verify block's motion or
 //    device), whose limits give the verdict. The report is the after pass's, with "calibration":
 //    the before pass, the correction, both captures' identities and each lane side by side.
@@ -35,7 +35,9 @@ nlohmann::json apply_to_software_lane(EstimatorSpec& lane, const std::string& co
 // An estimator run as a child process (`external`): its correction=FILE parameter where it
 // declares one (the child is handed the file's path in its environment), else not yet.
 nlohmann::json apply_to_external_lane(EstimatorSpec& lane, const std::string& correction_path);
-// A board's own position (the lane "dut"): not yet (its correction registers written).
+// A Modbus board whose profile declares correction registers (the lane "dut", its own
+// position): the correction written to them, read back and verified, correction_enable set
+// (drivers/modbus_board.hpp write_correction); any other device: nothing to write.
 nlohmann::json apply_to_board(const Scenario& after, const std::string& correction_path);
 // The kind of a lane, and the function above for it; lanes of no kind are left as they are.
 nlohmann::json apply_correction(EstimatorSpec& lane, const std::string& correction_path);

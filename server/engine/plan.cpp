@@ -1,6 +1,7 @@
 #include "server/engine/plan.hpp"
 
 #include "drivers/device.hpp"
+#include "drivers/modbus_board.hpp"
 #include "server/engine/capture_run.hpp"
 #include "server/engine/limits.hpp"
 #include "signal_gen/base/config.hpp"
@@ -121,9 +122,6 @@ dev::UriParts check_device_uris(const Scenario& sc) {
     return input;
 }
 
-// "calibrate": the lane is an atan2 lane of this scenario without a correction of its own, and
-// the after pass runs on another capture than the before pass (docs/calibration.md "In one run").
-
 // The capture a capture: URI names: the same file by any path or link, or a byte-identical copy.
 bool same_capture_file(const std::string& a_uri, const std::string& b_uri) {
     const auto path_of = [](const std::string& uri) {
@@ -160,9 +158,27 @@ bool same_device(const std::string& a, const std::string& b) {
     }
 }
 
-void check_calibration(const Scenario& sc) {
+std::string before_device_uri(const Scenario& sc) { return sc.instruments ? std::string() : sc.device; }
+
+// The entries of the correction table a Modbus board's profile declares (none: not such a board,
+// or a URI or profile that does not load; those are named where the device is checked and opened).
+std::optional<std::size_t> board_table_entries(const std::string& uri) {
+    try {
+        const dev::UriParts u = dev::check_uri(uri);
+        if (u.scheme != "modbus+tcp" && u.scheme != "modbus+rtu") return std::nullopt;
+        const dev::BoardProfile b = dev::load_board(u.settings.value("board", std::string("generic-aio")));
+        if (const auto* t = b.find("correction_table_rad")) return static_cast<std::size_t>(t->count);
+    } catch (const std::exception&) {
+    }
+    return std::nullopt;
+}
+
+// "calibrate": the lane is an atan2 lane of this scenario without a correction of its own, the
+// table fits the board it is written to, and the after pass runs on another capture than the
+// before pass (docs/calibration.md "In one run"). A board's own table size is taken here.
+void check_calibration(Scenario& sc) {
     if (!sc.calibrate) return;
-    const CalibrateSpec& c = *sc.calibrate;
+    CalibrateSpec& c = *sc.calibrate;
     const EstimatorSpec* lane = nullptr;
     std::string labels;
     for (const auto& e : sc.estimators) {
@@ -179,6 +195,16 @@ void check_calibration(const Scenario& sc) {
     }
     if (lane->params.is_object() && lane->params.contains("correction") && !lane->params["correction"].is_null())
         throw ConfigError("calibrate.lane", "'" + c.lane + "' already applies a correction (params.correction): calibrate it without one");
+    // A Modbus board whose profile declares a correction table takes the correction at its own
+    // entry count (it is written to it between the passes); given, the count must be the board's.
+    const std::string board_uri = c.verify.device.empty() ? before_device_uri(sc) : c.verify.device;
+    if (const std::optional<std::size_t> n = board_table_entries(board_uri)) {
+        if (c.table_size_given && c.table_size != *n)
+            throw ConfigError("calibrate.table_size", std::to_string(c.table_size) + " entries, but the board the after pass runs on holds " + std::to_string(*n) +
+                                                          " (its correction_table_rad count): leave table_size out, or give " + std::to_string(*n));
+        c.table_size = *n;
+    }
+    c.table_size_given = true;  // as planned: the report's scenario says the size used
     const std::string before_device = sc.instruments ? std::string() : sc.device;
     const std::string after_device = c.verify.device.empty() ? before_device : c.verify.device;
     if (!c.verify.device.empty()) {

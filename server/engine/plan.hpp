@@ -51,7 +51,7 @@ private:
 };
 
 // Checks a parsed scenario (scenario_from_json reads its keys and ranges) for running, in
-// this order: its size against the budget (RunTooLarge, before anything is built), a "calibrate" block's lane and after pass, estimators exist and accept their parameters (each is built here), limits name
+// this order: its size against the budget (RunTooLarge, before anything is built), a "calibrate" block's lane, table size (a board's own) and after pass, estimators exist and accept their parameters (each is built here), limits name
 // known metrics and estimators and can be measured, the device URIs' form and settings
 // (nothing is opened), then the preflight's physics. Throws ConfigError naming the scenario
 // key of the first error; returns the plan with the preflight's warnings.

@@ -199,6 +199,7 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
     if (r.has("calibrate")) {
         JsonReader cr = r.object("calibrate");
         CalibrateSpec c;
+        c.table_size_given = cr.has("table_size");
         c.table_size = static_cast<std::size_t>(k.integer(cr, "calibrate.table_size"));
         c.harmonics = static_cast<int>(k.integer(cr, "calibrate.harmonics"));
         c.lissajous = k.boolean(cr, "calibrate.lissajous");
@@ -316,8 +317,8 @@ void to_json(json& j, const Scenario& s) {
         if (c.verify.seed) v["seed"] = *c.verify.seed;
         if (c.verify.motion) v["motion"] = *c.verify.motion;
         if (!c.verify.device.empty()) v["device"] = c.verify.device;
-        j["calibrate"] = {{"lane", c.lane}, {"table_size", c.table_size}, {"harmonics", c.harmonics}, {"lissajous", c.lissajous},
-                          {"min_cycles", c.min_cycles}, {"verify", v}};
+        j["calibrate"] = {{"lane", c.lane}, {"harmonics", c.harmonics}, {"lissajous", c.lissajous}, {"min_cycles", c.min_cycles}, {"verify", v}};
+        if (c.table_size_given) j["calibrate"]["table_size"] = c.table_size;  // else the board's, or the default, when planned
     }
 }
 

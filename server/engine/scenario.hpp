@@ -50,6 +50,7 @@ struct ScoringRules {
 struct CalibrateSpec {
     std::string lane;              // a label of an atan2 lane
     std::size_t table_size = 64;   // N entries over an electrical period
+    bool table_size_given = false;  // false: a board with a correction table takes its own count (plan_run)
     int harmonics = 16;            // K orders of the correction the table is built from
     bool lissajous = true;         // false: keep the lane's calibration, correct the angle only
     double min_cycles = 1;         // electrical cycles the error record needs for a correction (every angle seen)
