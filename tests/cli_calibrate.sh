@@ -90,10 +90,10 @@ for name, key, value in [("big-offset", "offset_rad", 1e308), ("big-entry", "tab
     json.dump(d, open(f"{sys.argv[2]}/{name}.json", "w"))
 PY
 for bad in big-offset big-entry; do
-  set +e; msg=$("$FRINGE" estimate "$dir/b.fcap" --estimator atan2 --param "correction=$dir/$bad.json" -q 2>&1); rc=$?; set -e
+  set +e; msg=$("$FRINGE" estimate "$dir/b.fcap" --estimator atan2 --param "correction=$dir/$bad.json" --report "$dir/bad.rep.json" -q 2>&1); rc=$?; set -e
   [ $rc -eq 2 ] && grep -q "correction\.\(offset_rad\|table_rad\[3\]\)" <<<"$msg" || fail "$bad: exit $rc, $msg"
 done
 mkfifo "$dir/fifo.json"
-set +e; msg=$(timeout 20 "$FRINGE" estimate "$dir/b.fcap" --estimator atan2 --param "correction=$dir/fifo.json" -q 2>&1); rc=$?; set -e
+set +e; msg=$(timeout 20 "$FRINGE" estimate "$dir/b.fcap" --estimator atan2 --param "correction=$dir/fifo.json" --report "$dir/bad.rep.json" -q 2>&1); rc=$?; set -e
 [ $rc -eq 2 ] && grep -q "not a regular file" <<<"$msg" || fail "a FIFO as the correction: exit $rc, $msg"
 ok "hostile exports and correction files are refused, nothing written or changed"

@@ -376,7 +376,7 @@ TEST_CASE("hostile: device URIs over HTTP are sandboxed", "[service][hostile][so
         r = post_verify({{"device", "capture:" + (d.path / "secret.json").string()}});
         check_error(r, 400, "invalid");
         CHECK(r.error()["field"] == "scenario.calibrate.verify.device");
-        no_leak(r);
+        CHECK(r.body.find("s3cr3t") == std::string::npos);  // the path the client gave is named, nothing read from it
         r = post_verify({{"motion", {{"kind", "table"}, {"file", "/etc/passwd"}}}});
         check_error(r, 400, "invalid");
         CHECK(r.error()["field"] == "scenario.calibrate.verify.motion.file");
