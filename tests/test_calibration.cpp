@@ -348,3 +348,13 @@ TEST_CASE("calibration: with truth the offset leaves the corrected record's mean
     CHECK(std::fabs(mean_rad) < 1e-6);
     CHECK(rms_rad < 2e-4);  // what a 64-entry linear table leaves of these harmonics, sampled at its entries
 }
+
+TEST_CASE("calibration: the predicted residual on another capture counts the coefficients fitted to a short record", "[calibration]") {
+    // Closed form: the record's residual is low by n / (n - 2K - 1), and the table carries the
+    // fit's own noise, 2K / n of the variance.
+    const double sigma = 2e-4;
+    CHECK(predicted_residual_rad(0.0, sigma, 128, 15) == Approx(sigma * std::sqrt(128.0 / 97.0 * (1.0 + 30.0 / 128.0))).epsilon(1e-12));
+    CHECK(predicted_residual_rad(0.0, sigma, 128, 15) / sigma == Approx(1.276).epsilon(1e-3));
+    CHECK(predicted_residual_rad(3e-4, 4e-4, 1e12, 16) == Approx(5e-4).epsilon(1e-9));  // a long record: the plain sum in quadrature
+    CHECK(predicted_residual_rad(3e-4, 4e-4, 20, 16) == predicted_residual_rad(3e-4, 4e-4));  // fewer samples than coefficients: not scaled
+}

@@ -169,7 +169,10 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
     else if (res.correction.has_lissajous) res.correction.offset_rad = kept_zero(o, res.correction);
     res.periodic_rms_rad = f.error_rms_rad;
     res.table_residual_rms_rad = f.table_residual_rms_rad;
-    res.predicted_rms_rad = predicted_residual_rad(f.table_residual_rms_rad, res.noise_rms_rad);
+    res.predicted_rms_rad = res.source == "truth"
+                                ? predicted_residual_rad(f.table_residual_rms_rad, res.noise_rms_rad, rests["scored_samples"].get<double>(),
+                                                         rests["orders_fitted"].get<int>())
+                                : predicted_residual_rad(f.table_residual_rms_rad, res.noise_rms_rad);
     if (lane.contains("bounds") && lane.at("bounds").contains("per_sample_crb_rad") && lane.at("bounds").at("per_sample_crb_rad").is_number())
         res.per_sample_crb_rad = lane.at("bounds").at("per_sample_crb_rad").get<double>();
     res.facts = {{"capture", o.capture_path},
