@@ -90,9 +90,8 @@ int run_estimate(const EstimateOptions& o) {
     if (!std::isfinite(o.settle_s)) throw ConfigError("settle_s", "--settle-s must be a finite number of seconds");
     // A .csv's or .sr's sidecar is read from x.json whether or not it exists yet: a report
     // written there would be read as the capture's metadata next time.
-    const bool has_sidecar = capture_format_for(o.capture) != CaptureFormat::Binary;
     refuse_overwrite({{"output", o.output}, {"report", o.report}, {"html", o.html}, {"junit", o.junit}},
-                     {{"capture", o.capture}, {"capture's sidecar", has_sidecar ? sidecar_path(o.capture) : ""}, {"encoder profile", o.encoder}, {"interface profile", o.interface}});
+                     {{"capture", o.capture}, {"encoder profile", o.encoder}, {"interface profile", o.interface}});  // and the capture's sidecar
     CaptureRunOptions e;
     e.capture_path = o.capture;
     e.estimator = o.estimator;
