@@ -2,6 +2,7 @@
 
 #include "common.hpp"
 #include "signal_gen/base/config.hpp"
+#include "signal_gen/base/json_bounded.hpp"
 
 #include <cmath>
 #include <filesystem>
@@ -130,14 +131,27 @@ std::unique_ptr<Correction> correction_from_params(const fringe::Params& p, Cali
         for (const char* k : {"offset_sin_v", "offset_cos_v", "amplitude_sin_v", "amplitude_cos_v", "quadrature_error_rad"})
             if (p.optional_number(k))
                 throw ConfigError(std::string("params.") + k, "the correction file has a Lissajous stage: give one or the other");
-        cal.offset_sin_v = c->offset_sin_v;
-        cal.offset_cos_v = c->offset_cos_v;
-        cal.amplitude_sin_v = c->amplitude_sin_v;
-        cal.amplitude_cos_v = c->amplitude_cos_v;
-        cal.quadrature_error_rad = c->quadrature_error_rad;
-        cal.prepare();
+        c->lissajous_into(cal);
     }
     return c;
+}
+
+void Correction::lissajous_into(Calibration& cal) const {
+    cal.offset_sin_v = offset_sin_v;
+    cal.offset_cos_v = offset_cos_v;
+    cal.amplitude_sin_v = amplitude_sin_v;
+    cal.amplitude_cos_v = amplitude_cos_v;
+    cal.quadrature_error_rad = quadrature_error_rad;
+    cal.prepare();
+}
+
+void Correction::lissajous_from(const Calibration& cal) {
+    has_lissajous = true;
+    offset_sin_v = cal.offset_sin_v;
+    offset_cos_v = cal.offset_cos_v;
+    amplitude_sin_v = cal.amplitude_sin_v;
+    amplitude_cos_v = cal.amplitude_cos_v;
+    quadrature_error_rad = cal.quadrature_error_rad;
 }
 
 Correction Correction::load(const std::string& path) {
@@ -150,10 +164,12 @@ Correction Correction::load(const std::string& path) {
     if (!f) throw ConfigError("correction", "cannot open " + path);
     const std::string text((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
     nlohmann::json j;
+    // The whole file (trailing text after the object is an error too), bounded in depth, and a
+    // key given twice refused (the last one silently won: a table given twice took the second).
     try {
-        j = nlohmann::json::parse(text);  // the whole file: trailing text after the object is an error too
-    } catch (const nlohmann::json::exception& e) {
-        throw ConfigError("correction", path + ": not JSON (" + e.what() + ")");
+        j = parse_json_bounded(text, path);
+    } catch (const ConfigError& e) {
+        throw e.prefixed("correction");
     }
     return from_json(j);
 }

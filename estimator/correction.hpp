@@ -30,6 +30,8 @@
 
 namespace fringe::est {
 
+struct Calibration;
+
 struct Correction {
     // Stage 1 (absent: the estimator's own calibration is kept).
     bool has_lissajous = false;
@@ -41,6 +43,11 @@ struct Correction {
     std::vector<double> table;
     // Stage 3.
     double offset_rad = 0;
+
+    // Stage 1 to and from a calibration: the correction's Lissajous stage put into `cal` (and
+    // cal.prepare() called), or taken from it (has_lissajous set).
+    void lissajous_into(Calibration& cal) const;
+    void lissajous_from(const Calibration& cal);
 
     // c(phi) from the coefficients; phi any angle (rad).
     double harmonic_value(double phi) const;

@@ -35,9 +35,15 @@ run_to() {  # run_to NAME: the step sweep against the board, recorded; exit 0 or
   [ $rc -le 1 ] && grep -q '"status": *"done"' "$dir/$1.json" || fail "the run $1: exit $rc"
 }
 run_to before
-# 128 steps at 1 kHz: no settle time to leave out.
-out=$("$FRINGE" calibrate "$dir/before.fcap" -o "$dir/corr.json" --settle-s 0 --write-board "$URI" --modbus-writes "$dir/writes.csv") || fail "calibrate --write-board: $out"
+# 128 steps at 1 kHz recorded with settle_s 0: calibrate takes the capture's own settle time
+# (the default 0.1 s would leave 28 steps).
+out=$("$FRINGE" calibrate "$dir/before.fcap" -o "$dir/corr.json" --write-board "$URI" --modbus-writes "$dir/writes.csv") || fail "calibrate --write-board: $out"
 echo "$out"
+grep -qF "after 0 s settle (the capture's recording scenario)" <<<"$out" || fail "calibrate did not take the capture's settle time"
+# A settle time longer than the capture: nothing scored, and the message says that, not that truth is missing.
+rc=0; msg=$("$FRINGE" calibrate "$dir/before.fcap" -o "$dir/long-settle.json" --settle-s 1 2>&1) || rc=$?
+[ $rc -ne 0 ] && grep -qF "nothing scored against the capture's truth" <<<"$msg" && ! grep -q "no truth" <<<"$msg" || fail "--settle-s past the end: exit $rc, $msg"
+[ ! -e "$dir/long-settle.json" ] || fail "a correction was written from nothing"
 grep -qF "table: 64 entries" <<<"$out" || fail "the table has the board's 64 entries"
 grep -qF "wrote the correction to $URI: 72 values (72 registers), read back and verified; correction_enable = 1" <<<"$out" || fail "the write is reported"
 run_to after

@@ -49,6 +49,14 @@ assert rms < 2 * crb
 PY
 ok "verified on another capture"
 
+# The self-referenced error chosen with truth at hand (what a bench without a reference encoder gets).
+out=$("$FRINGE" calibrate "$dir/a.fcap" -o "$dir/corr-sr.json" --error-source self-reference)
+grep -qF "(self-referenced error)" <<<"$out" || fail "--error-source self-reference: $out"
+grep -q '"error_source": "self_reference"' "$dir/corr-sr.json" || fail "the file does not say self_reference"
+set +e; msg=$("$FRINGE" calibrate "$dir/a.fcap" -o "$dir/x.json" --error-source reference 2>&1); rc=$?; set -e
+[ $rc -ne 0 ] && [ ! -e "$dir/x.json" ] || fail "--error-source reference: exit $rc, $msg"
+ok "--error-source chooses the error record"
+
 # Bad input exits 2 and writes nothing: an LSB at which the table does not fit int16.
 set +e; msg=$("$FRINGE" calibrate "$dir/a.fcap" -o "$dir/x.json" --c-header "$dir/x.h" --lsb-rad 1e-7 2>&1); rc=$?; set -e
 [ $rc -eq 2 ] && grep -q "does not fit int16" <<<"$msg" || fail "int16 overflow: exit $rc, $msg"

@@ -152,6 +152,8 @@ TEST_CASE("calibrated run: a capture without truth, calibrated self-referenced a
     CHECK(c["computed_on"]["error_source"] == "self_reference");
     CHECK(c["computed_on"]["capture"] == bare.string());
     CHECK(c["verified_on"]["capture"] == b.string());
+    CHECK(c["computed_on"]["seed"].is_null());  // the captures say nothing of a seed: not the scenario's
+    CHECK(c["verified_on"]["seed"].is_null());
     const json& a = lane(r, "atan2");
     CHECK(a["before"]["error_source"] == "self_reference");
     CHECK(a["after"]["error_source"] == "truth");
@@ -174,8 +176,10 @@ TEST_CASE("calibrated run: the scenario's calibrate block is checked with the re
     };
     const json two = json::array({json{{"name", "atan2"}}, json{{"name", "ekf-ideal"}, {"label", "ekf"}}, json{{"name", "pll2"}}});
     refused(paper_with({{"lane", "atan3"}}, two), "calibrate.lane", "no estimator labelled 'atan3' in this scenario (its lanes: 'atan2', 'ekf', 'pll2')");
-    refused(paper_with({{"lane", "ekf"}}, two), "calibrate.lane", "'ekf' runs ekf-ideal: a correction can only be computed for atan2");
-    refused(paper_with({{"lane", "pll2"}}, two), "calibrate.lane", "not yet");
+    refused(paper_with({{"lane", "ekf"}}, two), "calibrate.lane", "'ekf' runs ekf-ideal: a correction can only be computed for atan2's reading");
+    refused(paper_with({{"lane", "atan2"}, {"table_size", 4097}}), "calibrate.table_size", "4096");
+    CHECK_NOTHROW(plan_run(scenario(paper_with({{"lane", "atan2"}, {"table_size", 4096}}))));
+    refused(paper_with({{"lane", "atan2"}, {"error_source", "reference"}}), "calibrate.error_source", "self_reference");
     refused(paper_with({{"lane", "atan2"}}, json::array({json{{"name", "atan2"}, {"params", {{"correction", "x.json"}}}}})), "calibrate.lane",
             "already applies a correction");
     refused(paper_with({{"lane", "atan2"}, {"verify", {{"seed", 1}}}}), "calibrate.verify.seed", "same capture as the before pass");
@@ -295,6 +299,38 @@ TEST_CASE("calibrated run: too few cycles for a correction: none, the reason, an
     CHECK_THAT(c["limits"].get<std::string>(), Catch::Contains("no after pass") && Catch::Contains("the verdict is not theirs"));
     // nothing was left in the folder: no correction file, no capture
     CHECK(std::filesystem::is_empty(d.path));
+    // A folder the run made for its correction (as the temporary one without --report) is
+    // removed again when nothing came of it.
+    RunOptions o;
+    o.calibration_dir = (d.path / "made" / "here").string();
+    o.threads = 2;
+    const json r2 = execute_run(plan_run(scenario(j)), o);
+    CHECK(r2["calibration"]["status"] == "no_correction");
+    CHECK_FALSE(std::filesystem::exists(d.path / "made"));
+    CHECK(std::filesystem::exists(d.path));
+}
+
+TEST_CASE("calibrated run: a pll2 lane calibrated (from atan2's reading of the signals) and both lanes corrected, the self-referenced error chosen with truth at hand", "[calibration][calrun]") {
+    TempDir d;
+    const json r = run(paper_with({{"lane", "pll"}, {"error_source", "self_reference"}},
+                                  json::array({json{{"name", "atan2"}}, json{{"name", "pll2"}, {"label", "pll"}}})),
+                       d);
+    REQUIRE(r["status"] == "done");
+    const json& c = r["calibration"];
+    REQUIRE(c["status"] == "verified");
+    CHECK(c["computed_on"]["error_source"] == "self_reference");
+    CHECK(c["spec"]["error_source"] == "self_reference");
+    const json& p = lane(r, "pll");
+    CHECK(p["correction"]["applied"] == true);
+    CHECK_FALSE(p.contains("predicted_rms_rad"));  // atan2's prediction does not describe a loop
+    CHECK(p["before"]["error_source"] == "truth");
+    const double before = p["before"]["rms_rad"].get<double>(), after = p["after"]["rms_rad"].get<double>();
+    const double crb = p["after"]["per_sample_crb_rad"].get<double>();
+    INFO("pll2 rms before " << before << " after " << after << " CRB " << crb << "; atan2 after " << lane(r, "atan2")["after"]["rms_rad"]);
+    CHECK(p["change"] == "better");
+    CHECK(before > 20 * after);
+    CHECK(after < 3 * crb);
+    CHECK(lane(r, "atan2")["change"] == "better");
 }
 
 TEST_CASE("calibrated run: verified at another speed in the other direction, with the seed the before pass had", "[calibration][calrun]") {
@@ -327,6 +363,24 @@ TEST_CASE("calibrated run: with --record the before pass's capture is the record
     CHECK(std::filesystem::exists(o.record_path));  // the user's recording stays
     CHECK(std::filesystem::exists(r["calibration"]["correction"]["path"].get<std::string>()));  // the folder is made when missing
     CHECK(r["calibration"]["verified_on"].value("capture", json()).is_null());  // the after pass is not recorded over it
+
+    // Replaying that recording (recorded with seed 1), verified on a capture without a recorded
+    // scenario: each pass names the seed its capture was recorded with, not this scenario's 5.
+    const Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
+    const auto other = d.path / "other.fcap";
+    test::write_generated_capture(gen.encoder, gen.motion, gen.sample_rate_hz, 9, 100000, other, true);
+    json replay = paper_with({{"lane", "atan2"}, {"verify", {{"device", "capture:" + other.string()}}}});
+    replay["device"] = "capture:" + o.record_path;
+    replay["seed"] = 5;
+    RunOptions o2;
+    o2.calibration_dir = (d.path / "corr2").string();
+    o2.threads = 2;
+    const json r2 = execute_run(plan_run(scenario(replay)), o2);
+    REQUIRE(r2["calibration"]["status"] == "verified");
+    CHECK(r2["calibration"]["computed_on"]["seed"] == 1);
+    CHECK(r2["calibration"]["computed_on"]["motion"] == r["scenario"]["motion"]);
+    CHECK(r2["calibration"]["verified_on"]["seed"].is_null());
+    CHECK(r2["calibration"]["verified_on"]["capture"] == other.string());
 }
 
 TEST_CASE("calibrated run: an external estimator's lane is given the correction only where it declares correction=FILE, and says which", "[calibration][calrun]") {

@@ -145,7 +145,12 @@ TEST_CASE("calibration: the correction file round trips exactly, and a malformed
     CHECK_THROWS_WITH(est::Correction::load(d.path.string()), Catch::Contains("is not a regular file"));
     CHECK_THROWS_WITH(est::Correction::load((d.path / "none.json").string()), Catch::Contains("no such file"));
     std::ofstream(d.path / "trailing.json") << c.to_json().dump() << " {}";
-    CHECK_THROWS_WITH(est::Correction::load((d.path / "trailing.json").string()), Catch::Contains("not JSON"));
+    CHECK_THROWS_WITH(est::Correction::load((d.path / "trailing.json").string()), Catch::Contains("malformed JSON") && Catch::Contains("trailing.json"));
+    // A key given twice: refused, not the last one taken.
+    std::string twice = c.to_json().dump();
+    twice.insert(1, "\"offset_rad\": 0.5, ");
+    std::ofstream(d.path / "twice.json") << twice;
+    CHECK_THROWS_WITH(est::Correction::load((d.path / "twice.json").string()), Catch::Contains("duplicate key 'offset_rad'"));
 }
 
 TEST_CASE("calibration: the periodic correction is the error at the angle read (the inversion), and what the table leaves is its figure", "[calibration]") {
@@ -297,6 +302,109 @@ TEST_CASE("calibration: the 1.6 % duty-cycle signal, calibrated from a capture w
     const double rms_after = after["metrics"]["rms"]["rad"].get<double>();
     INFO("Lissajous stage " << o.lissajous << ": rms after " << rms_after << " predicted " << r.predicted_rms_rad << " CRB " << crb);
     CHECK(rms_after < 3 * crb);
+}
+
+TEST_CASE("calibration: the error source can be chosen: self-referenced with truth at hand, truth refused on a capture without it", "[calibration][capture][selfref]") {
+    TempDir d;
+    const Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
+    const auto a = d.path / "a.fcap", bare = d.path / "bare.fcap", b = d.path / "b.fcap", corr = d.path / "corr.json";
+    write_capture(gen, 200000, a, 1);
+    write_capture(gen, 20000, bare, 3, false);
+    write_capture(gen, 100000, b, 2);
+    CalibrateOptions o;
+    o.capture_path = a.string();
+    o.encoder = gen.encoder;
+    o.error_source = "self_reference";
+    const CalibrateResult r = calibrate_capture(o);
+    CHECK(r.source == "self_reference");
+    CHECK(r.facts["record"].contains("windows"));  // the self-referenced record, not the scored one
+    std::ofstream(corr) << r.correction.to_json().dump();
+    const json after = atan2_on(b, gen.encoder, {{"correction", corr.string()}});
+    const double crb = after["bounds"]["per_sample_crb_rad"].get<double>(), rms_after = after["metrics"]["rms"]["rad"].get<double>();
+    INFO("self-referenced with truth at hand: rms after " << rms_after << " CRB " << crb);
+    CHECK(rms_after < 3 * crb);
+
+    o.capture_path = bare.string();
+    o.error_source = "truth";
+    try {
+        (void)calibrate_capture(o);
+        FAIL("a capture without truth calibrated from truth");
+    } catch (const ConfigError& e) {
+        CHECK(e.field() == "error_source");
+        CHECK_THAT(e.message(), Catch::Contains("no theta_true"));
+    }
+    o.error_source = "reference";
+    CHECK_THROWS_AS(calibrate_capture(o), ConfigError);
+}
+
+TEST_CASE("calibration: a record of 1.3 cycles, or of a motion that reverses, predicts what the correction leaves on another capture", "[calibration][capture]") {
+    // Such a record visits some angles more often than others: its mean is not the error's
+    // constant (over 1.3 cycles of this signal by 6.5e-3 rad), and inverting the error with the
+    // record's mean put the table at angles that far off: 3.8e-4 rad measured on another capture
+    // where 2.6e-4 was predicted. The constant is now the record's mean less the table's.
+    TempDir d;
+    Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
+    const auto other = d.path / "other.fcap", rec = d.path / "rec.fcap", corr = d.path / "corr.json";
+    write_capture(gen, 100000, other, 2);
+    const bool reversing = GENERATE(false, true);
+    std::size_t n = 10000 + static_cast<std::size_t>(1.3 * 100000 / 106.72358591248666);  // 0.1 s settle, then 1.3 cycles
+    if (reversing) {
+        gen.motion = motion_from_json(json{{"kind", "sine"}, {"amplitude_rad", 0.006}, {"freq_hz", 2.0}}, "", gen.encoder.lines_per_rev, "motion");
+        n = 100000;
+    }
+    write_capture(gen, n, rec, 1);
+    CalibrateOptions o;
+    o.capture_path = rec.string();
+    o.encoder = gen.encoder;
+    const CalibrateResult r = calibrate_capture(o);
+    REQUIRE(r.source == "truth");
+    std::ofstream(corr) << r.correction.to_json().dump();
+    const json after = atan2_on(other, gen.encoder, {{"correction", corr.string()}});
+    const double rms_after = after["metrics"]["rms"]["rad"].get<double>();
+    INFO((reversing ? "reversing" : "1.3 cycles") << ": predicted " << r.predicted_rms_rad << ", measured on another capture " << rms_after);
+    CHECK(rms_after < 1.1 * r.predicted_rms_rad);
+    CHECK(rms_after > 0.9 * r.predicted_rms_rad);
+}
+
+TEST_CASE("calibration: the settle time is the one given, else the capture's recording scenario's, else 0.1 s, and nothing after it is not 'no truth'", "[calibration][capture]") {
+    TempDir d;
+    const Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
+    const auto plain = d.path / "plain.fcap", rec = d.path / "recorded.fcap";
+    write_capture(gen, 60000, plain, 1);
+    {
+        // The same signal recorded by a run whose scenario had settle_s 0.02 s.
+        CaptureReader in(plain.string());
+        json meta = in.meta();
+        meta["scenario"] = {{"settle_s", 0.02}, {"seed", 1}};
+        CaptureWriter w(rec.string(), in.columns(), meta);
+        CaptureData cd;
+        while (in.read(65536, cd)) w.write(cd);
+        w.close();
+    }
+    CalibrateOptions o;
+    o.encoder = gen.encoder;
+    o.capture_path = plain.string();
+    CalibrateResult r = calibrate_capture(o);
+    CHECK(r.settle_from == "default");
+    CHECK(r.settle_s == 0.1);
+    o.capture_path = rec.string();
+    r = calibrate_capture(o);
+    CHECK(r.settle_from == "capture");
+    CHECK(r.settle_s == 0.02);
+    CHECK(r.facts["settle_s"] == 0.02);
+    o.settle_s = 0.05;
+    r = calibrate_capture(o);
+    CHECK(r.settle_from == "given");
+    CHECK(r.settle_s == 0.05);
+    // A settle time past the capture's end (60000 samples at the fixture's rate): the truth is
+    // there, nothing is scored, and the message says so.
+    o.settle_s = 100.0;
+    try {
+        (void)calibrate_capture(o);
+        FAIL("calibrated from nothing");
+    } catch (const std::runtime_error& e) {
+        CHECK_THAT(std::string(e.what()), Catch::Contains("nothing scored against the capture's truth") && !Catch::Contains("no truth"));
+    }
 }
 
 TEST_CASE("calibration: with truth the offset leaves the corrected record's mean at zero when the record samples the angles unevenly (a step sweep over one and a half periods)", "[calibration][capture]") {

@@ -6,7 +6,7 @@ import { sig, withUnit } from './format.js';
 
 const passText = (p) => {
   if (!p) return '-';
-  let t = `seed ${p.seed}, device ${p.device}`;
+  let t = `seed ${p.seed == null ? 'not recorded' : p.seed}, device ${p.device}`;
   if (p.capture) t += `, capture ${p.capture}`;
   if (p.error_source) t += p.error_source === 'truth' ? ', truth-scored error' : ', self-referenced error';
   return t;
@@ -19,14 +19,16 @@ export function calibrationSection(r) {
   const lanes = c.lanes || [];
   const rows = lanes.map((l) => {
     const b = l.before || {}, a = l.after;
-    const src = (a && a.error_source) || b.error_source;
+    // The error each pass was measured by: one word when both agree, else before / after.
+    const word = (p) => (!p || !p.error_source ? '-' : p.error_source === 'truth' ? 'truth' : 'self-referenced');
+    const src = !a || word(a) === word(b) ? word(b) : `${word(b)} / ${word(a)}`;
     const crb = a && a.per_sample_crb_rad != null ? a.per_sample_crb_rad : b.per_sample_crb_rad;
     const cor = l.correction;
     const applied = !cor ? '-' : cor.applied ? (cor.kind === 'external_env' ? 'handed to the child (external_env)' : `applied (${cor.kind})`) : `not applied: ${cor.why_not || ''}`;
     const num = (v, label, extra = {}) => h('td', { class: 'num', 'data-label': label, 'data-value': v == null ? '' : String(v), ...extra }, v == null ? '-' : withUnit(v, 'rad'));
     return h('tr', { 'data-lane': l.label, 'data-applied': cor && cor.applied ? '1' : '' },
       h('td', { 'data-label': 'lane' }, l.label),
-      h('td', { 'data-label': 'error' }, src ? (src === 'truth' ? 'truth' : 'self-referenced') : '-'),
+      h('td', { 'data-label': 'error' }, src),
       num(b.rms_rad, 'rms before', { class: 'num before' }),
       num(a ? a.rms_rad : null, 'rms after', { class: 'num after' }),
       num(b.max_abs_rad, 'max before'),

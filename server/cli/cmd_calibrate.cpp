@@ -70,10 +70,11 @@ void write_to_board(const BoardTarget& t, const est::Correction& c, bool quiet) 
 struct CalibrateCliOptions {
     BoardTarget target;
     bool table_size_given = false;
-    std::string capture, output, csv, c_header, encoder, estimator = "atan2", name = "fringe_correction";
+    std::string capture, output, csv, c_header, encoder, estimator = "atan2", name = "fringe_correction", error_source = "auto";
     std::size_t table_size = 64;
     int harmonics = 16;
     double lsb_rad = kTwoPi / 65536.0, settle_s = 0.1, min_cycles = 1;
+    bool settle_given = false;
     bool no_lissajous = false, quiet = false;
 };
 
@@ -113,8 +114,9 @@ int run_calibrate(const CalibrateCliOptions& o) {
     co.table_size = table_size;
     co.harmonics = o.harmonics;
     co.lissajous = !o.no_lissajous;
-    co.settle_s = o.settle_s;
+    if (o.settle_given) co.settle_s = o.settle_s;
     co.min_cycles = o.min_cycles;
+    co.error_source = o.error_source == "self-reference" ? "self_reference" : o.error_source;
     if (!o.encoder.empty()) co.encoder = load_encoder(o.encoder);
     const CalibrateResult r = calibrate_capture(co);
     // Every export is formed before anything is written (an entry that does not fit int16 writes nothing).
@@ -143,8 +145,9 @@ int run_calibrate(const CalibrateCliOptions& o) {
             std::printf("  Lissajous: offsets %.6g / %.6g V, amplitudes %.6g / %.6g V (sin/cos ratio %.6f), quadrature %.6g rad\n",
                         c.offset_sin_v, c.offset_cos_v, c.amplitude_sin_v, c.amplitude_cos_v, c.amplitude_sin_v / c.amplitude_cos_v,
                         c.quadrature_error_rad);
-        std::printf("  error after the Lissajous stage: %.4g rad rms (periodic %.4g, the rest %.4g)\n", r.before_rms_rad,
-                    r.periodic_rms_rad, r.noise_rms_rad);
+        std::printf("  error after the Lissajous stage: %.4g rad rms (periodic %.4g, the rest %.4g), after %.6g s settle (%s)\n", r.before_rms_rad,
+                    r.periodic_rms_rad, r.noise_rms_rad, r.settle_s,
+                    r.settle_from == "given" ? "--settle-s" : r.settle_from == "capture" ? "the capture's recording scenario" : "default");
         std::printf("  offset: %.4g rad (%s)\n", c.offset_rad, r.source == "truth"    ? "the error's mean against the truth, less the table's mean over the record"
                     : c.has_lissajous ? "no truth: keeps the zero atan2 had with the calibration it is told"
                                       : "none: no truth to measure it against");
@@ -193,8 +196,14 @@ Command add_calibrate(CLI::App& app) {
     c->add_option("--harmonics", o->harmonics, "Harmonic orders of the correction the table is built from")->check(CLI::Range(1, 256));
     c->add_option("--estimator", o->estimator, "Estimator to calibrate (atan2)");
     c->add_option("--encoder", o->encoder, "Encoder profile JSON the estimator is told (default: the capture's metadata)")->check(CLI::ExistingFile);
-    c->add_option("--settle-s", o->settle_s, "Seconds from the start excluded from the error record")->check(kFiniteNonNegative);
+    auto* st = c->add_option("--settle-s", o->settle_s,
+                             "Seconds from the start excluded from the error record (default: the settle_s the capture was recorded with, else 0.1)")
+                   ->check(kFiniteNonNegative);
     c->add_option("--min-cycles", o->min_cycles, "Electrical cycles the error record needs (fewer: no correction)")->check(CLI::Range(1.0, 1e12))->capture_default_str();
+    c->add_option("--error-source", o->error_source,
+                  "The error the table is computed from: auto (truth where the capture has theta_true, else self-referenced), truth, self-reference")
+        ->check(CLI::IsMember({"auto", "truth", "self-reference", "self_reference"}))
+        ->capture_default_str();
     c->add_flag("--no-lissajous", o->no_lissajous, "No ellipse fit: keep the nominal calibration, correct the angle only");
     c->add_option("--csv", o->csv, "Also write the table as CSV: angle_rad,correction_rad");
     c->add_option("--c-header", o->c_header, "Also write the table as a C header of int16 entries");
@@ -220,8 +229,9 @@ Command add_calibrate(CLI::App& app) {
     c->add_option("--modbus-writes", o->target.writes, "Also write the board's register writes as a file (JSON, or CSV for a .csv name)");
     c->add_option("--board", o->target.board, "The board profile for --modbus-writes without --write-board");
     c->add_flag("-q,--quiet", o->quiet, "No summary");
-    return {c, [o, ts] {
+    return {c, [o, ts, st] {
                 o->table_size_given = ts->count() > 0;
+                o->settle_given = st->count() > 0;
                 return run_calibrate(*o);
             }};
 }

@@ -256,11 +256,12 @@ void print_calibration_summary(const json& r) {
     const json& ver = c.value("verified_on", json());
     std::printf("calibration of %s: %s\n", str(c["lane"]).c_str(), str(c["status"]).c_str());
     if (c.value("why", json()).is_string()) std::printf("  %s\n", str(c["why"]).c_str());
-    std::printf("  computed on the before pass (seed %s, %s%s)\n", str(on.value("seed", json())).c_str(),
+    const auto seed = [&](const json& p) { return p.value("seed", json()).is_number() ? str(p["seed"]) : std::string("not recorded"); };
+    std::printf("  computed on the before pass (seed %s, %s%s)\n", seed(on).c_str(),
                 on.contains("capture") && on["capture"].is_string() ? ("capture " + str(on["capture"])).c_str() : str(on.value("device", json())).c_str(),
                 on.value("error_source", json()).is_string() ? (on["error_source"] == "truth" ? ", truth-scored error" : ", self-referenced error") : "");
     if (ver.is_object())
-        std::printf("  verified on the after pass (seed %s, %s)\n", str(ver.value("seed", json())).c_str(),
+        std::printf("  verified on the after pass (seed %s, %s)\n", seed(ver).c_str(),
                     ver.contains("capture") && ver["capture"].is_string() ? ("capture " + str(ver["capture"])).c_str() : str(ver.value("device", json())).c_str());
     if (c.value("correction", json()).is_object()) {
         const json& f = c["correction"]["file"];
@@ -268,16 +269,21 @@ void print_calibration_summary(const json& r) {
                     f.value("table_rad", json::array()).size(), f.contains("lissajous") ? ", Lissajous stage" : "",
                     num(c.value("predicted_rms_rad", json())).c_str());
     }
-    std::printf("  %-20s %-9s %11s %11s %11s %11s %11s %9s  %s\n", "lane", "error", "rms before", "rms after", "max before", "max after",
+    std::printf("  %-20s %-14s %11s %11s %11s %11s %11s %9s  %s\n", "lane", "error", "rms before", "rms after", "max before", "max after",
                 "CRB", "after/CRB", "correction");
     for (const auto& l : c.value("lanes", json::array())) {
         const json b = l.value("before", json::object()), a = l.value("after", json());
-        const json src = a.is_object() && a.value("error_source", json()).is_string() ? a["error_source"] : b.value("error_source", json());
+        // The error each pass was measured by: one word when both agree, else before/after.
+        const auto src_word = [](const json& p) {
+            const json v = p.is_object() ? p.value("error_source", json()) : json();
+            return !v.is_string() ? std::string("-") : v == "truth" ? std::string("truth") : std::string("self-ref");
+        };
+        const std::string sb = src_word(b), sa = src_word(a);
+        const std::string src = !a.is_object() || sa == sb ? sb : sb + "/" + sa;
         const json cor = l.value("correction", json());
         std::string applied = !cor.is_object() ? "-" : cor.value("applied", false) ? (str(cor["kind"]) == "external_env" ? std::string("handed to the child (external_env)") : "applied (" + str(cor["kind"]) + ")") : "not applied: " + str(cor.value("why_not", json()));
         const json crb = a.is_object() && a.value("per_sample_crb_rad", json()).is_number() ? a["per_sample_crb_rad"] : b.value("per_sample_crb_rad", json());
-        std::printf("  %-20s %-9s %11s %11s %11s %11s %11s %9s  %s\n", str(l["label"]).c_str(),
-                    src.is_string() ? (src == "truth" ? "truth" : "self-ref") : "-", num(b.value("rms_rad", json())).c_str(),
+        std::printf("  %-20s %-14s %11s %11s %11s %11s %11s %9s  %s\n", str(l["label"]).c_str(), src.c_str(), num(b.value("rms_rad", json())).c_str(),
                     a.is_object() ? num(a.value("rms_rad", json())).c_str() : "-", num(b.value("max_abs_rad", json())).c_str(),
                     a.is_object() ? num(a.value("max_abs_rad", json())).c_str() : "-", num(crb).c_str(),
                     a.is_object() ? num(a.value("rms_over_crb", json()), "%.3g").c_str() : "-", applied.c_str());

@@ -5,6 +5,7 @@
 #include "server/engine/capture_run.hpp"
 #include "signal_gen/fastmath.hpp"
 
+#include <cmath>
 #include <cstdio>
 #include <stdexcept>
 
@@ -25,14 +26,7 @@ void for_each_reading(const CalibrateOptions& o, const est::Correction& c, F&& f
         told = encoder_from_json(reader.meta()["encoder"], "capture.encoder");
     const est::Calibration nominal = est::nominal_calibration(told, resolve_params(est::calibration_params(), json::object()));
     est::Calibration lis = nominal;
-    if (c.has_lissajous) {
-        lis.offset_sin_v = c.offset_sin_v;
-        lis.offset_cos_v = c.offset_cos_v;
-        lis.amplitude_sin_v = c.amplitude_sin_v;
-        lis.amplitude_cos_v = c.amplitude_cos_v;
-        lis.quadrature_error_rad = c.quadrature_error_rad;
-        lis.prepare();
-    }
+    if (c.has_lissajous) c.lissajous_into(lis);
     CaptureData d;
     bool first = true;
     double t0_s = 0;
@@ -65,11 +59,11 @@ double kept_zero(const CalibrateOptions& o, const est::Correction& c) {
 // then zero. Over whole periods sampled evenly the table's mean is zero, but a record that is not
 // (a step sweep that skips or repeats a step, a motion that speeds up) weights the angles
 // unevenly, and with the paper's 4e-2 rad 1x error one step in 128 moved the mean by 5.6e-4 rad.
-double table_mean_rad(const CalibrateOptions& o, const est::Correction& c) {
+double table_mean_rad(const CalibrateOptions& o, double settle_s, const est::Correction& c) {
     double sum = 0;
     std::uint64_t n = 0;
     for_each_reading(o, c, [&](double t_s, double phi_rad, double) {
-        if (t_s < o.settle_s) return;
+        if (t_s < settle_s) return;
         sum += c.table_value(phi_rad);
         ++n;
     });
@@ -81,6 +75,25 @@ double table_mean_rad(const CalibrateOptions& o, const est::Correction& c) {
 CalibrateResult calibrate_capture(const CalibrateOptions& o) {
     if (o.estimator != "atan2") throw ConfigError("estimator", "only atan2 can be calibrated so far");
     CalibrateResult res;
+    bool has_truth = false;
+    {
+        // The settle time: the one given, else the one the capture was recorded with (a Modbus
+        // sweep of 0.128 s recorded with settle_s 0 has nothing after a default 0.1 s), else 0.1 s.
+        CaptureReader reader(o.capture_path, o.capture);
+        has_truth = reader.columns().theta_true;
+        const json& meta = reader.meta();
+        res.settle_s = 0.1;
+        res.settle_from = "default";
+        if (o.settle_s) {
+            res.settle_s = *o.settle_s;
+            res.settle_from = "given";
+        } else if (meta.is_object() && meta.contains("scenario") && meta["scenario"].is_object() && meta["scenario"].contains("settle_s") &&
+                   meta["scenario"]["settle_s"].is_number() && std::isfinite(meta["scenario"]["settle_s"].get<double>()) &&
+                   meta["scenario"]["settle_s"].get<double>() >= 0) {
+            res.settle_s = meta["scenario"]["settle_s"].get<double>();
+            res.settle_from = "capture";
+        }
+    }
     json params = json::object();
     json lis;
     if (o.lissajous) {
@@ -91,13 +104,7 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
         est::Calibration cal;
         const std::string why = id.finish(cal);
         if (!why.empty()) throw std::runtime_error("ellipse fit of the signals rejected: " + why);
-        auto& c = res.correction;
-        c.has_lissajous = true;
-        c.offset_sin_v = cal.offset_sin_v;
-        c.offset_cos_v = cal.offset_cos_v;
-        c.amplitude_sin_v = cal.amplitude_sin_v;
-        c.amplitude_cos_v = cal.amplitude_cos_v;
-        c.quadrature_error_rad = cal.quadrature_error_rad;
+        res.correction.lissajous_from(cal);
         params = cal.to_json();
         lis = {{"method", "Heydemann ellipse fit"}, {"points", id.points()}};
     }
@@ -106,8 +113,14 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
     ro.estimator = o.estimator;
     ro.params = params;
     ro.encoder = o.encoder;
-    ro.settle_s = o.settle_s;
+    ro.settle_s = res.settle_s;
     ro.capture = o.capture;
+    if (o.error_source != "auto" && o.error_source != "truth" && o.error_source != "self_reference")
+        throw ConfigError("error_source", "'" + o.error_source + "': auto, truth or self_reference");
+    if (o.error_source == "truth" && !has_truth)
+        throw ConfigError("error_source", "truth, but the capture has no theta_true column: calibrate from the self-referenced error (auto or self_reference)");
+    const bool use_truth = has_truth && o.error_source != "self_reference";
+    ro.self_reference = !use_truth;
     const RunReport rep = run_capture(ro);
     if (rep.status != RunStatus::Done || rep.estimators.empty())
         throw std::runtime_error("the run of " + o.estimator + " on the capture failed: " + rep.error);
@@ -124,7 +137,7 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
             throw std::runtime_error(msg);
         }
     };
-    if (m.value("scored", std::uint64_t{0}) > 0) {  // the capture has truth
+    if (use_truth && m.value("scored", std::uint64_t{0}) > 0) {  // the capture has truth
         enough(m.at("evidence").value("scored_cycles", 0.0), "scored");
         if (!m.contains("harmonics") || !m.at("harmonics").is_array() || m.at("harmonics").empty())
             throw std::runtime_error("the error's harmonics were not fitted: " + m.at("harmonic_analysis").value("note", std::string("no reason given")));
@@ -136,6 +149,17 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
         res.noise_rms_rad = m.at("harmonic_analysis").at("broadband_rms_rad").get<double>();
         rests = {{"scored_samples", m.at("evidence").at("scored_samples")}, {"scored_cycles", m.at("evidence").at("scored_cycles")},
                  {"orders_fitted", m.at("harmonic_analysis").at("orders_fitted")}};
+    } else if (use_truth) {
+        // Truth, but nothing scored: say why, not that the truth is missing.
+        const json ev = m.value("evidence", json::object());
+        char msg[320];
+        std::snprintf(msg, sizeof msg,
+                      "nothing scored against the capture's truth: %llu samples after the %.6g s settle time (%s), %llu of them valid "
+                      "(give a shorter --settle-s, or a longer capture)",
+                      static_cast<unsigned long long>(ev.value("samples_after_settle", std::uint64_t{0})), res.settle_s,
+                      res.settle_from == "given" ? "given" : res.settle_from == "capture" ? "the capture's own" : "the default",
+                      static_cast<unsigned long long>(ev.value("samples_after_settle", std::uint64_t{0}) - std::min(ev.value("samples_after_settle", std::uint64_t{0}), m.value("invalid_after_settle", std::uint64_t{0}))));
+        throw std::runtime_error(msg);
     } else {
         const json sr = lane.value("analysers", json::object()).value("self_reference", json());
         if (!sr.is_object() || !sr.value("measured", false))
@@ -154,9 +178,24 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
     PeriodicOptions po;
     po.table_size = o.table_size;
     po.harmonics = o.harmonics;
+    // The record's mean m is the error's constant C plus the mean of its harmonics over the
+    // angles the record visited: over whole cycles sampled evenly that is C, but over 1.3 cycles
+    // of the paper's signal m was C + 6.5e-3 rad, and inverting e(s) = m + harmonics put the
+    // table at angles 6.5e-3 rad off (3.8e-4 rad measured on another capture against 2.3e-4 with
+    // C). C is the fixed point C = m - (the table's mean over the record), a few passes.
     PeriodicFit f;
+    double constant_rad = mean;
     try {
-        f = periodic_correction(h, mean, po);
+        for (int pass = 0; pass < 6; ++pass) {
+            f = periodic_correction(h, constant_rad, po);
+            est::Correction trial = res.correction;  // its Lissajous stage: the angles atan2 reads
+            trial.table = f.correction.table;
+            const double next_rad = mean - table_mean_rad(o, res.settle_s, trial);
+            const bool settled = std::fabs(next_rad - constant_rad) < 1e-9;
+            constant_rad = next_rad;
+            if (settled) break;
+        }
+        f = periodic_correction(h, constant_rad, po);
     } catch (const std::invalid_argument& e) {
         throw std::runtime_error(e.what());
     }
@@ -165,7 +204,7 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
     res.correction.table = f.correction.table;
     // Against a truth the error's mean is an error too (the ellipse fit of a distorted signal
     // shifts it); against the self-referenced reference it is the signals' phase convention.
-    if (res.source == "truth") res.correction.offset_rad = mean - table_mean_rad(o, res.correction);
+    if (res.source == "truth") res.correction.offset_rad = mean - table_mean_rad(o, res.settle_s, res.correction);
     else if (res.correction.has_lissajous) res.correction.offset_rad = kept_zero(o, res.correction);
     res.periodic_rms_rad = f.error_rms_rad;
     res.table_residual_rms_rad = f.table_residual_rms_rad;
@@ -180,6 +219,8 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
                  {"error_source", res.source},
                  {"lissajous", lis},
                  {"record", rests},
+                 {"settle_s", res.settle_s},
+                 {"settle_from", res.settle_from},
                  {"before_rms_rad", res.before_rms_rad},
                  {"periodic_rms_rad", res.periodic_rms_rad},
                  {"max_error_slope", f.max_slope},

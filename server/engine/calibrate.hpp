@@ -27,8 +27,9 @@ struct CalibrateOptions {
     std::size_t table_size = 64;
     int harmonics = 16;
     bool lissajous = true;     // false: keep the estimator's nominal calibration, fit only the periodic stage
-    double settle_s = 0.1;
+    std::optional<double> settle_s;  // none: the recording run's settle_s from the capture's metadata, else 0.1 s
     double min_cycles = 1;     // electrical cycles the error record needs: every angle seen (fewer: refused, no correction)
+    std::string error_source = "auto";  // "auto": truth where the capture has it, else self-referenced; "truth"; "self_reference"
     std::optional<EncoderProfile> encoder;  // what atan2 is told (default: the capture's metadata)
     CaptureOptions capture;    // a capture: device URI's settings (channel map, size cap)
 };
@@ -42,6 +43,8 @@ struct CalibrateResult {
     double noise_rms_rad = 0;    // what the record cannot attribute to the angle
     double predicted_rms_rad = 0;    // hypot(table residual, noise)
     double per_sample_crb_rad = 0;   // the report's bound, 0 when it has none
+    double settle_s = 0;             // the settle time used, and where it came from
+    std::string settle_from;         // "given", "capture" (the recording scenario's) or "default"
     nlohmann::json facts;        // all of the above and what they rest on, for the correction file's "calibrated_from"
 };
 

@@ -34,8 +34,24 @@ json number_or_null(const json& j) { return j.is_number() ? j : json(); }
 json pass_identity(const Scenario& sc, const char* pass) {
     json j{{"pass", pass}, {"seed", sc.seed}, {"motion", sc.motion}, {"device", sc.device_label()}};
     if (!sc.instruments && sc.device.rfind("capture:", 0) == 0) {
-        j["capture"] = dev::check_uri(sc.device).path;
+        // A replayed capture: the seed and motion are the ones it was recorded with (its
+        // metadata's scenario), not this scenario's; unknown when it does not say.
+        const dev::UriParts u = dev::check_uri(sc.device);
+        j["capture"] = u.path;
         j["motion_from_capture"] = true;
+        j["seed"] = nullptr;
+        j["motion"] = nullptr;
+        try {
+            const CaptureReader reader(u.path, capture_options_from_uri(u.settings));
+            const json& meta = reader.meta();
+            if (meta.is_object() && meta.contains("scenario") && meta["scenario"].is_object()) {
+                const json& rs = meta["scenario"];
+                if (rs.contains("seed") && rs["seed"].is_number_integer()) j["seed"] = rs["seed"];
+                if (rs.contains("motion")) j["motion"] = rs["motion"];
+            }
+        } catch (const std::exception&) {
+            // unreadable here: the pass itself says why
+        }
     }
     return j;
 }
@@ -165,8 +181,10 @@ RunReport execute_calibrated_run(RunPlan plan, const RunOptions& o) {
     // The folder for the correction file (and the before pass's capture while it is read).
     fs::path dir;
     std::string dir_error;
+    fs::path made_from;  // the first folder made here (and those under it): removed again when the run leaves nothing in them
     try {
         dir = o.calibration_dir.empty() ? fs::temp_directory_path() / ("fringe-run-" + id) : fs::path(o.calibration_dir);
+        for (fs::path p = fs::absolute(dir); !p.empty() && !fs::exists(p) && p != p.parent_path(); p = p.parent_path()) made_from = p;
         fs::create_directories(dir);
     } catch (const std::exception& e) {
         dir_error = e.what();
@@ -193,10 +211,12 @@ RunReport execute_calibrated_run(RunPlan plan, const RunOptions& o) {
     RunReport before = execute_pass(std::move(plan), bo);
     // A report with no after pass: the before pass's, saying why.
     auto without_after = [&](const std::string& status, const std::string& why, RunStatus run_status, Verdict verdict) {
-        if (remove_capture) {
-            std::error_code ec;
-            fs::remove(before_capture, ec);
-        }
+        std::error_code ec;
+        if (remove_capture) fs::remove(before_capture, ec);
+        // An interrupted run leaves no empty folder behind.
+        if (!made_from.empty())
+            for (fs::path p = fs::absolute(dir, ec); !ec && p.string().size() >= made_from.string().size() && fs::is_empty(p, ec) && !ec; p = p.parent_path())
+                if (!fs::remove(p, ec) || p == made_from) break;
         cal["status"] = status;
         cal["why"] = why;
         cal["limits"] = "no after pass: the measurements are the before pass's, for reference; the verdict is not theirs";
@@ -234,6 +254,7 @@ RunReport execute_calibrated_run(RunPlan plan, const RunOptions& o) {
     co.lissajous = spec.lissajous;
     co.settle_s = sc.settle_s;
     co.min_cycles = spec.min_cycles;
+    co.error_source = spec.error_source;
     if (lane && lane->encoder) co.encoder = lane->encoder;
     else if (sc.encoder_known) co.encoder = sc.encoder;
     CalibrateResult cr;
@@ -308,7 +329,8 @@ RunReport execute_calibrated_run(RunPlan plan, const RunOptions& o) {
         for (const auto& a : r.estimators)
             if (a.label == e.label) row["after"] = lane_figures(json(a));
         row["correction"] = applied.contains(e.label) ? applied[e.label] : json();
-        if (e.label == spec.lane) row["predicted_rms_rad"] = cr.predicted_rms_rad;
+        // The prediction is atan2's (its reading's noise); a loop's output filters that noise.
+        if (e.label == spec.lane && e.name == "atan2") row["predicted_rms_rad"] = cr.predicted_rms_rad;
         // "verified" says both passes ran; whether the correction helped is each lane's change.
         const json& b = row["before"];
         const json& a = row["after"];

@@ -196,7 +196,7 @@ CapturePlan plan_capture_run(const CaptureRunOptions& o) {
     for (std::size_t i = 0; i < q.size(); ++i) uri += (i ? "&" : "?") + q[i];
     sc.device = uri;
     // Without truth the error is measured against the estimator's own self-referenced phase.
-    if (!truth) sc.scoring.self_reference = true;
+    if (!truth || o.self_reference) sc.scoring.self_reference = true;
     sc.interface = o.interface;
 
     p.facts = {{"path", o.capture_path}, {"samples", n}, {"sample_rate_hz", fs}, {"has_truth", truth},

@@ -39,6 +39,8 @@ struct CaptureRunOptions {
     // The interface profile the signals are graded against (docs/signal-quality.md): its bands
     // are the capture run's measurements, with or without truth.
     std::optional<InterfaceProfile> interface;
+    // Also measure the self-referenced error where the capture has truth (always without).
+    bool self_reference = false;
 };
 
 // What one read of a capture finds: its length, rate, first time stamp, columns, metadata and

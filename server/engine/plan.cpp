@@ -173,7 +173,7 @@ std::optional<std::size_t> board_table_entries(const std::string& uri) {
     return std::nullopt;
 }
 
-// "calibrate": the lane is an atan2 lane of this scenario without a correction of its own, the
+// "calibrate": the lane is an atan2 or pll2 lane of this scenario without a correction of its own, the
 // table fits the board it is written to, and the after pass runs on another capture than the
 // before pass (docs/calibration.md "In one run"). A board's own table size is taken here.
 void check_calibration(Scenario& sc) {
@@ -186,13 +186,11 @@ void check_calibration(Scenario& sc) {
         labels += (labels.empty() ? "'" : ", '") + e.label + "'";
     }
     if (!lane) throw ConfigError("calibrate.lane", "no estimator labelled '" + c.lane + "' in this scenario (its lanes: " + labels + ")");
-    if (lane->name != "atan2") {
-        const bool takes = lane->name == "pll2";
+    // pll2 tracks the phase atan2 reads (docs/calibration.md): its correction is atan2's reading's.
+    if (lane->name != "atan2" && lane->name != "pll2")
         throw ConfigError("calibrate.lane", "'" + c.lane + "' runs " + lane->name + ": " +
-                                                (takes ? "not yet: a correction is computed from atan2's reading of the signals (pll2 lanes take it in the after pass); "
-                                                         "name an atan2 lane"
-                                                       : "a correction can only be computed for atan2 (and applied to atan2 and pll2); name an atan2 lane"));
-    }
+                                                "a correction can only be computed for atan2's reading of the signals (and applied to atan2 and pll2); "
+                                                "name an atan2 or pll2 lane");
     if (lane->params.is_object() && lane->params.contains("correction") && !lane->params["correction"].is_null())
         throw ConfigError("calibrate.lane", "'" + c.lane + "' already applies a correction (params.correction): calibrate it without one");
     // A Modbus board whose profile declares a correction table takes the correction at its own

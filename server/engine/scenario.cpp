@@ -113,10 +113,12 @@ const KeyTable& scenario_keys() {
         key_boolean("scoring.self_reference", d.scoring.self_reference,
                     "also measure each estimator's error without truth, against a reference built from its own output (on for a capture without truth)", false),
         key_string("calibrate.lane", nullptr, "calibrate, apply, re-run: the label of the atan2 lane a correction is computed for (docs/calibration.md)", false),
-        key_integer("calibrate.table_size", "", static_cast<double>(CalibrateSpec{}.table_size), 2, 1 << 20, "entries of the correction table over an electrical period", false),
+        key_integer("calibrate.table_size", "", static_cast<double>(CalibrateSpec{}.table_size), 2, kMaxRunTableSize, "entries of the correction table over an electrical period (the report holds them)", false),
         key_integer("calibrate.harmonics", "", CalibrateSpec{}.harmonics, 1, 256, "harmonic orders of the correction the table is built from", false),
         key_boolean("calibrate.lissajous", CalibrateSpec{}.lissajous, "identify offsets, gains and quadrature (ellipse fit) before the table", false),
         key_number("calibrate.min_cycles", "", CalibrateSpec{}.min_cycles, 1.0, 1e12, "electrical cycles the error record needs for a correction", false),
+        key_choice("calibrate.error_source", CalibrateSpec{}.error_source, {"auto", "truth", "self_reference"},
+                   "the error the correction is computed from: truth where the capture has it (auto), truth only, or the self-referenced error", false),
         key_integer("calibrate.verify.seed", "", nullptr, 0, 9007199254740992.0, "the after pass's noise seed (default: the scenario's seed + 1)", false),
         key_string("calibrate.verify.device", "", "the after pass's device URI (default: the scenario's; a capture: device needs another capture)", false),
     });
@@ -204,6 +206,7 @@ Scenario scenario_from_json(const json& j, const std::string& base_dir) {
         c.harmonics = static_cast<int>(k.integer(cr, "calibrate.harmonics"));
         c.lissajous = k.boolean(cr, "calibrate.lissajous");
         c.min_cycles = k.number(cr, "calibrate.min_cycles");
+        c.error_source = k.choice(cr, "calibrate.error_source");
         if (cr.has("verify")) {
             JsonReader vr = cr.object("verify");
             if (vr.has("seed")) c.verify.seed = static_cast<std::uint64_t>(k.integer(vr, "calibrate.verify.seed"));
@@ -317,7 +320,7 @@ void to_json(json& j, const Scenario& s) {
         if (c.verify.seed) v["seed"] = *c.verify.seed;
         if (c.verify.motion) v["motion"] = *c.verify.motion;
         if (!c.verify.device.empty()) v["device"] = c.verify.device;
-        j["calibrate"] = {{"lane", c.lane}, {"harmonics", c.harmonics}, {"lissajous", c.lissajous}, {"min_cycles", c.min_cycles}, {"verify", v}};
+        j["calibrate"] = {{"lane", c.lane}, {"harmonics", c.harmonics}, {"lissajous", c.lissajous}, {"min_cycles", c.min_cycles}, {"error_source", c.error_source}, {"verify", v}};
         if (c.table_size_given) j["calibrate"]["table_size"] = c.table_size;  // else the board's, or the default, when planned
     }
 }

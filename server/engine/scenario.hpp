@@ -47,13 +47,18 @@ struct ScoringRules {
 // pass), a correction for the lane named is computed from the before pass's signals and error
 // record, applied to every lane that can take it, and the scenario runs again (the after pass)
 // on another capture: another seed by default, or the motion or device the verify block says.
+// A run's correction table is part of its report: at most this many entries (a chip's or a
+// firmware's table holds 64-4096; `fringe calibrate --table-size` writes up to 2^20 to a file).
+inline constexpr int kMaxRunTableSize = 4096;
+
 struct CalibrateSpec {
-    std::string lane;              // a label of an atan2 lane
+    std::string lane;              // a label of an atan2 or pll2 lane
     std::size_t table_size = 64;   // N entries over an electrical period
     bool table_size_given = false;  // false: a board with a correction table takes its own count (plan_run)
     int harmonics = 16;            // K orders of the correction the table is built from
     bool lissajous = true;         // false: keep the lane's calibration, correct the angle only
     double min_cycles = 1;         // electrical cycles the error record needs for a correction (every angle seen)
+    std::string error_source = "auto";  // "auto" (truth where the capture has it), "truth" or "self_reference"
     struct Verify {
         std::optional<std::uint64_t> seed;  // default: the scenario's seed + 1
         std::optional<MotionProfile> motion;  // default: the scenario's

@@ -137,7 +137,7 @@ std::string junit_xml(const json& r) {
         prop("calibration.status", c.value("status", std::string()) + (c.value("why", json()).is_string() ? ": " + c["why"].get<std::string>() : ""));
         for (const char* k : {"computed_on", "verified_on"})
             if (const json p = c.value(k, json()); p.is_object())
-                prop(std::string("calibration.") + k, "seed " + p.value("seed", json()).dump() + ", device " + p.value("device", std::string()) +
+                prop(std::string("calibration.") + k, "seed " + (p.value("seed", json()).is_number() ? p["seed"].dump() : std::string("not recorded")) + ", device " + p.value("device", std::string()) +
                                                           (p.value("capture", json()).is_string() ? ", capture " + p["capture"].get<std::string>() : ""));
         for (const auto& l : c.value("lanes", json::array())) {
             const std::string lane = l.value("label", std::string());
@@ -1102,11 +1102,16 @@ static std::string calibration_section_html(const json& r) {
     for (const auto& l : c.value("lanes", json::array())) {
         const json b = l.value("before", json::object()), a = l.value("after", json());
         const bool has_after = a.is_object();
-        const json src = has_after && a.value("error_source", json()).is_string() ? a["error_source"] : b.value("error_source", json());
+        const auto src_word = [](const json& p) {
+            const json v = p.is_object() ? p.value("error_source", json()) : json();
+            return !v.is_string() ? std::string("-") : v == "truth" ? std::string("truth") : std::string("self-referenced");
+        };
+        const std::string sb = src_word(b), sa = src_word(a);
+        const std::string src = !has_after || sa == sb ? sb : sb + " / " + sa;  // before / after when they differ
         const json crb = has_after && a.value("per_sample_crb_rad", json()).is_number() ? a["per_sample_crb_rad"] : b.value("per_sample_crb_rad", json());
         const json cor = l.value("correction", json());
         const std::string applied = !cor.is_object() ? "-" : cor.value("applied", false) ? (str(cor["kind"]) == "external_env" ? std::string("handed to the child (external_env)") : "applied (" + str(cor["kind"]) + ")") : "not applied: " + str(cor.value("why_not", json()));
-        h << "<tr><td>" << str(l["label"]) << "</td><td>" << (src.is_string() ? (src == "truth" ? "truth" : "self-referenced") : "-") << "</td><td>"
+        h << "<tr><td>" << str(l["label"]) << "</td><td>" << src << "</td><td>"
           << num3(b.value("rms_rad", json())) << "</td><td>" << (has_after ? num3(a.value("rms_rad", json())) : "-") << "</td><td>"
           << num3(b.value("max_abs_rad", json())) << "</td><td>" << (has_after ? num3(a.value("max_abs_rad", json())) : "-") << "</td><td>" << num3(crb)
           << "</td><td>" << (has_after ? num3(a.value("rms_over_crb", json())) : "-") << "</td><td>" << num3(l.value("predicted_rms_rad", json())) << "</td><td>"
