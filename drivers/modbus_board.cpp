@@ -403,6 +403,12 @@ std::vector<RegisterValue> plan_correction_writes(const BoardProfile& b, const e
             const std::string role = kTrimRoles[static_cast<std::size_t>(k)];
             const RegisterDef* r = b.find(role);
             out.push_back(quantise(*r, role, -1, r->address, vals[k]));
+            // An amplitude that rounds to 0 (or below) at the register's scale: the board refuses
+            // it after enable was cleared, and is left with no correction. Refused here, first.
+            if ((k == 2 || k == 3) && !(out.back().raw * r->scale + r->offset > 0))
+                throw std::runtime_error(out.back().label() + " = " + num17(vals[k]) + (r->unit.empty() ? "" : " " + r->unit) + " rounds to raw " +
+                                         num17(out.back().raw) + " at register " + std::to_string(r->address) + " (scale " + num17(r->scale) +
+                                         "): an amplitude must stay positive (nothing written)");
         }
     }
     if (enable) out.push_back(quantise(*enable, "correction_enable", -1, enable->address, 1));
@@ -541,6 +547,21 @@ std::vector<RegisterValue> write_correction(const std::string& uri, const est::C
     RegisterPort* port = dev->registers();
     if (!port) throw DeviceError(uri, "not a Modbus board: a correction is written to a modbus+tcp or modbus+rtu board whose profile declares correction registers");
     return write_correction(*port, c);
+}
+
+std::optional<double> disable_correction(const std::string& uri) {
+    auto dev = open(uri);
+    RegisterPort* port = dev->registers();
+    if (!port) throw DeviceError(uri, "not a Modbus board");
+    const RegisterDef* e = port->board().find("correction_enable");
+    if (!e) return std::nullopt;
+    std::vector<std::uint16_t> was(static_cast<std::size_t>(e->words())), now(was.size());
+    port->read_words(RegTable::Holding, e->address, e->words(), was.data(), "read correction_enable @" + std::to_string(e->address));
+    const std::vector<std::uint16_t> zero = encode_register(*e, 0.0);
+    port->write_words(e->address, zero, e->write_function, "write correction_enable=0 @" + std::to_string(e->address));
+    port->read_words(RegTable::Holding, e->address, e->words(), now.data(), "read back correction_enable @" + std::to_string(e->address));
+    if (now != zero) throw DeviceError(uri, "correction_enable read back " + std::to_string(decode_register(*e, now.data())) + " after writing 0");
+    return decode_register(*e, was.data());
 }
 
 }  // namespace fringe::dev

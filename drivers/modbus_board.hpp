@@ -143,5 +143,8 @@ std::vector<RegisterValue> write_correction(RegisterPort& port, const est::Corre
 // Opens the board at uri (a modbus+tcp or modbus+rtu URI: its checks and init writes run first,
 // and it is locked against runs) and writes the correction to it.
 std::vector<RegisterValue> write_correction(const std::string& uri, const est::Correction& c);
+// Opens the board at uri and clears its correction_enable (read back): the board then applies no
+// correction. Returns the value it held, or nothing when the profile declares no correction_enable.
+std::optional<double> disable_correction(const std::string& uri);
 
 }  // namespace fringe::dev

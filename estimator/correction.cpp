@@ -6,6 +6,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <system_error>
 #include <fstream>
 #include <iterator>
 
@@ -26,6 +27,11 @@ std::vector<double> number_array(const nlohmann::json& j, const char* key, const
     }
     return v;
 }
+
+// What a correction file may hold (fringe calibrate writes at most these).
+constexpr std::size_t kMaxTableEntries = std::size_t{1} << 20;
+constexpr std::size_t kMaxHarmonics = 256;
+constexpr double kMinAmplitudeV = 1e-6, kMaxSignalV = 1000;
 
 double number(const nlohmann::json& j, const char* key, const std::string& path) {
     if (!j.contains(key) || !j.at(key).is_number() || !std::isfinite(j.at(key).get<double>()))
@@ -70,19 +76,36 @@ nlohmann::json Correction::to_json() const {
 Correction Correction::from_json(const nlohmann::json& j) {
     const std::string p = "correction";
     if (!j.is_object()) throw ConfigError(p, "must be a JSON object");
-    if (j.value("schema", std::string()) != "fringe.correction") throw ConfigError(p + ".schema", "must be \"fringe.correction\"");
+    if (!j.contains("schema") || !j["schema"].is_string() || j["schema"] != "fringe.correction") throw ConfigError(p + ".schema", "must be \"fringe.correction\"");
+    if (!j.contains("schema_version") || !j["schema_version"].is_number_integer() || j["schema_version"] != 1)
+        throw ConfigError(p + ".schema_version", "must be 1 (this fringe reads version 1 of the correction file)");
+    // Every key is one this version writes: a misspelt one (tabel_rad) was silently ignored.
+    auto only = [](const nlohmann::json& o, std::initializer_list<const char*> keys, const std::string& at) {
+        for (auto it = o.begin(); it != o.end(); ++it) {
+            bool known = false;
+            for (const char* k : keys) known |= it.key() == k;
+            if (!known) throw ConfigError(at + "." + it.key(), "unknown key");
+        }
+    };
+    only(j, {"schema", "schema_version", "sign", "interpolation", "calibrated_from", "lissajous", "harmonics", "table_rad", "offset_rad"}, p);
     Correction c;
     if (j.contains("lissajous")) {
         const auto& l = j.at("lissajous");
         const std::string lp = p + ".lissajous";
         if (!l.is_object()) throw ConfigError(lp, "must be an object");
+        only(l, {"offset_sin_v", "offset_cos_v", "amplitude_sin_v", "amplitude_cos_v", "gain_ratio_sin_to_cos", "quadrature_error_rad"}, lp);
         c.has_lissajous = true;
         c.offset_sin_v = number(l, "offset_sin_v", lp);
         c.offset_cos_v = number(l, "offset_cos_v", lp);
         c.amplitude_sin_v = number(l, "amplitude_sin_v", lp);
         c.amplitude_cos_v = number(l, "amplitude_cos_v", lp);
         c.quadrature_error_rad = number(l, "quadrature_error_rad", lp);
-        if (!(c.amplitude_sin_v > 0) || !(c.amplitude_cos_v > 0)) throw ConfigError(lp, "amplitudes must be positive");
+        // A signal's amplitude and offset in volts: 1e-300 V or 1e300 V made every angle noise.
+        for (const auto& [key, v] : {std::pair{"amplitude_sin_v", c.amplitude_sin_v}, std::pair{"amplitude_cos_v", c.amplitude_cos_v}})
+            if (!(v >= kMinAmplitudeV && v <= kMaxSignalV))
+                throw ConfigError(lp + "." + key, "must be within [1e-6, 1000] V (a signal's amplitude)");
+        for (const auto& [key, v] : {std::pair{"offset_sin_v", c.offset_sin_v}, std::pair{"offset_cos_v", c.offset_cos_v}})
+            if (!(std::fabs(v) <= kMaxSignalV)) throw ConfigError(lp + "." + key, "must be within [-1000, 1000] V");
         if (!(std::fabs(c.quadrature_error_rad) < kTwoPiC / 4)) throw ConfigError(lp + ".quadrature_error_rad", "must be within (-pi/2, pi/2)");
     }
     if (j.contains("harmonics")) {
@@ -90,13 +113,20 @@ Correction Correction::from_json(const nlohmann::json& j) {
         if (!h.is_array()) throw ConfigError(p + ".harmonics", "must be an array");
         for (std::size_t k = 0; k < h.size(); ++k) {
             const std::string hp = p + ".harmonics[" + std::to_string(k) + "]";
-            if (!h[k].is_object() || h[k].value("order", 0) != static_cast<int>(k + 1))
-                throw ConfigError(hp + ".order", "orders must be 1, 2, 3, ... in turn");
+            if (k >= kMaxHarmonics) throw ConfigError(p + ".harmonics", "at most " + std::to_string(kMaxHarmonics) + " orders");
+            if (!h[k].is_object() || !h[k].contains("order") || !h[k]["order"].is_number_integer() || h[k]["order"] != k + 1)
+                throw ConfigError(hp + ".order", "orders must be the integers 1, 2, 3, ... in turn");
+            only(h[k], {"order", "cos_rad", "sin_rad"}, hp);
             c.cos_k.push_back(number(h[k], "cos_rad", hp));
             c.sin_k.push_back(number(h[k], "sin_rad", hp));
         }
     }
     c.table = number_array(j, "table_rad", p);
+    if (j.contains("table_rad") && (c.table.size() < 2 || c.table.size() > kMaxTableEntries))
+        throw ConfigError(p + ".table_rad", std::to_string(c.table.size()) + " entries: a table has 2 to " + std::to_string(kMaxTableEntries) +
+                                                " (leave table_rad out to apply the harmonics)");
+    if (c.table.empty() && c.cos_k.empty() && !c.has_lissajous && !j.contains("offset_rad"))
+        throw ConfigError(p, "no correction in it: no table_rad, harmonics, lissajous or offset_rad");
     if (j.contains("offset_rad")) c.offset_rad = number(j, "offset_rad", p);
     // An interpolator's error is a fraction of a period: a correction of more than half a period
     // at an angle (or an offset of more than a whole one) is not one; 1e300 in a table made
@@ -158,8 +188,12 @@ Correction Correction::load(const std::string& path) {
     // A regular file only: a folder gave the stream library's own words, a FIFO waited forever.
     std::error_code ec;
     const auto st = std::filesystem::status(path, ec);
-    if (ec || !std::filesystem::exists(st)) throw ConfigError("correction", "cannot open " + path + " (no such file)");
+    if (ec && ec != std::errc::no_such_file_or_directory) throw ConfigError("correction", "cannot open " + path + " (" + ec.message() + ")");  // a link loop
+    if (!std::filesystem::exists(st)) throw ConfigError("correction", "cannot open " + path + " (no such file)");
     if (!std::filesystem::is_regular_file(st)) throw ConfigError("correction", path + " is not a regular file");
+    // A table of 2^20 entries is about 25 MB of JSON; a larger file is not one fringe wrote.
+    if (const auto size = std::filesystem::file_size(path, ec); !ec && size > (std::uintmax_t{64} << 20))
+        throw ConfigError("correction", path + " is " + std::to_string(size >> 20) + " MiB: a correction file is at most 64 MiB");
     std::ifstream f(path);
     if (!f) throw ConfigError("correction", "cannot open " + path);
     const std::string text((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());

@@ -94,3 +94,22 @@ set -e
 grep -qF "calibration of atan2: no_correction" <<<"$out" || fail "short: $out"
 grep -qF "too few electrical cycles for a correction" <<<"$out" || fail "short: no reason"
 ok "too few cycles: no correction, exit 2"
+
+# --record over a capture the run reads (found by a hostile trial): the replayed capture was
+# truncated, and the verify capture replaced by the before pass's samples and "verified" on them.
+"$FRINGE" gen "$SRC/fixtures/scenarios/paper-duty1p6.json" -o "$dir/ca.fcap" -q --seed 11
+"$FRINGE" gen "$SRC/fixtures/scenarios/paper-duty1p6.json" -o "$dir/cb.fcap" -q --seed 12
+$PY - "$SRC" "$dir" <<'PY'
+import json, sys
+src, d = sys.argv[1], sys.argv[2]
+json.dump({"name": "replay", "device": f"capture:{d}/ca.fcap", "encoder": f"{src}/fixtures/encoders/paper-d2-duty1p6.json",
+           "estimators": [{"name": "atan2"}], "calibrate": {"lane": "atan2", "verify": {"device": f"capture:{d}/cb.fcap"}}},
+          open(f"{d}/replay.json", "w"))
+PY
+cp "$dir/ca.fcap" "$dir/ca.orig"; cp "$dir/cb.fcap" "$dir/cb.orig"
+for target in ca.fcap cb.fcap; do
+  set +e; msg=$("$FRINGE" run "$dir/replay.json" --no-db -q --record "$dir/$target" 2>&1); rc=$?; set -e
+  [ $rc -eq 2 ] && grep -q "is the capture" <<<"$msg" || fail "--record $target: exit $rc, $msg"
+done
+cmp -s "$dir/ca.fcap" "$dir/ca.orig" && cmp -s "$dir/cb.fcap" "$dir/cb.orig" || fail "a capture the run reads was changed"
+ok "--record over a capture the run reads is refused before anything runs"

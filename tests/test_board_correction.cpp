@@ -203,6 +203,13 @@ TEST_CASE("board correction: the register plan quantises, and refuses what does 
     est::Correction lis = c;
     lis.has_lissajous = true;
     CHECK_THROWS_WITH(plan_correction_writes(bare, lis), Catch::Contains("--no-lissajous"));
+    // An amplitude that rounds to raw 0 at its register's scale is refused before anything is
+    // written (the board refused it after enable was cleared, and was left uncorrected).
+    est::Correction tiny = c;
+    tiny.has_lissajous = true;
+    tiny.amplitude_sin_v = 1e-6;
+    tiny.amplitude_cos_v = 1.0;
+    CHECK_THROWS_WITH(plan_correction_writes(dut, tiny), Catch::Contains("trim_amplitude_sin_v") && Catch::Contains("must stay positive"));
     const auto folded = plan_correction_writes(bare, c);
     REQUIRE(folded.size() == 66);
     CHECK(folded[1].raw == std::nearbyint((c.table[0] + 0.001) / folded[1].reg.scale));
@@ -323,11 +330,31 @@ TEST_CASE("board correction: hostile cases are errors naming the register, and a
                           Catch::Contains("board dut-interpolator at 127.0.0.1:") && Catch::Contains("write correction_table_rad[0..63] @256+64"));
     }
     SECTION("a correction the board refuses clears its enable, and fringe says so") {
+        // Amplitude registers in f32 take 1e-9 V (fringe's plan sees a positive amplitude); the
+        // board's interpolator refuses it (below 1e-6 V) and clears correction_enable.
+        TempDir d;
+        json j = fixture_json("dut-interpolator");
+        for (const char* r : {"trim_amplitude_sin_v", "trim_amplitude_cos_v"}) {
+            j["registers"][r]["type"] = "f32";
+            j["registers"][r]["scale"] = 1.0;
+        }
+        j["registers"]["trim_amplitude_cos_v"]["address"] = 208;
+        const std::string profile = (d.path / "dut-f32.json").string();
+        std::ofstream(profile) << j.dump();
+        o.board = profile;
         SimThread sim(o);
         est::Correction c = table_for(f, 64);
         c.has_lissajous = true;
-        c.amplitude_sin_v = 1e-6;  // rounds to 0 at the register's scale: the board refuses a zero amplitude
-        CHECK_THROWS_WITH(write_correction(sim.uri("board=dut-interpolator"), c), Catch::Contains("refused the correction"));
+        c.amplitude_sin_v = 1e-9;
+        CHECK_THROWS_WITH(write_correction(sim.uri("board=" + profile), c), Catch::Contains("refused the correction"));
+    }
+    SECTION("an amplitude that rounds to 0 at its register's scale: refused before anything is written") {
+        SimThread sim(o);
+        est::Correction c = table_for(f, 64);
+        c.has_lissajous = true;
+        c.amplitude_sin_v = 1e-6;
+        CHECK_THROWS_WITH(write_correction(sim.uri("board=dut-interpolator"), c), Catch::Contains("must stay positive") && Catch::Contains("nothing written"));
+        CHECK(sim.finish() == 0);
     }
     SECTION("an exception reply is final and named") {
         o.exception_every = 3;  // enable = 0, table, then the offset gets the exception

@@ -272,14 +272,14 @@ TEST_CASE("calibrated run: an after pass that fails or is cancelled keeps the be
         CHECK(r["calibration"]["before"]["status"] == "done");
         CHECK(lane(r, "atan2")["before"]["rms_rad"].is_number());
     }
-    SECTION("an after capture that cannot be read") {
-        const json r = run(paper_with({{"lane", "atan2"}, {"verify", {{"device", "capture:/nonexistent/b.fcap"}}}}), d);
-        CHECK(r["status"] == "error");
-        CHECK(r["verdict"] == "ERROR");
-        CHECK(r["calibration"]["status"] == "after_incomplete");
-        CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("the after pass did not start"));
-        CHECK(r["seed"] == 1);  // the report's figures are the before pass's
-        CHECK(lane(r, "atan2")["after"].is_null());
+    SECTION("an after capture that cannot be read: refused before the before pass runs") {
+        try {
+            (void)plan_run(scenario(paper_with({{"lane", "atan2"}, {"verify", {{"device", "capture:/nonexistent/b.fcap"}}}})));
+            FAIL("planned");
+        } catch (const ConfigError& e) {
+            CHECK(e.field() == "calibrate.verify.device");
+            CHECK_THAT(e.message(), Catch::Contains("/nonexistent/b.fcap"));
+        }
     }
 }
 
@@ -420,6 +420,7 @@ TEST_CASE("calibrated run: on the emulated Modbus DUT, one fringe run writes the
     j["calibrate"] = {{"lane", "atan2"}};
     j.erase("limits");
     const json r = run(j, d);
+    INFO(r.value("error", json()).dump() << " " << r["calibration"].value("why", json()).dump());
     REQUIRE(r["status"] == "done");
     const json& c = r["calibration"];
     REQUIRE(c["status"] == "verified");
@@ -434,6 +435,20 @@ TEST_CASE("calibrated run: on the emulated Modbus DUT, one fringe run writes the
     CHECK(before / after > 30);
     // The board applies the file as atan2 does, at its registers' quantisation (2*pi/65536 rad per LSB).
     CHECK(std::fabs(after - sw) < 0.25 * sw + 5e-5);
+    CHECK(c["board_before"]["cleared"] == true);
+    CHECK(c["board_before"]["correction_enable_was"] == 0);
+
+    // Again on the same board, which now holds and applies the first run's correction: it is
+    // switched off for the before pass (a trial's second run measured 3.1e-4 "before" and
+    // warned that the correction made it worse).
+    const json r2 = run(j, d);
+    REQUIRE(r2["calibration"]["status"] == "verified");
+    CHECK(r2["calibration"]["board_before"]["correction_enable_was"] == 1);
+    const double before2 = lane(r2, "dut")["before"]["rms_rad"].get<double>();
+    INFO("second run: DUT before " << before2);
+    CHECK(before2 > 0.02);
+    CHECK(lane(r2, "dut")["change"] == "better");
+    for (const auto& w : r2["warnings"]) CHECK(w["code"] != "calibration_worse");
 }
 
 TEST_CASE("calibrated run: a Modbus DUT the correction cannot be written to runs uncorrected, and its lane says why", "[calibration][calrun][modbus][socket]") {

@@ -19,6 +19,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <sstream>
 
 using namespace fringe;
@@ -122,7 +123,7 @@ TEST_CASE("calibration: the correction file round trips exactly, and a malformed
     CHECK_THROWS_WITH(est::Correction::from_json(bad), Catch::Contains("correction.harmonics[1].order"));
     bad = c.to_json();
     bad["lissajous"]["amplitude_cos_v"] = -1;
-    CHECK_THROWS_WITH(est::Correction::from_json(bad), Catch::Contains("amplitudes must be positive"));
+    CHECK_THROWS_WITH(est::Correction::from_json(bad), Catch::Contains("correction.lissajous.amplitude_cos_v"));
     CHECK_THROWS_WITH(est::Correction::from_json(json{{"table_rad", json::array()}}), Catch::Contains("correction.schema"));
     // Values no interpolator's error can have: refused (1e300 in the table made the estimate not
     // finite; offset_rad 1e308 a constant output). The edges themselves are taken.
@@ -146,6 +147,36 @@ TEST_CASE("calibration: the correction file round trips exactly, and a malformed
     CHECK_THROWS_WITH(est::Correction::load((d.path / "none.json").string()), Catch::Contains("no such file"));
     std::ofstream(d.path / "trailing.json") << c.to_json().dump() << " {}";
     CHECK_THROWS_WITH(est::Correction::load((d.path / "trailing.json").string()), Catch::Contains("malformed JSON") && Catch::Contains("trailing.json"));
+    // What this version of the file holds, and nothing else (a trial's files were all read, exit 0).
+    auto refused = [&](const std::function<void(json&)>& edit, const std::string& words) {
+        json x = c.to_json();
+        edit(x);
+        INFO(x.dump().substr(0, 300));
+        CHECK_THROWS_WITH(est::Correction::from_json(x), Catch::Contains(words));
+    };
+    refused([](json& x) { x.erase("schema_version"); }, "correction.schema_version");
+    refused([](json& x) { x["schema_version"] = 2; }, "must be 1");
+    refused([](json& x) { x["schema_version"] = "1"; }, "must be 1");
+    refused([](json& x) { x["tabel_rad"] = x["table_rad"]; }, "correction.tabel_rad: unknown key");
+    refused([](json& x) { x["harmonics"][0]["order"] = 1.5; }, "correction.harmonics[0].order");
+    refused([](json& x) { x["harmonics"][0]["order"] = "1"; }, "correction.harmonics[0].order");
+    refused([](json& x) { x["harmonics"][0]["amp"] = 1; }, "correction.harmonics[0].amp: unknown key");
+    refused([](json& x) { x["table_rad"] = json::array(); }, "0 entries");
+    refused([](json& x) { x["table_rad"] = json::array({0.0}); }, "1 entries");
+    refused([](json& x) { x["table_rad"] = json(std::vector<double>((1u << 20) + 1, 0.0)); }, "1048577 entries");
+    refused([](json& x) { x["harmonics"] = json::array(); for (int k = 1; k <= 257; ++k) x["harmonics"].push_back({{"order", k}, {"cos_rad", 0.0}, {"sin_rad", 0.0}}); }, "at most 256 orders");
+    refused([](json& x) { x.erase("table_rad"); x.erase("harmonics"); x.erase("offset_rad"); x.erase("lissajous"); }, "no correction in it");
+    json lis = c.to_json();
+    lis["lissajous"] = {{"offset_sin_v", 0.0}, {"offset_cos_v", 0.0}, {"amplitude_sin_v", 1.0}, {"amplitude_cos_v", 1.0}, {"quadrature_error_rad", 0.0}};
+    CHECK_NOTHROW(est::Correction::from_json(lis));
+    for (const auto& [key, v] : {std::pair{"amplitude_sin_v", 1e-300}, std::pair{"amplitude_sin_v", 1e300}, std::pair{"amplitude_cos_v", 0.0},
+                                 std::pair{"offset_sin_v", 1e300}, std::pair{"offset_cos_v", -1001.0}}) {
+        json x = lis;
+        x["lissajous"][key] = v;
+        CHECK_THROWS_WITH(est::Correction::from_json(x), Catch::Contains(std::string("correction.lissajous.") + key));
+    }
+    lis["lissajous"]["amplitude_sin_v"] = 1e-6;  // the edge: accepted
+    CHECK_NOTHROW(est::Correction::from_json(lis));
     // A key given twice: refused, not the last one taken.
     std::string twice = c.to_json().dump();
     twice.insert(1, "\"offset_rad\": 0.5, ");
@@ -364,6 +395,36 @@ TEST_CASE("calibration: a record of 1.3 cycles, or of a motion that reverses, pr
     INFO((reversing ? "reversing" : "1.3 cycles") << ": predicted " << r.predicted_rms_rad << ", measured on another capture " << rms_after);
     CHECK(rms_after < 1.1 * r.predicted_rms_rad);
     CHECK(rms_after > 0.9 * r.predicted_rms_rad);
+}
+
+TEST_CASE("calibration: a record that travels many cycles over part of the circle is refused (coverage, not travel)", "[calibration][capture]") {
+    TempDir d;
+    Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
+    // +-1 electrical rad at 5 Hz: 11 "cycles" of travel in 0.9 s, a third of the circle seen.
+    gen.motion = motion_from_json(json{{"kind", "sine"}, {"amplitude_rad", 1.0 / gen.encoder.lines_per_rev}, {"freq_hz", 5.0}}, "", gen.encoder.lines_per_rev, "motion");
+    const auto cap = d.path / "part.fcap";
+    write_capture(gen, 100000, cap, 1);
+    CalibrateOptions o;
+    o.capture_path = cap.string();
+    o.encoder = gen.encoder;
+    CHECK_THROWS_WITH(calibrate_capture(o), Catch::Contains("does not cover the electrical period") && Catch::Contains("of 64 arcs visited"));
+}
+
+TEST_CASE("calibration: the predicted residual leaves out the table's mean over the angle (the offset takes it): 3 entries", "[calibration][capture]") {
+    TempDir d;
+    const Scenario gen = load_scenario(FRINGE_SOURCE_DIR "/fixtures/scenarios/paper-duty1p6.json");
+    const auto a = d.path / "a.fcap", b = d.path / "b.fcap", corr = d.path / "corr.json";
+    write_capture(gen, 100000, a, 1);
+    write_capture(gen, 100000, b, 2);
+    CalibrateOptions o;
+    o.capture_path = a.string();
+    o.encoder = gen.encoder;
+    o.table_size = GENERATE(3, 4, 64);
+    const CalibrateResult r = calibrate_capture(o);
+    std::ofstream(corr) << r.correction.to_json().dump();
+    const double measured = atan2_on(b, gen.encoder, {{"correction", corr.string()}})["metrics"]["rms"]["rad"].get<double>();
+    INFO(o.table_size << " entries: predicted " << r.predicted_rms_rad << ", measured " << measured);
+    CHECK(measured == Approx(r.predicted_rms_rad).epsilon(0.1));
 }
 
 TEST_CASE("calibration: the settle time is the one given, else the capture's recording scenario's, else 0.1 s, and nothing after it is not 'no truth'", "[calibration][capture]") {

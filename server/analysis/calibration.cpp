@@ -79,15 +79,19 @@ PeriodicFit periodic_correction(const std::vector<ErrorHarmonic>& error, double 
         corr.sin_k[static_cast<std::size_t>(k - 1)] = 2.0 * b / static_cast<double>(m);
     }
     corr.tabulate(o.table_size);
-    double d2 = 0;
+    // What the table leaves, less its mean over the angle: the offset takes a constant (with 3
+    // entries the residual's mean was 1.2e-2 rad of a 2.0e-2 figure; 1.57e-2 was measured).
+    double d1 = 0, d2 = 0;
     for (std::size_t j = 0; j < m; ++j) {
         const double phi = kTwoPi * (static_cast<double>(j) + 0.5) / static_cast<double>(m);
         // c at the grid's mid-points, linearly between the grid's values (m >> N: far finer than the table)
         const double cv = 0.5 * (c[j] + c[(j + 1) % m]);
         const double d = cv - corr.table_value(phi);
+        d1 += d;
         d2 += d * d;
     }
-    f.table_residual_rms_rad = std::sqrt(d2 / static_cast<double>(m));
+    const double dm = d1 / static_cast<double>(m);
+    f.table_residual_rms_rad = std::sqrt(std::max(0.0, d2 / static_cast<double>(m) - dm * dm));
     return f;
 }
 

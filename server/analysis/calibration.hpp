@@ -50,7 +50,7 @@ struct PeriodicOptions {
 struct PeriodicFit {
     est::Correction correction;   // cos_k, sin_k and the table (no Lissajous stage)
     double error_rms_rad = 0;     // rms of the record's periodic error (what the correction removes)
-    double table_residual_rms_rad = 0;  // rms over the angle of what the table leaves of it
+    double table_residual_rms_rad = 0;  // std over the angle of what the table leaves of it (its mean is the offset's)
     double max_slope = 0;         // max |de/ds|: the inversion needs it below 1
 };
 

@@ -131,6 +131,8 @@ int run_calibrate(const CalibrateCliOptions& o) {
     const std::string header = o.c_header.empty() ? std::string() : correction_c_header(r.correction, o.lsb_rad, o.name);
     std::vector<dev::RegisterValue> plan;
     if (board) plan = dev::plan_correction_writes(*board, r.correction);  // a value that does not fit its register writes nothing
+    // The board first: when it cannot take the correction, no file claims one was made for it.
+    write_to_board(o.target, r.correction, o.quiet);
     nlohmann::json j = r.correction.to_json();
     j["calibrated_from"] = r.facts;
     write_file(o.output, j.dump(2) + "\n");
@@ -158,7 +160,6 @@ int run_calibrate(const CalibrateCliOptions& o) {
         std::printf("\n  verify it on another capture: fringe estimate OTHER --estimator atan2 --param correction=%s\n", o.output.c_str());
         if (!o.target.writes.empty()) std::printf("  register writes for board %s: %s (%zu values)\n", board->name.c_str(), o.target.writes.c_str(), plan.size());
     }
-    write_to_board(o.target, r.correction, o.quiet);
     return kExitOk;
 }
 

@@ -26,6 +26,7 @@ struct EstimateOptions {
     long long dut_index_count = 0;
     double dut_offset_rad = 0;
     double settle_s = 0.1;
+    bool settle_given = false;
     double max_expanded_mb = static_cast<double>(kCaptureDefaultMaxExpandedBytes >> 20);
     bool list = false, json_list = false, quiet = false;
 };
@@ -98,10 +99,19 @@ int run_estimate(const EstimateOptions& o) {
     e.params = est::parse_param_assignments(est::find(o.estimator).params, o.params);
     if (!o.encoder.empty()) e.encoder = load_encoder(o.encoder);
     if (!o.interface.empty()) e.interface = load_interface(o.interface);
-    e.settle_s = o.settle_s;
     e.estimates_path = o.output;
     if (!o.channels.empty()) e.capture.channels = parse_channel_map(o.channels);
     e.capture.max_expanded_bytes = static_cast<std::uint64_t>(std::min(o.max_expanded_mb * 1048576.0, 1.8e19));
+    // Not given: the settle time the capture was recorded with (a Modbus sweep recorded with
+    // settle_s 0 scored 28 of its 128 steps after a default 0.1 s), else 0.1 s.
+    double settle_s = o.settle_s;
+    if (!o.settle_given) {
+        try {
+            if (const auto recorded = recorded_settle_s(CaptureReader(o.capture, e.capture).meta())) settle_s = *recorded;
+        } catch (const std::exception&) {  // unreadable: run_capture says why
+        }
+    }
+    e.settle_s = settle_s;
     if (o.dut_interpolation > 0) e.abz = AbzConfig{o.dut_interpolation, o.dut_index_count, o.dut_offset_rad};
     Progress progress("estimate", "samples", o.quiet);
     if (progress.active()) e.progress = [&](std::uint64_t done) { progress.update(done); };
@@ -165,12 +175,12 @@ int run_estimate(const EstimateOptions& o) {
             const double n = static_cast<double>(cap["samples"].get<std::uint64_t>());
             std::printf("no scored samples: %.0f samples (%.6g s), %llu after the %.6g s settle time, %llu of them marked invalid by the estimator\n", n,
                         n / cap["sample_rate_hz"].get<double>(), static_cast<unsigned long long>(m["evidence"]["samples_after_settle"].get<std::uint64_t>()),
-                        o.settle_s, static_cast<unsigned long long>(m["invalid_after_settle"].get<std::uint64_t>()));
+                        settle_s, static_cast<unsigned long long>(m["invalid_after_settle"].get<std::uint64_t>()));
         } else {
             const auto& ev = m["evidence"];
             const json unc = m.value("uncertainty", json::object());
             std::printf("error after %.3g s settle (%llu samples, %.1f electrical cycles, valid %.1f %%): rms %.3e rad%s (%.4f %% of a period), std %.3e, mean %.3e, max|e| %.3e rad, slipped %llu\n",
-                        o.settle_s, static_cast<unsigned long long>(m["scored"].get<std::uint64_t>()), ev["scored_cycles"].get<double>(),
+                        settle_s, static_cast<unsigned long long>(m["scored"].get<std::uint64_t>()), ev["scored_cycles"].get<double>(),
                         100.0 * ev["valid_fraction"].get<double>(), m["rms"]["rad"].get<double>(), interval_text(unc.value("rms_rad", json())).c_str(),
                         m["rms"]["percent_period"].get<double>(), m["std"]["rad"].get<double>(), m["mean"]["rad"].get<double>(),
                         m["max_abs"]["rad"].get<double>(), static_cast<unsigned long long>(m["slipped_samples"].get<std::uint64_t>()));
@@ -252,11 +262,15 @@ Command add_estimate(CLI::App& app) {
     es->add_option("--max-expanded-mb", o->max_expanded_mb, "Most sample data a sigrok session (.sr) may expand to, MiB "
                                                             "(its members as declared; a limit against ZIP bombs)")
         ->check(kFinitePositive)->capture_default_str();
-    es->add_option("--settle-s", o->settle_s, "Seconds from the start excluded from scoring")->check(kFiniteNonNegative);
+    auto* st = es->add_option("--settle-s", o->settle_s, "Seconds from the start excluded from scoring (default: the settle_s the capture was recorded with, else 0.1)")
+                   ->check(kFiniteNonNegative);
     es->add_flag("--list", o->list, "List the estimators and their parameters");
     es->add_flag("--json", o->json_list, "With --list: as JSON");
     es->add_flag("-q,--quiet", o->quiet, "No summary or progress");
-    return {es, [o] { return run_estimate(*o); }};
+    return {es, [o, st] {
+                o->settle_given = st->count() > 0;
+                return run_estimate(*o);
+            }};
 }
 
 }  // namespace fringe::cli

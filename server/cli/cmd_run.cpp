@@ -1,6 +1,7 @@
 // fringe run: one scenario, here or on a fringe serve (--server); exit 0 PASS/MARGINAL, 1 FAIL, 2 ERROR.
 #include "server/cli/commands.hpp"
 #include "drivers/capture_file.hpp"
+#include "drivers/device.hpp"
 #include "signal_gen/base/config.hpp"
 #include "server/store/forward.hpp"
 #include "server/store/instance_lock.hpp"
@@ -88,6 +89,25 @@ int run_run(const RunCliOptions& o) {
     // Checked once, here: errors stop the run (exit 2); the preflight's warnings come back in the
     // report. With --server the service makes its own plan from the scenario sent.
     RunPlan plan = plan_run(sc);
+    // The files the run reads, once the plan has resolved them: a --record (or report) over the
+    // capture a run replays, or over its calibrate block's verify capture, destroyed it (and the
+    // after pass then "verified" the correction on the before pass's own samples).
+    {
+        std::vector<NamedPath> reads{{"scenario", o.scenario}};
+        auto capture_of = [&](const std::string& uri, const std::string& role) {
+            if (uri.rfind("capture:", 0) != 0) return;
+            try {
+                reads.push_back({role, dev::check_uri(uri).path});
+            } catch (const std::exception&) {  // the plan checked it
+            }
+        };
+        if (!plan.scenario.instruments) capture_of(plan.scenario.device, "capture");
+        if (plan.scenario.calibrate) capture_of(plan.scenario.calibrate->verify.device, "capture");
+        for (const auto& e : plan.scenario.estimators)
+            if (e.params.is_object() && e.params.contains("correction") && e.params["correction"].is_string())
+                reads.push_back({"correction of " + e.label, e.params["correction"].get<std::string>()});
+        refuse_overwrite({{"report", o.report}, {"junit", o.junit}, {"html", o.html}, {"record", o.record}, {"record (its sidecar)", record_sidecar}}, reads);
+    }
     if (!o.server.empty()) return run_run_remote(o, sc);
     // The run's row names this process's instance, whose lock we hold until the report is
     // stored: a service on the same folder sees the run alive, and interrupted once we are gone.

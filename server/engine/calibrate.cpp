@@ -5,9 +5,11 @@
 #include "server/engine/capture_run.hpp"
 #include "signal_gen/fastmath.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <stdexcept>
+#include <vector>
 
 namespace fringe {
 
@@ -70,6 +72,35 @@ double table_mean_rad(const CalibrateOptions& o, double settle_s, const est::Cor
     return n ? sum / static_cast<double>(n) : 0.0;
 }
 
+// Of kCoverageBins equal arcs of the electrical period, how many the scored samples' angles
+// (as atan2 reads them) visit. Travel is not coverage: +-1 rad back and forth for 11 "cycles"
+// fitted harmonics to a third of the circle, and the table was garbage elsewhere (2.4e-2 rad
+// measured on another capture, worse than no correction, where 2.7e-4 was predicted).
+// A sparse record (a 128-step sweep) may miss an arc here and there: what is refused is a gap
+// of more than kMaxGapBins arcs in a row (22.5 degrees), where the table would be extrapolated.
+constexpr int kCoverageBins = 64, kMaxGapBins = 4;
+struct Coverage {
+    int visited = 0, largest_gap = 0;  // arcs seen; the longest run of arcs not seen (around the circle)
+};
+Coverage angle_coverage(const CalibrateOptions& o, double settle_s, const est::Correction& c) {
+    std::vector<char> seen(kCoverageBins, 0);
+    for_each_reading(o, c, [&](double t_s, double phi_rad, double) {
+        if (t_s < settle_s) return;
+        double u = phi_rad / kTwoPi;
+        u -= std::floor(u);
+        seen[std::min(kCoverageBins - 1, static_cast<int>(u * kCoverageBins))] = 1;
+    });
+    Coverage cov;
+    cov.visited = static_cast<int>(std::count(seen.begin(), seen.end(), 1));
+    if (cov.visited == 0) return {0, kCoverageBins};
+    int run = 0;
+    for (int i = 0; i < 2 * kCoverageBins; ++i) {  // twice around: a gap across angle 0
+        run = seen[static_cast<std::size_t>(i % kCoverageBins)] ? 0 : run + 1;
+        cov.largest_gap = std::max(cov.largest_gap, std::min(run, kCoverageBins));
+    }
+    return cov;
+}
+
 }  // namespace
 
 CalibrateResult calibrate_capture(const CalibrateOptions& o) {
@@ -87,10 +118,8 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
         if (o.settle_s) {
             res.settle_s = *o.settle_s;
             res.settle_from = "given";
-        } else if (meta.is_object() && meta.contains("scenario") && meta["scenario"].is_object() && meta["scenario"].contains("settle_s") &&
-                   meta["scenario"]["settle_s"].is_number() && std::isfinite(meta["scenario"]["settle_s"].get<double>()) &&
-                   meta["scenario"]["settle_s"].get<double>() >= 0) {
-            res.settle_s = meta["scenario"]["settle_s"].get<double>();
+        } else if (const auto recorded = recorded_settle_s(meta)) {
+            res.settle_s = *recorded;
             res.settle_from = "capture";
         }
     }
@@ -163,7 +192,8 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
     } else {
         const json sr = lane.value("analysers", json::object()).value("self_reference", json());
         if (!sr.is_object() || !sr.value("measured", false))
-            throw std::runtime_error("the capture has no truth and no self-referenced error: " +
+            throw std::runtime_error(std::string(has_truth ? "no self-referenced error (chosen over the capture's truth): "
+                                                           : "the capture has no truth and no self-referenced error: ") +
                                      (sr.is_object() ? sr.value("why_not", std::string("not measured")) : std::string("not measured")));
         enough(sr.value("cycles", 0.0), "in the self-referenced windows");
         res.source = "self_reference";
@@ -174,6 +204,15 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
         res.noise_rms_rad = sr.at("residual_rms_rad").get<double>();
         rests = {{"windows", sr.at("windows")}, {"cycles", sr.at("cycles")}, {"samples", sr.at("samples")},
                  {"orders_fitted", h.size()}};
+    }
+    if (const Coverage cov = angle_coverage(o, res.settle_s, res.correction); cov.largest_gap > kMaxGapBins) {
+        char msg[400];
+        std::snprintf(msg, sizeof msg,
+                      "the record does not cover the electrical period: %d of %d arcs visited after the settle time, %d in a row never seen "
+                      "(%.0f degrees; at most %d allowed). A correction needs the whole circle: a motion that swings back and forth over part "
+                      "of a period travels cycles without seeing the rest",
+                      cov.visited, kCoverageBins, cov.largest_gap, 360.0 * cov.largest_gap / kCoverageBins, kMaxGapBins);
+        throw std::runtime_error(msg);
     }
     PeriodicOptions po;
     po.table_size = o.table_size;

@@ -9,6 +9,7 @@
 #include "signal_gen/base/config.hpp"
 
 #include <algorithm>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 
@@ -29,6 +30,9 @@ bool takes_correction(const std::string& name) {
 }
 
 json number_or_null(const json& j) { return j.is_number() ? j : json(); }
+
+// An after pass whose rms is more than this times the predicted residual is flagged.
+constexpr double kOffPrediction = 1.5;
 
 // What a pass ran on: enough to tell two captures apart and to make either again.
 json pass_identity(const Scenario& sc, const char* pass) {
@@ -126,6 +130,31 @@ json apply_to_board(const Scenario& after, const std::string& correction_path) {
     }
 }
 
+// Before the before pass: a Modbus board that declares correction registers may still apply a
+// correction from an earlier run (its registers keep it); the before pass must see it
+// uncorrected, so correction_enable is cleared first and the report says what it held.
+json clear_board_correction(const Scenario& sc) {
+    if (sc.instruments) return nullptr;
+    dev::UriParts u;
+    try {
+        u = dev::check_uri(sc.device);
+    } catch (const std::exception&) {
+        return nullptr;
+    }
+    if (u.scheme != "modbus+tcp" && u.scheme != "modbus+rtu") return nullptr;
+    try {
+        const dev::BoardProfile b = dev::load_board(u.settings.value("board", std::string("generic-aio")));
+        if (!b.has_correction()) return nullptr;
+        const std::optional<double> was = dev::disable_correction(sc.device);
+        if (!was) return {{"cleared", false}, {"why", "board profile " + b.name + " declares no correction_enable"}};
+        return {{"cleared", true}, {"correction_enable_was", *was},
+                {"how", *was != 0 ? "the board applied a correction (correction_enable " + std::to_string(*was) + "): cleared before the before pass"
+                                  : "correction_enable was 0"}};
+    } catch (const std::exception& e) {
+        return {{"cleared", false}, {"why", std::string("correction_enable could not be cleared: ") + e.what()}};
+    }
+}
+
 json apply_correction(EstimatorSpec& lane, const std::string& correction_path) {
     if (lane.params.is_object() && lane.params.contains("correction") && !lane.params["correction"].is_null())
         return {{"kind", "estimator_param"}, {"applied", false}, {"why_not", "applies a correction of its own (params.correction), kept"}};
@@ -208,7 +237,17 @@ RunReport execute_calibrated_run(RunPlan plan, const RunOptions& o) {
     }
     if (!replay) cal["computed_on"]["capture"] = remove_capture ? json() : json(before_capture);
 
+    const json board_before = clear_board_correction(sc);
+    if (!board_before.is_null()) cal["board_before"] = board_before;
     RunReport before = execute_pass(std::move(plan), bo);
+    std::optional<Finding> not_cleared;
+    if (board_before.is_object() && !board_before.value("cleared", false) && board_before.contains("why") &&
+        board_before["why"].get<std::string>().rfind("correction_enable could not", 0) == 0) {
+        not_cleared = Finding{false, "board_correction_not_cleared", "calibrate",
+                              "the board's own correction could not be switched off before the before pass (" + board_before["why"].get<std::string>() +
+                                  "): its before figures may include a correction from an earlier run"};
+        before.warnings.push_back(*not_cleared);
+    }
     // A report with no after pass: the before pass's, saying why.
     auto without_after = [&](const std::string& status, const std::string& why, RunStatus run_status, Verdict verdict) {
         std::error_code ec;
@@ -320,6 +359,7 @@ RunReport execute_calibrated_run(RunPlan plan, const RunOptions& o) {
             o.progress(before_total + static_cast<std::uint64_t>(static_cast<double>(done) * before_total / after_total), 2 * before_total);
         };
     RunReport r = execute_pass(std::move(after_plan), ao);
+    if (not_cleared) r.warnings.push_back(*not_cleared);
 
     cal["before"] = before_json(before);
     cal["after"] = {{"status", to_string(r.status)}, {"error", r.error.empty() ? json() : json(r.error)}, {"seed", r.scenario.seed}};
@@ -342,6 +382,15 @@ RunReport execute_calibrated_run(RunPlan plan, const RunOptions& o) {
                 r.warnings.push_back({false, "calibration_worse", "calibrate",
                                       "lane " + e.label + ": the correction left its error larger than before (" + std::to_string(rb) + " -> " +
                                           std::to_string(ra) + " rad rms): it does not fit this signal (table_size, harmonics or the record it came from)"});
+            // Far above its prediction: the record did not describe this signal (another noise,
+            // another distortion), whatever "better" says.
+            if (row.contains("predicted_rms_rad") && ra < rb && ra > kOffPrediction * cr.predicted_rms_rad) {
+                row["off_prediction"] = true;
+                char msg[256];
+                std::snprintf(msg, sizeof msg, "lane %s: after the correction %.4g rad rms, %.3g x its prediction %.4g: the record it came from does not describe this signal",
+                              e.label.c_str(), ra, ra / cr.predicted_rms_rad, cr.predicted_rms_rad);
+                r.warnings.push_back({false, "calibration_off_prediction", "calibrate", msg});
+            }
         }
         cal["lanes"].push_back(std::move(row));
     }

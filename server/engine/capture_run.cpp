@@ -30,6 +30,15 @@ void check_uri_text(const std::string& s, const std::string& field, const std::s
 
 }  // namespace
 
+std::optional<double> recorded_settle_s(const nlohmann::json& meta) {
+    if (!meta.is_object() || !meta.contains("scenario") || !meta["scenario"].is_object()) return std::nullopt;
+    const nlohmann::json& s = meta["scenario"];
+    if (!s.contains("settle_s") || !s["settle_s"].is_number()) return std::nullopt;
+    const double v = s["settle_s"].get<double>();
+    if (!std::isfinite(v) || v < 0) return std::nullopt;
+    return v;
+}
+
 CaptureScan scan_capture(const std::string& path, const CaptureOptions& options, double settle_s, std::size_t block) {
     CaptureReader reader(path, options);
     CaptureData d;

@@ -22,6 +22,11 @@
 
 namespace fringe {
 
+// The settle time of the scenario a capture was recorded with (its metadata's scenario.settle_s,
+// `fringe run --record` and `fringe gen` write it); nothing when it does not say. What
+// `fringe estimate` and `fringe calibrate` take when --settle-s is not given.
+std::optional<double> recorded_settle_s(const nlohmann::json& meta);
+
 struct CaptureRunOptions {
     std::string capture_path;
     std::string estimator;

@@ -228,6 +228,18 @@ void check_calibration(Scenario& sc) {
         throw ConfigError("calibrate.verify.seed", "the scenario's own seed with its motion and device is the same capture as the before pass: "
                                                    "give another seed, or another motion");
     }
+    // Another capture is read before anything runs: an unreadable one was found only after
+    // the whole before pass, and named as a missing duration_s.
+    if (!c.verify.device.empty() && c.verify.device.rfind("capture:", 0) == 0) {
+        const dev::UriParts u = dev::check_uri(c.verify.device);
+        try {
+            CaptureReader reader(u.path, capture_options_from_uri(u.settings));
+            CaptureData d;
+            if (!reader.read(1, d) || d.size() == 0) throw std::runtime_error(u.path + ": no samples");
+        } catch (const std::exception& e) {
+            throw ConfigError("calibrate.verify.device", e.what());
+        }
+    }
 }
 
 void check_budget(const Scenario& sc, const RunBudget& b) {

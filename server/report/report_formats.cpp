@@ -1077,7 +1077,7 @@ static std::string calibration_section_html(const json& r) {
     auto str = [](const json& v) { return xml_escape(v.is_string() ? v.get<std::string>() : v.is_null() ? std::string("-") : v.dump()); };
     auto pass = [&](const json& p) {
         if (!p.is_object()) return std::string("-");
-        std::string t = "seed " + str(p.value("seed", json())) + ", device <code>" + str(p.value("device", json())) + "</code>";
+        std::string t = "seed " + (p.value("seed", json()).is_number() ? str(p["seed"]) : std::string("not recorded")) + ", device <code>" + str(p.value("device", json())) + "</code>";
         if (p.value("capture", json()).is_string()) t += ", capture <code>" + str(p["capture"]) + "</code>";
         if (p.value("motion", json()).is_object()) t += ", motion <code>" + xml_escape(p["motion"].dump()) + "</code>";
         if (p.value("error_source", json()).is_string()) t += p["error_source"] == "truth" ? ", truth-scored error" : ", self-referenced error";
