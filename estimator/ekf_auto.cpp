@@ -18,7 +18,10 @@
 //   tracker:  EKF on [theta, omega, alpha, u, v]: CA kinematics (white jerk, q = wn^6 r T with r
 //             from the learnt shape and the measured noise; constant speed, acceleration,
 //             reversals and standstill without a CV/CA choice), u a random walk (q_variation_per_s)
-//             with a slow pull to 0; a two-channel update with R the residual covariance it measures.
+//             with a slow pull to 0. The bandwidth wn adapts to the motion (adapt()): from the
+//             mean square jerk the tracker's own acceleration shows, the wn that minimises noise
+//             (2 wn r T) plus lag ((j/wn^3)^2), never below natural_freq_hz (issue 28);
+//             a two-channel update with R the residual covariance it measures.
 //   learning phase: the tracker follows any shape error that varies slower than fn, so a warped
 //             shape and a warped phase could agree. The identifier therefore learns against
 //             the tracker's phase averaged over the samples whose phase spans one cycle,
@@ -81,6 +84,9 @@ constexpr double kCorrRef = 0.03;             // rad: a point's acceleration cor
 constexpr double kSettled = 1e-3;             // shape changes below this (relative) for 8 solves: settled
 constexpr double kMaxPhaseVar = 0.1;          // rad^2: a shape and noise giving a worse per-sample phase is no signal
 constexpr double kWarpChange = 1e-2;          // a shape change above this (relative) pauses learning
+constexpr double kJerkMemoryS = 0.02;         // s: the mean square jerk's memory (the bandwidth follows it)
+constexpr double kJerkNoise = 0.2;            // the jerk estimate's noise variance, in units of P22 wn^2
+constexpr double kMaxWnT = 0.1;               // the adaptive bandwidth's ceiling, wn T
 
 using Coeffs = std::array<double, kMaxBasis>;
 using Cx = std::complex<double>;
@@ -91,6 +97,8 @@ public:
         return {
             {"natural_freq_hz", "Hz", ParamType::Number, 100.0, 1e-3, 1e7, {},
              "tracking natural frequency fn of the CA tracker; q = wn^6*r*T with r from the learnt shape and measured noise"},
+            {"adaptive_bandwidth", "", ParamType::Boolean, true, -kInf, kInf, {},
+             "raise the tracker's bandwidth above natural_freq_hz where the motion's jerk needs it (chosen from the data); false: fixed at natural_freq_hz"},
             {"max_order", "", ParamType::Integer, 8, 6, kMaxOrder, {},
              "highest harmonic of the shape table the identifier fits; the tracker uses those that stand above the noise"},
             {"memory_cycles", "cycles", ParamType::Number, 16.0, 1.0, 1e6, {},
@@ -124,6 +132,14 @@ public:
         // the default 100 Hz needs fs >= 1.26 kHz; below, a default (not a given value) becomes fs/(8 pi)
         if (!cfg.params.contains("natural_freq_hz") && kTwoPi * fn_ / fs_ > 0.25) fn_ = fs_ / (4 * kTwoPi);
         wn_ = kTwoPi * fn_;
+        wn_floor_ = wn_;
+        adaptive_ = p.boolean("adaptive_bandwidth");
+        n_in_ = 0;
+        stats_n_ = 0;
+        stats_wn_ = 0;
+        wn_peak_ = wn_;
+        shape_at_ = -1;
+        vary_at_ = -1;
         if (wn_ * T_ > 0.5) throw ConfigError("params.natural_freq_hz", "too high for the sample rate (wn*T must be < 0.5)");
         max_order_ = static_cast<int>(p.integer("max_order"));
         ppc_ = static_cast<int>(p.integer("points_per_cycle"));
@@ -166,6 +182,7 @@ public:
         const std::size_t n = in.size();
         for (std::size_t i = 0; i < n; ++i) {
             const double zs = in.sin_v[i], zc = in.cos_v[i];
+            ++n_in_;
             if (!(std::isfinite(zs) && std::isfinite(zc))) {
                 ++nonfinite_;
                 if (acq_.done()) predict();
@@ -260,6 +277,19 @@ public:
         j["shape_cos"] = coeffs(c0c_, order_);
         j["variation"] = {{"u", x_[3]}, {"v", x_[4]}, {"learnt", vary_}, {"sin", coeffs(c1s_, var_order())}, {"cos", coeffs(c1c_, var_order())}};
         j["noise_cov_v2"] = {R_[0], R_[1], R_[2]};
+        // what it chose: the bandwidth now, its floor, the highest it went to and its mean
+        // since acquisition; the kinematic model; when the shape (full order) and its variation
+        // were learnt (s from the first sample, since the last acquisition; null: not yet)
+        auto at_s = [&](long long n) { return n < 0 ? nlohmann::json(nullptr) : nlohmann::json(static_cast<double>(n) * T_); };
+        j["bandwidth"] = {{"adaptive", adaptive_},
+                          {"natural_freq_hz", wn_ / kTwoPi},
+                          {"floor_hz", wn_floor_ / kTwoPi},
+                          {"peak_hz", wn_peak_ / kTwoPi},
+                          {"mean_hz", stats_n_ > 0 ? stats_wn_ / static_cast<double>(stats_n_) / kTwoPi : wn_ / kTwoPi},
+                          {"jerk_rms_rad_s3", std::sqrt(std::max(j2_, 0.0))}};
+        j["kinematics"] = "ca";
+        j["shape_learnt_s"] = at_s(shape_at_);
+        j["variation_learnt_s"] = at_s(vary_at_);
         j["r_model_rad2"] = r_bar_;
         return j;
     }
@@ -343,6 +373,8 @@ private:
         bin_n_ = 0;
         rot_ = 0;
         ugain_ = 1;
+        shape_at_ = -1;
+        vary_at_ = -1;
     }
 
     void clear_sums() {
@@ -382,6 +414,11 @@ private:
         const double fr = wrap_pi(th);
         turns_ = std::llround((th - fr) / kTwoPi);
         x_ = {fr, acq_.omega_rad_s(), 0.0, 0.0, 0.0};
+        wn_ = wn_floor_;
+        ema_f_ = ema_s_ = 0;
+        j2_ = 0;
+        since_q_ = 0;
+        set_q();
         std::memset(P_, 0, sizeof P_);
         P_[0][0] = 0.05 * 0.05;
         P_[1][1] = sq(kTwoPi * 5);
@@ -411,6 +448,39 @@ private:
         }
         const double jbar = sum / kGrid;
         r_bar_ = jbar > 0 ? 1.0 / jbar : 1.0;
+        set_q();
+    }
+
+    // The bandwidth the motion needs. A CA tracker with q = wn^6 r T has a phase variance of
+    // about 2 wn r T from the noise and lags a jerk j by j/wn^3: the sum is least at
+    // wn^7 = 3 j^2 / (r T). j^2 is the mean square of the jerk, measured from the tracker's own
+    // acceleration (the slope between two of its running means, less their noise); the bandwidth
+    // never falls below natural_freq_hz (the floor: no jerk measured) nor rises above fs/(10 pi).
+    void adapt() {
+        const double tf = 3.0 / wn_, ts = 3 * tf;           // the two running means of alpha, s
+        ema_f_ += T_ / tf * (x_[2] - ema_f_);
+        ema_s_ += T_ / ts * (x_[2] - ema_s_);
+        const double j = (ema_f_ - ema_s_) / (ts - tf);     // rad/s^3: a ramp of alpha lags them by j tf and j ts
+        j2_ += T_ / kJerkMemoryS * (j * j - j2_);
+        if (++since_q_ < 16) return;
+        since_q_ = 0;
+        // the noise in j: alpha's error (P22, correlated over 1/wn) through the two means
+        const double noise = kJerkNoise * P_[2][2] * wn_ * wn_;
+        const double sig = std::max(j2_ - noise, 0.0);
+        double w = wn_floor_;
+        if (sig > 0 && r_bar_ > 0) w = std::max(w, std::pow(3 * sig / (r_bar_ * T_), 1.0 / 7));
+        w = std::min(w, kMaxWnT / T_);
+        // a change in wn of less than 2 % is not worth a new Q
+        if (std::fabs(w - wn_) > 0.02 * wn_) {
+            wn_ = w;
+            set_q();
+        }
+        wn_peak_ = std::max(wn_peak_, wn_);
+        stats_wn_ += wn_;
+        ++stats_n_;
+    }
+
+    void set_q() {
         const double q = std::pow(wn_, 6) * r_bar_ * T_;
         const double T = T_;
         Q_[0][0] = q * std::pow(T, 5) / 20; Q_[0][1] = Q_[1][0] = q * std::pow(T, 4) / 8;
@@ -587,6 +657,7 @@ private:
         // a variation larger than the shape itself is not a variation: hold it
         if (std::fabs(x_[3]) > 0.5) x_[3] = std::copysign(0.5, x_[3]);
         if (std::fabs(x_[4]) > 0.5) x_[4] = std::copysign(0.5, x_[4]);
+        if (adaptive_) adapt();
         return true;
     }
 
@@ -962,6 +1033,8 @@ private:
         c1s_ = vs;
         c1c_ = vc;
         order_ = order;
+        if (full_ && shape_at_ < 0) shape_at_ = n_in_;
+        if (vary_ && vary_at_ < 0) vary_at_ = n_in_;
         noise_inv();
         update_prior();
         ++refits_;
@@ -978,6 +1051,11 @@ private:
     }
 
     double fs_ = 1, T_ = 1, fn_ = 100, wn_ = 0;
+    // the adaptive bandwidth: wn_ is the tracker's now, wn_floor_ natural_freq_hz's
+    bool adaptive_ = true;
+    double wn_floor_ = 0, ema_f_ = 0, ema_s_ = 0, j2_ = 0, wn_peak_ = 0, stats_wn_ = 0;
+    int since_q_ = 0;
+    long long stats_n_ = 0, n_in_ = 0, shape_at_ = -1, vary_at_ = -1;
     int max_order_ = 8, ppc_ = 256, order_ = 1, told_order_ = 1;
     double gate_ = 0.1, memory_rad_ = 100, bootstrap_rad_ = 12, noise_a_ = 1e-3, r_bar_ = 0, q_u_ = 0.001, q_v_ = 1e-6;
     int since_noise_ = 0;
