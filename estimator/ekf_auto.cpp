@@ -84,6 +84,9 @@ constexpr double kCorrRef = 0.03;             // rad: a point's acceleration cor
 constexpr double kSettled = 1e-3;             // shape changes below this (relative) for 8 solves: settled
 constexpr double kMaxPhaseVar = 0.1;          // rad^2: a shape and noise giving a worse per-sample phase is no signal
 constexpr double kWarpChange = 1e-2;          // a shape change above this (relative) pauses learning
+constexpr std::size_t kHistMax = 1 << 16;     // samples kept for a replay (1 MB); a longer first learning is not replayed
+constexpr double kReplayFirstCycles = 2.0;    // the first replay, after this many cycles seen at full order ...
+constexpr int kReplays = 4;                   // ... then at twice as many, this many in all
 constexpr double kJerkMemoryS = 0.02;         // s: the mean square jerk's memory (the bandwidth follows it)
 constexpr double kJerkNoise = 0.2;            // the jerk estimate's noise variance, in units of P22 wn^2
 constexpr double kMaxWnT = 0.1;               // the adaptive bandwidth's ceiling, wn T
@@ -190,6 +193,7 @@ public:
                 out.omega_rad_s[i] = x_[1];
                 out.valid[i] = 0;
                 seg0_ = k_;  // the delay line restarts after a gap
+                hist_ok_ = false;
                 continue;
             }
             lock_.reference(zs, zc);
@@ -213,6 +217,7 @@ public:
                 // after a gap, left a capture with a glitch every cycle never learnt). A run of
                 // them is a signal that changed (its amplitude jumped): acquire it afresh.
                 ++outliers_;
+                hist_ok_ = false;  // the history is replayed only when every sample in it was used
                 out.theta_rad[i] = theta_out();
                 out.omega_rad_s[i] = x_[1];
                 out.valid[i] = 0;
@@ -243,8 +248,13 @@ public:
                 continue;
             }
             if (learn_) {
+                if (hist_ok_) {
+                    if (hist_.size() < kHistMax) hist_.push_back({zs, zc});
+                    else hist_ok_ = false;
+                }
                 push(zs, zc);
                 learn();
+                if (replay_due_) replay();
             }
         }
     }
@@ -289,6 +299,7 @@ public:
                           {"jerk_rms_rad_s3", std::sqrt(std::max(j2_, 0.0))}};
         j["kinematics"] = "ca";
         j["shape_learnt_s"] = at_s(shape_at_);
+        j["replays"] = replays_;
         j["variation_learnt_s"] = at_s(vary_at_);
         j["r_model_rad2"] = r_bar_;
         return j;
@@ -427,6 +438,66 @@ private:
         P_[4][4] = 0;
         lock_.rearm();
         reacquiring_ = false;
+        // the tracker as it starts: a replay of the samples since starts from it
+        snap_x_ = x_;
+        std::memcpy(snap_P_, P_, sizeof P_);
+        snap_turns_ = turns_;
+        snap_rot_ = rot_;
+        hist_.clear();
+        hist_ok_ = !told_;
+        replay_due_ = false;
+        replays_ = 0;
+        next_replay_rad_ = kReplayFirstCycles * kTwoPi;
+    }
+
+    // Re-use the samples seen since acquisition: the tracker and the identifier run over them
+    // again from the start, with the shape learnt so far (causal: the outputs already given
+    // stay as they were; the shape and the tracker's state now are revised). The first pass
+    // learnt each point against a tracker whose shape (and so whose warp) was still changing, and
+    // forgot those points quickly (a memory of a quarter of what it had seen); the replay
+    // learns every point against a nearly right shape, with a memory of all of it. Done when
+    // the identifier has seen 4, 8 and 16 electrical cycles at full order (issue 28: the shape
+    // within ~10 cycles, not ~50).
+    void replay() {
+        replay_due_ = false;
+        if (!hist_ok_ || replaying_) return;
+        replaying_ = true;
+        ++replays_;
+        std::vector<std::array<double, 2>> h;
+        h.swap(hist_);
+        clear_sums();
+        seen_rad_ = 0;
+        accepted_ = 0;
+        have_last_ = false;
+        bin_.fill(0.0);
+        bin_n_ = 0;
+        seg0_ = k_;
+        clean_after_ = 0;
+        x_ = snap_x_;
+        x_[0] += rot_ - snap_rot_;  // the snapshot's phase in today's convention
+        std::memcpy(P_, snap_P_, sizeof P_);
+        turns_ = snap_turns_;
+        if (x_[0] > kPi || x_[0] < -kPi) {
+            const double k = std::round(x_[0] / kTwoPi);
+            x_[0] -= kTwoPi * k;
+            turns_ += static_cast<long long>(k);
+        }
+        snap_x_ = x_;
+        snap_turns_ = turns_;
+        snap_rot_ = rot_;
+        wn_ = wn_floor_;
+        ema_f_ = ema_s_ = 0;
+        j2_ = 0;
+        set_q();
+        for (const auto& z : h) {
+            predict();
+            if (!update(z[0], z[1])) push(pred_s_, pred_c_);
+            else push(z[0], z[1]);
+            learn();
+        }
+        hist_.swap(h);
+        replaying_ = false;
+        next_replay_rad_ = 2 * seen_rad_;
     }
 
     static double sq(double v) { return v * v; }
@@ -840,7 +911,8 @@ private:
     void accumulate(double zs, double zc, double th, double u, double w) {
         // the horizon grows with what was seen (the first cycles, learnt while the shape and so
         // the tracker's warp still changed, are forgotten sooner), up to memory_cycles
-        const double horizon = std::clamp(0.25 * seen_rad_, 2 * kTwoPi, memory_rad_);
+        // (after a replay every point was learnt against a nearly right shape: all of it is kept)
+        const double horizon = std::clamp((replays_ > 0 ? 1.0 : 0.25) * seen_rad_, 2 * kTwoPi, memory_rad_);
         scale_ *= std::exp(w / horizon);
         if (scale_ > 1e100) {
             for (auto& t : trig_)
@@ -880,7 +952,7 @@ private:
         ++accepted_;
         // told a profile, the first solve waits for the bootstrap's cycles (a fit of the full
         // order to half a cycle would throw the exact shape away)
-        if (accepted_ % refit_ == 0 && seen_rad_ >= (told_ ? bootstrap_rad_ : kPi)) solve();
+        if (accepted_ % refit_ == 0 && seen_rad_ >= ((told_ || replaying_) ? bootstrap_rad_ : kPi)) solve();
     }
 
     // Gram entry <f_a, f_b> for basis indices a, b of [1, cos, sin, cos 2, sin 2, ...] from trig sums t.
@@ -953,7 +1025,10 @@ private:
         Coeffs ns{}, nc{}, vs{}, vc{};
         for (int i = 0; i < n0; ++i) { ns[i] = ss(i); nc[i] = sc(i); }
         for (int i = 0; i < n1; ++i) { vs[i] = ss(n0 + i); vc[i] = sc(n0 + i); }
-        if (n1 == 0) { vs = c1s_; vc = c1c_; }
+        // before it is learnt the direction is a common gain of the whole shape, its DC included
+        // (a light source that drifts scales the pedestal too; the fundamental alone, as it
+        // started, left a drift of a few % in the first 0.1-0.2 s as an offset and 4e-3 rad)
+        if (n1 == 0) { vs = ns; vc = nc; }
         // the fit is the shape at u = ubar: h0 = fit - ubar h1
         for (int i = 0; i < n1; ++i) { ns[i] -= ubar * vs[i]; nc[i] -= ubar * vc[i]; }
         // phase convention: the sin channel's fundamental a1 cos + b1 sin = R sin(theta + phi1)
@@ -1023,7 +1098,9 @@ private:
         // average a periodic warp, so learning pauses for one window
         double dsq = 0;
         for (int i = 0; i < kMaxBasis; ++i) dsq += sq(ns[i] - c0s_[i]) + sq(nc[i] - c0c_[i]);
-        if (dsq > sq(kWarpChange) * n0sq) clean_after_ = k_ + last_window_ + 2;
+        // (not before the first replay: it learns all of them again against a nearly right shape,
+        // and pausing at every early solve held the full order back to ~7 cycles)
+        if (dsq > sq(kWarpChange) * n0sq && (replays_ > 0 || !hist_ok_)) clean_after_ = k_ + last_window_ + 2;
         // (or, if the shape keeps changing, after 8 cycles at full order: the change may be the
         // variation itself)
         if (full_ && dsq < sq(kSettled) * n0sq) ++settled_solves_;
@@ -1035,6 +1112,7 @@ private:
         order_ = order;
         if (full_ && shape_at_ < 0) shape_at_ = n_in_;
         if (vary_ && vary_at_ < 0) vary_at_ = n_in_;
+        if (full_ && !replaying_ && hist_ok_ && replays_ < kReplays && seen_rad_ >= next_replay_rad_) replay_due_ = true;
         noise_inv();
         update_prior();
         ++refits_;
@@ -1071,6 +1149,13 @@ private:
     double bin_corr_ = 0;          // the largest acceleration correction in the bin, rad
     long long bin_n_ = 0;
     std::size_t acq_n_ = 200;
+    // the samples since acquisition, replayed to refine the shape (replay())
+    std::vector<std::array<double, 2>> hist_;
+    std::array<double, 5> snap_x_{};
+    double snap_P_[5][5] = {}, snap_rot_ = 0, next_replay_rad_ = 0;
+    long long snap_turns_ = 0;
+    bool hist_ok_ = false, replay_due_ = false, replaying_ = false;
+    int replays_ = 0;
     Calibration cal_;
     Acquisition acq_;
     LockMonitor lock_;
