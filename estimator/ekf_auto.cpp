@@ -1104,7 +1104,7 @@ private:
         // (or, if the shape keeps changing, after 8 cycles at full order: the change may be the
         // variation itself)
         if (full_ && dsq < sq(kSettled) * n0sq) ++settled_solves_;
-        if (full_ && (settled_solves_ >= 8 || seen_rad_ >= bootstrap_rad_ + 8 * kTwoPi)) vary_ = true;
+        if (full_ && (settled_solves_ >= 8 || replays_ > 0 || seen_rad_ >= bootstrap_rad_ + 8 * kTwoPi)) vary_ = true;
         c0s_ = ns;
         c0c_ = nc;
         c1s_ = vs;
