@@ -42,7 +42,10 @@
 //   order:    the highest harmonic of h0 or u h1 above 4 standard errors (max_order at most), at least 1.
 //   stages:   acquisition (atan2 line fit, output invalid) -> bootstrap (order 1, until the
 //             identifier has seen bootstrap_cycles electrical cycles; output valid from its
-//             first solve) -> full order -> h1 learnt once the shape has settled.
+//             first solve) -> full order -> h1 learnt once the shape has settled or replayed.
+//   replay:   at 2, 4, 8 and 16 cycles seen at full order, the tracker and the identifier run
+//             again over the samples since acquisition (at most 2^16) with the shape learnt so
+//             far: the shape is revised, the outputs already given are not (replay()).
 //   guard:    the LockMonitor of common.hpp; on loss of lock the shape is discarded and the
 //             tracker re-acquires (safe mode), output invalid meanwhile.
 #include "common.hpp"
@@ -1101,8 +1104,8 @@ private:
         // (not before the first replay: it learns all of them again against a nearly right shape,
         // and pausing at every early solve held the full order back to ~7 cycles)
         if (dsq > sq(kWarpChange) * n0sq && (replays_ > 0 || !hist_ok_)) clean_after_ = k_ + last_window_ + 2;
-        // (or, if the shape keeps changing, after 8 cycles at full order: the change may be the
-        // variation itself)
+        // (or from the first replay on, which learns against a nearly right shape; or, if the
+        // shape keeps changing, after 8 cycles at full order: the change may be the variation itself)
         if (full_ && dsq < sq(kSettled) * n0sq) ++settled_solves_;
         if (full_ && (settled_solves_ >= 8 || replays_ > 0 || seen_rad_ >= bootstrap_rad_ + 8 * kTwoPi)) vary_ = true;
         c0s_ = ns;
