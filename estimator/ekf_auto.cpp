@@ -498,6 +498,7 @@ private:
             else push(z[0], z[1]);
             learn();
         }
+        if (seen_rad_ >= bootstrap_rad_) solve();  // the replay's one solve
         hist_.swap(h);
         replaying_ = false;
         next_replay_rad_ = 2 * seen_rad_;
@@ -955,7 +956,10 @@ private:
         ++accepted_;
         // told a profile, the first solve waits for the bootstrap's cycles (a fit of the full
         // order to half a cycle would throw the exact shape away)
-        if (accepted_ % refit_ == 0 && seen_rad_ >= ((told_ || replaying_) ? bootstrap_rad_ : kPi)) solve();
+        // (a replay solves once, at its end: every point of it learnt against the same shape;
+        // solving as it went, the shape took in a drift's first few % as it was replayed and
+        // light drift stayed at 20-30x the bound from 0.1 s, 8x so)
+        if (!replaying_ && accepted_ % refit_ == 0 && seen_rad_ >= (told_ ? bootstrap_rad_ : kPi)) solve();
     }
 
     // Gram entry <f_a, f_b> for basis indices a, b of [1, cos, sin, cos 2, sin 2, ...] from trig sums t.
