@@ -18,7 +18,10 @@
 //   tracker:  EKF on [theta, omega, alpha, u, v]: CA kinematics (white jerk, q = wn^6 r T with r
 //             from the learnt shape and the measured noise; constant speed, acceleration,
 //             reversals and standstill without a CV/CA choice), u a random walk (q_variation_per_s)
-//             with a slow pull to 0; a two-channel update with R the residual covariance it measures.
+//             with a slow pull to 0. The bandwidth wn adapts to the motion (adapt()): from the
+//             mean square jerk the tracker's own acceleration shows, the wn that minimises noise
+//             (2 wn r T) plus lag ((j/wn^3)^2), never below natural_freq_hz (issue 28);
+//             a two-channel update with R the residual covariance it measures.
 //   learning phase: the tracker follows any shape error that varies slower than fn, so a warped
 //             shape and a warped phase could agree. The identifier therefore learns against
 //             the tracker's phase averaged over the samples whose phase spans one cycle,
@@ -39,7 +42,10 @@
 //   order:    the highest harmonic of h0 or u h1 above 4 standard errors (max_order at most), at least 1.
 //   stages:   acquisition (atan2 line fit, output invalid) -> bootstrap (order 1, until the
 //             identifier has seen bootstrap_cycles electrical cycles; output valid from its
-//             first solve) -> full order -> h1 learnt once the shape has settled.
+//             first solve) -> full order -> h1 learnt once the shape has settled or replayed.
+//   replay:   at 2, 4, 8 and 16 cycles seen at full order, the tracker and the identifier run
+//             again over the samples since acquisition (at most 2^16) with the shape learnt so
+//             far: the shape is revised, the outputs already given are not (replay()).
 //   guard:    the LockMonitor of common.hpp; on loss of lock the shape is discarded and the
 //             tracker re-acquires (safe mode), output invalid meanwhile.
 #include "common.hpp"
@@ -81,6 +87,12 @@ constexpr double kCorrRef = 0.03;             // rad: a point's acceleration cor
 constexpr double kSettled = 1e-3;             // shape changes below this (relative) for 8 solves: settled
 constexpr double kMaxPhaseVar = 0.1;          // rad^2: a shape and noise giving a worse per-sample phase is no signal
 constexpr double kWarpChange = 1e-2;          // a shape change above this (relative) pauses learning
+constexpr std::size_t kHistMax = 1 << 16;     // samples kept for a replay (1 MB); a longer first learning is not replayed
+constexpr double kReplayFirstCycles = 2.0;    // the first replay, after this many cycles seen at full order ...
+constexpr int kReplays = 4;                   // ... then at twice as many, this many in all
+constexpr double kJerkMemoryS = 0.02;         // s: the mean square jerk's memory (the bandwidth follows it)
+constexpr double kJerkNoise = 0.2;            // the jerk estimate's noise variance, in units of P22 wn^2
+constexpr double kMaxWnT = 0.1;               // the adaptive bandwidth's ceiling, wn T
 
 using Coeffs = std::array<double, kMaxBasis>;
 using Cx = std::complex<double>;
@@ -91,6 +103,8 @@ public:
         return {
             {"natural_freq_hz", "Hz", ParamType::Number, 100.0, 1e-3, 1e7, {},
              "tracking natural frequency fn of the CA tracker; q = wn^6*r*T with r from the learnt shape and measured noise"},
+            {"adaptive_bandwidth", "", ParamType::Boolean, true, -kInf, kInf, {},
+             "raise the tracker's bandwidth above natural_freq_hz where the motion's jerk needs it (chosen from the data); false: fixed at natural_freq_hz"},
             {"max_order", "", ParamType::Integer, 8, 6, kMaxOrder, {},
              "highest harmonic of the shape table the identifier fits; the tracker uses those that stand above the noise"},
             {"memory_cycles", "cycles", ParamType::Number, 16.0, 1.0, 1e6, {},
@@ -124,6 +138,14 @@ public:
         // the default 100 Hz needs fs >= 1.26 kHz; below, a default (not a given value) becomes fs/(8 pi)
         if (!cfg.params.contains("natural_freq_hz") && kTwoPi * fn_ / fs_ > 0.25) fn_ = fs_ / (4 * kTwoPi);
         wn_ = kTwoPi * fn_;
+        wn_floor_ = wn_;
+        adaptive_ = p.boolean("adaptive_bandwidth");
+        n_in_ = 0;
+        stats_n_ = 0;
+        stats_wn_ = 0;
+        wn_peak_ = wn_;
+        shape_at_ = -1;
+        vary_at_ = -1;
         if (wn_ * T_ > 0.5) throw ConfigError("params.natural_freq_hz", "too high for the sample rate (wn*T must be < 0.5)");
         max_order_ = static_cast<int>(p.integer("max_order"));
         ppc_ = static_cast<int>(p.integer("points_per_cycle"));
@@ -166,6 +188,7 @@ public:
         const std::size_t n = in.size();
         for (std::size_t i = 0; i < n; ++i) {
             const double zs = in.sin_v[i], zc = in.cos_v[i];
+            ++n_in_;
             if (!(std::isfinite(zs) && std::isfinite(zc))) {
                 ++nonfinite_;
                 if (acq_.done()) predict();
@@ -173,6 +196,7 @@ public:
                 out.omega_rad_s[i] = x_[1];
                 out.valid[i] = 0;
                 seg0_ = k_;  // the delay line restarts after a gap
+                hist_ok_ = false;
                 continue;
             }
             lock_.reference(zs, zc);
@@ -196,6 +220,7 @@ public:
                 // after a gap, left a capture with a glitch every cycle never learnt). A run of
                 // them is a signal that changed (its amplitude jumped): acquire it afresh.
                 ++outliers_;
+                hist_ok_ = false;  // the history is replayed only when every sample in it was used
                 out.theta_rad[i] = theta_out();
                 out.omega_rad_s[i] = x_[1];
                 out.valid[i] = 0;
@@ -226,8 +251,13 @@ public:
                 continue;
             }
             if (learn_) {
+                if (hist_ok_) {
+                    if (hist_.size() < kHistMax) hist_.push_back({zs, zc});
+                    else hist_ok_ = false;
+                }
                 push(zs, zc);
                 learn();
+                if (replay_due_) replay();
             }
         }
     }
@@ -260,6 +290,20 @@ public:
         j["shape_cos"] = coeffs(c0c_, order_);
         j["variation"] = {{"u", x_[3]}, {"v", x_[4]}, {"learnt", vary_}, {"sin", coeffs(c1s_, var_order())}, {"cos", coeffs(c1c_, var_order())}};
         j["noise_cov_v2"] = {R_[0], R_[1], R_[2]};
+        // what it chose: the bandwidth now, its floor, the highest it went to and its mean
+        // since acquisition; the kinematic model; when the shape (full order) and its variation
+        // were learnt (s from the first sample, since the last acquisition; null: not yet)
+        auto at_s = [&](long long n) { return n < 0 ? nlohmann::json(nullptr) : nlohmann::json(static_cast<double>(n) * T_); };
+        j["bandwidth"] = {{"adaptive", adaptive_},
+                          {"natural_freq_hz", wn_ / kTwoPi},
+                          {"floor_hz", wn_floor_ / kTwoPi},
+                          {"peak_hz", wn_peak_ / kTwoPi},
+                          {"mean_hz", stats_n_ > 0 ? stats_wn_ / static_cast<double>(stats_n_) / kTwoPi : wn_ / kTwoPi},
+                          {"jerk_rms_rad_s3", std::sqrt(std::max(j2_, 0.0))}};
+        j["kinematics"] = "ca";
+        j["shape_learnt_s"] = at_s(shape_at_);
+        j["replays"] = replays_;
+        j["variation_learnt_s"] = at_s(vary_at_);
         j["r_model_rad2"] = r_bar_;
         return j;
     }
@@ -343,6 +387,8 @@ private:
         bin_n_ = 0;
         rot_ = 0;
         ugain_ = 1;
+        shape_at_ = -1;
+        vary_at_ = -1;
     }
 
     void clear_sums() {
@@ -382,6 +428,11 @@ private:
         const double fr = wrap_pi(th);
         turns_ = std::llround((th - fr) / kTwoPi);
         x_ = {fr, acq_.omega_rad_s(), 0.0, 0.0, 0.0};
+        wn_ = wn_floor_;
+        ema_f_ = ema_s_ = 0;
+        j2_ = 0;
+        since_q_ = 0;
+        set_q();
         std::memset(P_, 0, sizeof P_);
         P_[0][0] = 0.05 * 0.05;
         P_[1][1] = sq(kTwoPi * 5);
@@ -390,6 +441,67 @@ private:
         P_[4][4] = 0;
         lock_.rearm();
         reacquiring_ = false;
+        // the tracker as it starts: a replay of the samples since starts from it
+        snap_x_ = x_;
+        std::memcpy(snap_P_, P_, sizeof P_);
+        snap_turns_ = turns_;
+        snap_rot_ = rot_;
+        hist_.clear();
+        hist_ok_ = !told_;
+        replay_due_ = false;
+        replays_ = 0;
+        next_replay_rad_ = kReplayFirstCycles * kTwoPi;
+    }
+
+    // Re-use the samples seen since acquisition: the tracker and the identifier run over them
+    // again from the start, with the shape learnt so far (causal: the outputs already given
+    // stay as they were; the shape and the tracker's state now are revised). The first pass
+    // learnt each point against a tracker whose shape (and so whose warp) was still changing, and
+    // forgot those points quickly (a memory of a quarter of what it had seen); the replay
+    // learns every point against a nearly right shape, with a memory of all of it. Done when
+    // the identifier has seen 4, 8 and 16 electrical cycles at full order (issue 28: the shape
+    // within ~10 cycles, not ~50).
+    void replay() {
+        replay_due_ = false;
+        if (!hist_ok_ || replaying_) return;
+        replaying_ = true;
+        ++replays_;
+        std::vector<std::array<double, 2>> h;
+        h.swap(hist_);
+        clear_sums();
+        seen_rad_ = 0;
+        accepted_ = 0;
+        have_last_ = false;
+        bin_.fill(0.0);
+        bin_n_ = 0;
+        seg0_ = k_;
+        clean_after_ = 0;
+        x_ = snap_x_;
+        x_[0] += rot_ - snap_rot_;  // the snapshot's phase in today's convention
+        std::memcpy(P_, snap_P_, sizeof P_);
+        turns_ = snap_turns_;
+        if (x_[0] > kPi || x_[0] < -kPi) {
+            const double k = std::round(x_[0] / kTwoPi);
+            x_[0] -= kTwoPi * k;
+            turns_ += static_cast<long long>(k);
+        }
+        snap_x_ = x_;
+        snap_turns_ = turns_;
+        snap_rot_ = rot_;
+        wn_ = wn_floor_;
+        ema_f_ = ema_s_ = 0;
+        j2_ = 0;
+        set_q();
+        for (const auto& z : h) {
+            predict();
+            if (!update(z[0], z[1])) push(pred_s_, pred_c_);
+            else push(z[0], z[1]);
+            learn();
+        }
+        if (seen_rad_ >= bootstrap_rad_) solve();  // the replay's one solve
+        hist_.swap(h);
+        replaying_ = false;
+        next_replay_rad_ = 2 * seen_rad_;
     }
 
     static double sq(double v) { return v * v; }
@@ -411,6 +523,39 @@ private:
         }
         const double jbar = sum / kGrid;
         r_bar_ = jbar > 0 ? 1.0 / jbar : 1.0;
+        set_q();
+    }
+
+    // The bandwidth the motion needs. A CA tracker with q = wn^6 r T has a phase variance of
+    // about 2 wn r T from the noise and lags a jerk j by j/wn^3: the sum is least at
+    // wn^7 = 3 j^2 / (r T). j^2 is the mean square of the jerk, measured from the tracker's own
+    // acceleration (the slope between two of its running means, less their noise); the bandwidth
+    // never falls below natural_freq_hz (the floor: no jerk measured) nor rises above fs/(10 pi).
+    void adapt() {
+        const double tf = 3.0 / wn_, ts = 3 * tf;           // the two running means of alpha, s
+        ema_f_ += T_ / tf * (x_[2] - ema_f_);
+        ema_s_ += T_ / ts * (x_[2] - ema_s_);
+        const double j = (ema_f_ - ema_s_) / (ts - tf);     // rad/s^3: a ramp of alpha lags them by j tf and j ts
+        j2_ += T_ / kJerkMemoryS * (j * j - j2_);
+        if (++since_q_ < 16) return;
+        since_q_ = 0;
+        // the noise in j: alpha's error (P22, correlated over 1/wn) through the two means
+        const double noise = kJerkNoise * P_[2][2] * wn_ * wn_;
+        const double sig = std::max(j2_ - noise, 0.0);
+        double w = wn_floor_;
+        if (sig > 0 && r_bar_ > 0) w = std::max(w, std::pow(3 * sig / (r_bar_ * T_), 1.0 / 7));
+        w = std::min(w, kMaxWnT / T_);
+        // a change in wn of less than 2 % is not worth a new Q
+        if (std::fabs(w - wn_) > 0.02 * wn_) {
+            wn_ = w;
+            set_q();
+        }
+        wn_peak_ = std::max(wn_peak_, wn_);
+        stats_wn_ += wn_;
+        ++stats_n_;
+    }
+
+    void set_q() {
         const double q = std::pow(wn_, 6) * r_bar_ * T_;
         const double T = T_;
         Q_[0][0] = q * std::pow(T, 5) / 20; Q_[0][1] = Q_[1][0] = q * std::pow(T, 4) / 8;
@@ -587,6 +732,7 @@ private:
         // a variation larger than the shape itself is not a variation: hold it
         if (std::fabs(x_[3]) > 0.5) x_[3] = std::copysign(0.5, x_[3]);
         if (std::fabs(x_[4]) > 0.5) x_[4] = std::copysign(0.5, x_[4]);
+        if (adaptive_) adapt();
         return true;
     }
 
@@ -769,7 +915,8 @@ private:
     void accumulate(double zs, double zc, double th, double u, double w) {
         // the horizon grows with what was seen (the first cycles, learnt while the shape and so
         // the tracker's warp still changed, are forgotten sooner), up to memory_cycles
-        const double horizon = std::clamp(0.25 * seen_rad_, 2 * kTwoPi, memory_rad_);
+        // (after a replay every point was learnt against a nearly right shape: all of it is kept)
+        const double horizon = std::clamp((replays_ > 0 ? 1.0 : 0.25) * seen_rad_, 2 * kTwoPi, memory_rad_);
         scale_ *= std::exp(w / horizon);
         if (scale_ > 1e100) {
             for (auto& t : trig_)
@@ -809,7 +956,10 @@ private:
         ++accepted_;
         // told a profile, the first solve waits for the bootstrap's cycles (a fit of the full
         // order to half a cycle would throw the exact shape away)
-        if (accepted_ % refit_ == 0 && seen_rad_ >= (told_ ? bootstrap_rad_ : kPi)) solve();
+        // (a replay solves once, at its end: every point of it learnt against the same shape;
+        // solving as it went, the shape took in a drift's first few % as it was replayed and
+        // light drift stayed at 20-30x the bound from 0.1 s, 8x so)
+        if (!replaying_ && accepted_ % refit_ == 0 && seen_rad_ >= (told_ ? bootstrap_rad_ : kPi)) solve();
     }
 
     // Gram entry <f_a, f_b> for basis indices a, b of [1, cos, sin, cos 2, sin 2, ...] from trig sums t.
@@ -882,7 +1032,10 @@ private:
         Coeffs ns{}, nc{}, vs{}, vc{};
         for (int i = 0; i < n0; ++i) { ns[i] = ss(i); nc[i] = sc(i); }
         for (int i = 0; i < n1; ++i) { vs[i] = ss(n0 + i); vc[i] = sc(n0 + i); }
-        if (n1 == 0) { vs = c1s_; vc = c1c_; }
+        // before it is learnt the direction is a common gain of the whole shape, its DC included
+        // (a light source that drifts scales the pedestal too; the fundamental alone, as it
+        // started, left a drift of a few % in the first 0.1-0.2 s as an offset and 4e-3 rad)
+        if (n1 == 0) { vs = ns; vc = nc; }
         // the fit is the shape at u = ubar: h0 = fit - ubar h1
         for (int i = 0; i < n1; ++i) { ns[i] -= ubar * vs[i]; nc[i] -= ubar * vc[i]; }
         // phase convention: the sin channel's fundamental a1 cos + b1 sin = R sin(theta + phi1)
@@ -952,16 +1105,21 @@ private:
         // average a periodic warp, so learning pauses for one window
         double dsq = 0;
         for (int i = 0; i < kMaxBasis; ++i) dsq += sq(ns[i] - c0s_[i]) + sq(nc[i] - c0c_[i]);
-        if (dsq > sq(kWarpChange) * n0sq) clean_after_ = k_ + last_window_ + 2;
-        // (or, if the shape keeps changing, after 8 cycles at full order: the change may be the
-        // variation itself)
+        // (not before the first replay: it learns all of them again against a nearly right shape,
+        // and pausing at every early solve held the full order back to ~7 cycles)
+        if (dsq > sq(kWarpChange) * n0sq && (replays_ > 0 || !hist_ok_)) clean_after_ = k_ + last_window_ + 2;
+        // (or from the first replay on, which learns against a nearly right shape; or, if the
+        // shape keeps changing, after 8 cycles at full order: the change may be the variation itself)
         if (full_ && dsq < sq(kSettled) * n0sq) ++settled_solves_;
-        if (full_ && (settled_solves_ >= 8 || seen_rad_ >= bootstrap_rad_ + 8 * kTwoPi)) vary_ = true;
+        if (full_ && (settled_solves_ >= 8 || replays_ > 0 || seen_rad_ >= bootstrap_rad_ + 8 * kTwoPi)) vary_ = true;
         c0s_ = ns;
         c0c_ = nc;
         c1s_ = vs;
         c1c_ = vc;
         order_ = order;
+        if (full_ && shape_at_ < 0) shape_at_ = n_in_;
+        if (vary_ && vary_at_ < 0) vary_at_ = n_in_;
+        if (full_ && !replaying_ && hist_ok_ && replays_ < kReplays && seen_rad_ >= next_replay_rad_) replay_due_ = true;
         noise_inv();
         update_prior();
         ++refits_;
@@ -978,6 +1136,11 @@ private:
     }
 
     double fs_ = 1, T_ = 1, fn_ = 100, wn_ = 0;
+    // the adaptive bandwidth: wn_ is the tracker's now, wn_floor_ natural_freq_hz's
+    bool adaptive_ = true;
+    double wn_floor_ = 0, ema_f_ = 0, ema_s_ = 0, j2_ = 0, wn_peak_ = 0, stats_wn_ = 0;
+    int since_q_ = 0;
+    long long stats_n_ = 0, n_in_ = 0, shape_at_ = -1, vary_at_ = -1;
     int max_order_ = 8, ppc_ = 256, order_ = 1, told_order_ = 1;
     double gate_ = 0.1, memory_rad_ = 100, bootstrap_rad_ = 12, noise_a_ = 1e-3, r_bar_ = 0, q_u_ = 0.001, q_v_ = 1e-6;
     int since_noise_ = 0;
@@ -993,6 +1156,13 @@ private:
     double bin_corr_ = 0;          // the largest acceleration correction in the bin, rad
     long long bin_n_ = 0;
     std::size_t acq_n_ = 200;
+    // the samples since acquisition, replayed to refine the shape (replay())
+    std::vector<std::array<double, 2>> hist_;
+    std::array<double, 5> snap_x_{};
+    double snap_P_[5][5] = {}, snap_rot_ = 0, next_replay_rad_ = 0;
+    long long snap_turns_ = 0;
+    bool hist_ok_ = false, replay_due_ = false, replaying_ = false;
+    int replays_ = 0;
     Calibration cal_;
     Acquisition acq_;
     LockMonitor lock_;
