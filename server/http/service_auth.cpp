@@ -130,7 +130,7 @@ json Service::sandbox_scenario(json j) const {
             // A correction file (docs/calibration.md) is a file on this host: a fixture, like the
             // encoder (an absolute path read any file, and its parse error quoted it).
             if (e.contains("params") && e["params"].is_object() && e["params"].contains("correction"))
-                check_ref(e["params"]["correction"], base, root, f + ".params.correction");
+                check_ref(e["params"]["correction"], base, root, f + ".params.correction", false);
             const std::string name = e.contains("name") && e["name"].is_string() ? e["name"].get<std::string>() : "";
             if (est::traits_of(name).child_process && !cfg_.allow_external)
                 throw ConfigError(f + ".name", "the " + name + " estimator runs a command on this host; start the service with --allow-external to permit it");

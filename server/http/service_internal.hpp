@@ -154,10 +154,14 @@ inline std::string read_file(const fs::path& p) {
 
 // A file reference in a client's scenario must resolve inside root (no absolute paths, no
 // escaping with ..).
-inline void check_ref(const json& j, const fs::path& base, const fs::path& root, const std::string& field) {
+// inline_ok: the key also takes the object itself (an encoder profile, a motion); a correction
+// file is only ever a file.
+inline void check_ref(const json& j, const fs::path& base, const fs::path& root, const std::string& field, bool inline_ok = true) {
     if (!j.is_string()) return;
     const fs::path p(j.get<std::string>());
-    if (p.is_absolute()) throw ConfigError(field, "absolute file paths are not accepted over HTTP; name a fixture or give the object inline");
+    if (p.is_absolute())
+        throw ConfigError(field, inline_ok ? "absolute file paths are not accepted over HTTP; name a fixture or give the object inline"
+                                           : "absolute file paths are not accepted over HTTP; name a file inside the fixtures folder (relative to the scenario)");
     const fs::path full = (base / p).lexically_normal();
     const auto rel = full.lexically_relative(root);
     if (rel.empty() || *rel.begin() == "..") throw ConfigError(field, "file references must stay inside the fixtures folder");
