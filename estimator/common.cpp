@@ -6,6 +6,39 @@
 
 namespace fringe::est {
 
+void Unwrapper::block(double* __restrict a, std::size_t n) {
+    if (n == 0) return;
+    // Tiles of 128: at hundreds of samples per turn most hold no step at all, and then the
+    // serial sum is skipped and one constant added.
+    constexpr std::size_t kTile = 128;
+    std::int64_t k[kTile];
+    double prev = started_ ? prev_ : a[0];  // the first sample of a run takes no step
+    std::int64_t turns = turns_;
+    for (std::size_t off = 0; off < n; off += kTile) {
+        const std::size_t m = std::min(kTile, n - off);
+        double* __restrict x = a + off;
+        const double d0 = x[0] - prev;
+        k[0] = (d0 < -kPi) - (d0 > kPi);
+        std::int64_t any = k[0];
+        for (std::size_t i = 1; i < m; ++i) {
+            const double d = x[i] - x[i - 1];
+            k[i] = static_cast<std::int64_t>(d < -kPi) - static_cast<std::int64_t>(d > kPi);
+            any |= k[i];
+        }
+        prev = x[m - 1];
+        if (any == 0) {
+            const double add = kTwoPi * static_cast<double>(turns);
+            for (std::size_t i = 0; i < m; ++i) x[i] += add;
+        } else {
+            for (std::size_t i = 0; i < m; ++i) k[i] = turns += k[i];
+            for (std::size_t i = 0; i < m; ++i) x[i] += kTwoPi * static_cast<double>(k[i]);
+        }
+    }
+    started_ = true;
+    prev_ = prev;
+    turns_ = turns;
+}
+
 void Calibration::prepare() {
     if (!(amplitude_sin_v > 0) || !(amplitude_cos_v > 0))
         throw ConfigError("params.amplitude_sin_v", "calibration amplitudes must be positive");
