@@ -20,19 +20,20 @@ constexpr double kOutlierNis = 1e4;
 // truncation error is below |u|^39/39 < 3e-17. Branch-free, so GCC vectorises it over a
 // block; within 2 ulp of std::atan2 (tested). atan2(0, 0) = 0.
 // The series in z = u^2 is evaluated with std::fma: its terms from z^3 on by Estrin's scheme
-// (a tree of depth 4 instead of a chain of 16), the first three and the final u*p + pi/4 by
-// Horner, so the rounding of the small low-order terms is as in a plain Horner chain (worst
-// case 1.9 ulp, as before). A Horner chain of 19 multiply-adds without fma kept eight
-// vectors' worth of dependent operations in flight and bounded the block loop by latency;
-// this runs about twice as fast. fma is correctly rounded (IEEE 754), so the result is the
-// same on every machine, with or without hardware FMA.
+// (a tree of depth 4 instead of a chain of 16) and added to the first three (Horner) by one
+// fma with z^3, so the rounding of the small low-order terms is as in a plain Horner chain
+// (worst case 1.9 ulp, as before). A Horner chain of 19 multiply-adds without fma kept the
+// block loop bound by latency; this runs about 2.5 times as fast. fma is correctly rounded
+// (IEEE 754), so the result is the same on every machine, with or without hardware FMA.
+// num / (den > 0 ? den : 1) rather than a select after the division: 0/1 is the same 0 at
+// atan2(0, 0), and the select does not propagate as a mask through every later step.
 inline double fast_atan2(double y, double x) {
     constexpr double kTanPi8 = 0.41421356237309504880;
     const double ax = std::fabs(x), ay = std::fabs(y);
     const double mx = ax > ay ? ax : ay, mn = ax > ay ? ay : ax;
     const bool big = mn > kTanPi8 * mx;
     const double num = big ? mn - mx : mn, den = big ? mn + mx : mx;
-    const double u = den > 0.0 ? num / den : 0.0;
+    const double u = num / (den > 0.0 ? den : 1.0);
     const double z = u * u, z2 = z * z, z4 = z2 * z2, z8 = z4 * z4;
     // q = sum_{k=3}^{18} (-1)^k z^(k-3) / (2k+1)
     const double e0 = std::fma(1.0 / 9, z, -1.0 / 7), e1 = std::fma(1.0 / 13, z, -1.0 / 11);
@@ -42,7 +43,8 @@ inline double fast_atan2(double y, double x) {
     const double f0 = std::fma(e1, z2, e0), f1 = std::fma(e3, z2, e2);
     const double f2 = std::fma(e5, z2, e4), f3 = std::fma(e7, z2, e6);
     const double q = std::fma(std::fma(f3, z4, f2), z8, std::fma(f1, z4, f0));
-    const double p = std::fma(std::fma(std::fma(q, z, 1.0 / 5), z, -1.0 / 3), z, 1.0);  // atan(u)/u
+    const double low = std::fma(std::fma(1.0 / 5, z, -1.0 / 3), z, 1.0);  // 1 - z/3 + z^2/5
+    const double p = std::fma(z * z2, q, low);                               // atan(u)/u
     double a = big ? std::fma(u, p, kPi / 4) : u * p;
     a = ay > ax ? kPi / 2 - a : a;
     a = x < 0.0 ? kPi - a : a;
