@@ -90,6 +90,11 @@ public:
     // (vectorised). Sample by sample the state round trip through memory cost more than the
     // atan2 before it.
     void block(double* a, std::size_t n);
+    // The turn counts operator() would add (2 pi times) to a[0], ..., a[n-1], n <= kTurnsTile,
+    // advancing the state as it would: true when one count holds for all of them (k[0], the
+    // common case at hundreds of samples per turn: no serial pass at all), else each in k[i].
+    static constexpr std::size_t kTurnsTile = 128;
+    bool turns(const double* a, std::int64_t* k, std::size_t n);
     // Re-anchor so that the next call continues from an unwrapped value theta.
     void set(double theta) {
         const double a = wrap_pi(theta);

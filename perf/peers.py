@@ -7,14 +7,15 @@ Times, on 65536-sample blocks (the block of build/perf/bench_estimators and of
 bench_signal_gen's BM_paper_diffraction/65536):
   - numpy's arctan2 alone, and arctan2 followed by unwrap, on the paper signal;
   - a numpy reference generator of the paper fixture (fixtures/scenarios/paper-duty1p6.json:
-    the diffraction model of docs/MODEL.md at kappa 1.1149, constant velocity, additive and
+    the diffraction model of docs/model.md at kappa 1.1149, constant velocity, additive and
     gain noise, 16-bit ADC), vectorised over the block, the same physics and parameters as
     the C++ generator's benchmark (its normals come from numpy's generator, not the
     ziggurat of signal_gen/noise.cpp, so the numbers differ, not the model);
-then runs fringe's benchmarks (Google Benchmark, medians of the repetitions) and prints one
-table of rates (per second of CPU time on both sides), ratios fringe / numpy and the targets. Exit status 0 whether or not a
-target is met (the machine's load moves every figure); non-zero when a program is missing
-or fails, or its output lacks a benchmark. --quick (the ctest) runs each side briefly.
+and fringe's benchmarks (Google Benchmark), in rounds that alternate the two sides (so a
+change in the machine's load falls on both), and prints, from the medians over the rounds,
+one table of rates (per second of CPU time on both sides), ratios fringe / numpy and the
+targets. Exit status 0 whether or not a target is met (the machine's load moves every
+figure); non-zero when a program is missing or fails, or its output lacks a benchmark. --quick (the ctest) runs each side briefly.
 """
 
 import argparse
@@ -144,8 +145,8 @@ def fringe_rates(build, reps, min_time):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("build", help="the build folder (holding perf/bench_estimators and perf/bench_signal_gen)")
-    ap.add_argument("--repetitions", type=int, default=3, help="medians of this many repetitions (default 3)")
-    ap.add_argument("--min-time", type=float, default=0.5, help="seconds per repetition (default 0.5)")
+    ap.add_argument("--repetitions", type=int, default=5, help="medians of this many alternating rounds (default 5)")
+    ap.add_argument("--min-time", type=float, default=0.5, help="seconds per benchmark per round (default 0.5)")
     ap.add_argument("--quick", action="store_true", help="one short repetition of each (a smoke test)")
     a = ap.parse_args()
     reps, min_time = (1, 0.05) if a.quick else (a.repetitions, a.min_time)
@@ -165,10 +166,22 @@ def main():
         model.generate(first[0], BLOCK)
         first[0] += BLOCK
 
-    np_atan2 = rate(lambda: np.arctan2(s, c), BLOCK, reps, min_time)
-    np_unwrap = rate(lambda: np.unwrap(np.arctan2(s, c)), BLOCK, reps, min_time)
-    np_gen = rate(gen, BLOCK, reps, min_time)
-    fr = fringe_rates(a.build, reps, min_time)
+    # Rounds that alternate the two sides, one repetition of each per round, so that a change
+    # in the machine's load (shared cores) falls on both; the medians over the rounds.
+    rounds = []
+    for _ in range(reps):
+        r = {"np_atan2": rate(lambda: np.arctan2(s, c), BLOCK, 1, min_time),
+             "np_unwrap": rate(lambda: np.unwrap(np.arctan2(s, c)), BLOCK, 1, min_time),
+             "np_gen": rate(gen, BLOCK, 1, min_time)}
+        r.update(fringe_rates(a.build, 1, min_time))
+        rounds.append(r)
+
+    def median(key):
+        v = sorted(r[key] for r in rounds if key in r)
+        return v[len(v) // 2] if v else None
+
+    np_atan2, np_unwrap, np_gen = median("np_atan2"), median("np_unwrap"), median("np_gen")
+    fr = {k: median(k) for k in rounds[0] if not k.startswith("np_")}
     load = os.getloadavg()[0]
 
     def f(name):
@@ -187,7 +200,7 @@ def main():
         ("ekf-selfcal", f("run/ekf_selfcal"), "", None, "5 M", f("run/ekf_selfcal") >= 5e6),
         ("ekf-auto", f("run/ekf_auto"), "", None, "10 M", f("run/ekf_auto") >= 10e6),
     ]
-    print(f"perf/peers.py: {BLOCK}-sample blocks, medians of {reps} x {min_time} s; numpy {np.__version__}; "
+    print(f"perf/peers.py: {BLOCK}-sample blocks, medians of {reps} alternating rounds of {min_time} s; numpy {np.__version__}; "
           f"load average {load:.2f}; {time.strftime('%Y-%m-%d %H:%M %Z')}")
     print("| what | fringe | peer | peer rate | fringe / peer | target | met |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
