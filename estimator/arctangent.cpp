@@ -13,40 +13,72 @@ namespace fringe::est {
 
 namespace {
 
-// Per block: normalise and atan2 (vectorised), then unwrap serially with an integer turn
-// count. omega is the first difference of theta times fs (a memoryless estimator has no
-// better rate estimate; it is noisy by nature).
+// Per tile of 1024 samples (its arrays stay in L1 from one pass to the next): normalise and
+// atan2 (vectorised), then unwrap with an integer turn count, 128 samples at a time
+// (Unwrapper::turns: only the running sum of the turn steps is serial, and only where the
+// phase wraps). omega is the first difference of theta times fs (a memoryless estimator has
+// no better rate estimate; it is noisy by nature); where the phase does not wrap, theta and
+// omega come from the wrapped phase in one pass (theta[i - 1] recomputed as the same sum, so
+// the same numbers).
 // With a correction (docs/calibration.md), its periodic part is subtracted from each wrapped
 // angle before unwrapping; without one the loop is the plain atan2's.
-void atan2_block(const Calibration& cal, InputSpan in, OutputSpan out, Unwrapper& uw,
-                 double& prev_theta, bool& have_prev, double fs, std::uint8_t valid,
-                 const Correction* corr = nullptr) {
-    const std::size_t n = in.size();
-    const double* __restrict s = in.sin_v.data();
-    const double* __restrict c = in.cos_v.data();
-    double* __restrict th = out.theta_rad.data();
-    // Constants in locals: the compiler cannot prove cal does not alias th.
-    const auto [os, oc, inv_as, inv_ac, sin_d, inv_cos_d] = cal.coeffs();
+constexpr std::size_t kAtan2Tile = 1024;
+
+void atan2_tile(const Calibration::Coeffs& cf, const double* __restrict s, const double* __restrict c,
+                double* __restrict th, double* __restrict om, std::uint8_t* __restrict v, std::size_t n,
+                Unwrapper& uw, double& prev_theta, bool& have_prev, double fs, std::uint8_t valid,
+                const Correction* corr) {
+    double w[kAtan2Tile];  // wrapped phase
+    std::int64_t k[Unwrapper::kTurnsTile];
+    // Constants in locals: the compiler cannot prove the calibration does not alias th.
+    const auto [os, oc, inv_as, inv_ac, sin_d, inv_cos_d] = cf;
     for (std::size_t i = 0; i < n; ++i) {
         const double sn = (s[i] - os) * inv_as;
         const double cn = ((c[i] - oc) * inv_ac + sn * sin_d) * inv_cos_d;
-        th[i] = fast_atan2(sn, cn);
+        w[i] = fast_atan2(sn, cn);
     }
     if (corr) {
         const double off = corr->offset_rad;
         if (!corr->table.empty())
-            for (std::size_t i = 0; i < n; ++i) th[i] -= off + corr->table_value(th[i]);
+            for (std::size_t i = 0; i < n; ++i) w[i] -= off + corr->table_value(w[i]);
         else
-            for (std::size_t i = 0; i < n; ++i) th[i] -= off + corr->harmonic_value(th[i]);
+            for (std::size_t i = 0; i < n; ++i) w[i] -= off + corr->harmonic_value(w[i]);
     }
-    for (std::size_t i = 0; i < n; ++i) {
-        const double t = uw(th[i]);
-        th[i] = t;
-        out.omega_rad_s[i] = have_prev ? (t - prev_theta) * fs : 0.0;
-        out.valid[i] = valid;
-        prev_theta = t;
-        have_prev = true;
+    for (std::size_t off = 0; off < n; off += Unwrapper::kTurnsTile) {
+        const std::size_t m = std::min(Unwrapper::kTurnsTile, n - off);
+        const double* __restrict x = w + off;
+        double* __restrict t = th + off;
+        double* __restrict o = om + off;
+        if (uw.turns(x, k, m)) {
+            const double add = kTwoPi * static_cast<double>(k[0]);
+            t[0] = x[0] + add;
+            for (std::size_t i = 1; i < m; ++i) {
+                const double ti = x[i] + add;
+                t[i] = ti;
+                o[i] = (ti - (x[i - 1] + add)) * fs;
+            }
+        } else {
+            for (std::size_t i = 0; i < m; ++i) t[i] = x[i] + kTwoPi * static_cast<double>(k[i]);
+            for (std::size_t i = 1; i < m; ++i) o[i] = (t[i] - t[i - 1]) * fs;
+        }
+        if (off > 0) o[0] = (t[0] - t[-1]) * fs;
     }
+    om[0] = have_prev ? (th[0] - prev_theta) * fs : 0.0;
+    for (std::size_t i = 0; i < n; ++i) v[i] = valid;
+    prev_theta = th[n - 1];
+    have_prev = true;
+}
+
+void atan2_block(const Calibration& cal, InputSpan in, OutputSpan out, Unwrapper& uw,
+                 double& prev_theta, bool& have_prev, double fs, std::uint8_t valid,
+                 const Correction* corr = nullptr) {
+    constexpr std::size_t kTile = kAtan2Tile;
+    const std::size_t n = in.size();
+    const Calibration::Coeffs cf = cal.coeffs();
+    for (std::size_t off = 0; off < n; off += kTile)
+        atan2_tile(cf, in.sin_v.data() + off, in.cos_v.data() + off, out.theta_rad.data() + off,
+                   out.omega_rad_s.data() + off, out.valid.data() + off, std::min(kTile, n - off), uw,
+                   prev_theta, have_prev, fs, valid, corr);
 }
 
 class Atan2 final : public Estimator {

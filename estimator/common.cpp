@@ -6,6 +6,40 @@
 
 namespace fringe::est {
 
+bool Unwrapper::turns(const double* __restrict a, std::int64_t* __restrict k, std::size_t n) {
+    if (n == 0) { k[0] = turns_; return true; }
+    const double d0 = a[0] - (started_ ? prev_ : a[0]);  // the first sample of a run takes no step
+    k[0] = (d0 < -kPi) - (d0 > kPi);
+    std::int64_t any = k[0];
+    for (std::size_t i = 1; i < n; ++i) {
+        const double d = a[i] - a[i - 1];
+        k[i] = static_cast<std::int64_t>(d < -kPi) - static_cast<std::int64_t>(d > kPi);
+        any |= k[i];
+    }
+    started_ = true;
+    prev_ = a[n - 1];
+    if (any == 0) {
+        k[0] = turns_;
+        return true;
+    }
+    for (std::size_t i = 0; i < n; ++i) k[i] = turns_ += k[i];
+    return false;
+}
+
+void Unwrapper::block(double* a, std::size_t n) {
+    std::int64_t k[kTurnsTile];
+    for (std::size_t off = 0; off < n; off += kTurnsTile) {
+        const std::size_t m = std::min(kTurnsTile, n - off);
+        double* __restrict x = a + off;
+        if (turns(x, k, m)) {
+            const double add = kTwoPi * static_cast<double>(k[0]);
+            for (std::size_t i = 0; i < m; ++i) x[i] += add;
+        } else {
+            for (std::size_t i = 0; i < m; ++i) x[i] += kTwoPi * static_cast<double>(k[i]);
+        }
+    }
+}
+
 void Calibration::prepare() {
     if (!(amplitude_sin_v > 0) || !(amplitude_cos_v > 0))
         throw ConfigError("params.amplitude_sin_v", "calibration amplitudes must be positive");

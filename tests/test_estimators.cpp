@@ -54,6 +54,35 @@ TEST_CASE("Unwrapper is exact over many turns", "[estimator]") {
     CHECK(std::fabs(last - 1999999 * step) < 1e-9);
 }
 
+TEST_CASE("Unwrapper::block gives operator()'s numbers to the bit, in blocks of any size", "[estimator]") {
+    std::mt19937_64 rng(3);
+    // steps of up to 3 rad (a turn every few samples, both ways) and of 0.01 rad (rare turns,
+    // most tiles without one); blocks of 1 .. 700 samples across the tiles' edges
+    for (const double max_step : {3.0, 0.01}) {
+        INFO(max_step);
+        std::uniform_real_distribution<double> step(-max_step, max_step);
+        std::uniform_int_distribution<std::size_t> size(1, 700);
+        std::vector<double> a(20000);
+        double phase = 100.0;
+        for (auto& v : a) v = wrap_pi(phase += step(rng));
+        for (const bool anchored : {false, true}) {
+            est::Unwrapper one, blocks;
+            if (anchored) { one.set(-7.5); blocks.set(-7.5); }
+            std::vector<double> want(a.size()), got = a;
+            for (std::size_t i = 0; i < a.size(); ++i) want[i] = one(a[i]);
+            for (std::size_t i = 0; i < a.size();) {
+                const std::size_t m = std::min(size(rng), a.size() - i);
+                blocks.block(got.data() + i, m);
+                i += m;
+            }
+            std::size_t differ = 0;
+            for (std::size_t i = 0; i < a.size(); ++i) differ += want[i] != got[i];
+            CHECK(differ == 0);
+            CHECK(one(0.25) == blocks(0.25));  // the state after the blocks is operator()'s too
+        }
+    }
+}
+
 TEST_CASE("registry lists every required estimator with self-described parameters", "[estimator][registry]") {
     for (const char* name : {"atan2", "atan2-ellipse", "pll2", "ekf-ideal", "ekf-diffraction", "ekf-sin-only",
                              "ekf-parallel", "ekf-rectified", "closed-loop", "external", "ekf-selfcal", "ekf-auto"}) {
