@@ -141,6 +141,7 @@ public:
         if (!(cfg.sample_rate_hz > 0)) throw ConfigError("sample_rate_hz", "must be positive");
         fs_ = cfg.sample_rate_hz;
         T_ = 1.0 / fs_;
+        jerk_a_ = T_ / kJerkMemoryS;
         fn_ = p.number("natural_freq_hz");
         // the default 100 Hz needs fs >= 1.26 kHz; below, a default (not a given value) becomes fs/(8 pi)
         if (!cfg.params.contains("natural_freq_hz") && kTwoPi * fn_ / fs_ > 0.25) fn_ = fs_ / (4 * kTwoPi);
@@ -545,7 +546,7 @@ private:
         ema_f_ += ema_af_ * (x_[2] - ema_f_);
         ema_s_ += ema_as_ * (x_[2] - ema_s_);
         const double j = (ema_f_ - ema_s_) * ema_inv_;      // rad/s^3: a ramp of alpha lags them by j tf and j ts
-        j2_ += T_ / kJerkMemoryS * (j * j - j2_);
+        j2_ += jerk_a_ * (j * j - j2_);
         if (++since_q_ < 16) return;
         since_q_ = 0;
         // the noise in j: alpha's error (P22, correlated over 1/wn) through the two means
@@ -702,9 +703,10 @@ private:
             const double T00 = HPH00 + R_[0], T01 = HPH01 + R_[1], T11 = HPH11 + R_[2];
             const double dt = T00 * T11 - T01 * T01;
             if (dt > 0) {
-                const double nis = (T11 * rs * rs - 2 * T01 * rs * rc + T00 * rc * rc) / dt;
-                if (nis > kOutlierNis) return false;
-                if (nis > kHuberNis) w = kHuberNis / nis;
+                // nis = num / dt; compared as num against dt (no division per sample)
+                const double num = T11 * rs * rs - 2 * T01 * rs * rc + T00 * rc * rc;
+                if (num > kOutlierNis * dt) return false;
+                if (num > kHuberNis * dt) w = kHuberNis * dt / num;
             }
         }
         // the noise covariance R: the a priori residuals' covariance less the state's part H P H'
@@ -719,8 +721,10 @@ private:
         const double floor = std::max(1e-12 * (c0s_[1] * c0s_[1] + c0s_[2] * c0s_[2] + c0c_[1] * c0c_[1] + c0c_[2] * c0c_[2]), 1e-24);
         R_[0] = std::max({R_[0], 0.25 * Rraw_[0], floor});
         R_[2] = std::max({R_[2], 0.25 * Rraw_[2], floor});
-        const double rmax = 0.999 * std::sqrt(R_[0] * R_[2]);
-        R_[1] = std::clamp(R_[1], -rmax, rmax);
+        if (R_[1] * R_[1] > 0.998001 * (R_[0] * R_[2])) {  // 0.999^2: the square root only when it binds
+            const double rmax = 0.999 * std::sqrt(R_[0] * R_[2]);
+            R_[1] = std::clamp(R_[1], -rmax, rmax);
+        }
         if (++since_noise_ == 256) {  // R and q together, so the tracker's bandwidth stays fn
             since_noise_ = 0;
             noise_inv();
@@ -729,7 +733,8 @@ private:
         const double S00 = HPH00 + R_[0], S01 = HPH01 + R_[1], S11 = HPH11 + R_[2];
         const double det = S00 * S11 - S01 * S01;
         if (!(det > 0)) return true;
-        const double i00 = S11 / det, i01 = -S01 / det, i11 = S00 / det;
+        const double idet = 1.0 / det;
+        const double i00 = S11 * idet, i01 = -S01 * idet, i11 = S00 * idet;
         double K[kNx][2];
         for (int i = 0; i < kNx; ++i) {
             K[i][0] = PH[i][0] * i00 + PH[i][1] * i01;
@@ -1163,6 +1168,7 @@ private:
     bool adaptive_ = true;
     double wn_floor_ = 0, ema_f_ = 0, ema_s_ = 0, j2_ = 0, wn_peak_ = 0, stats_wn_ = 0;
     double ema_af_ = 0, ema_as_ = 0, ema_inv_ = 0;  // adapt()'s rates for wn_
+    double jerk_a_ = 0;                             // T / kJerkMemoryS
     int since_q_ = 0;
     long long stats_n_ = 0, n_in_ = 0, shape_at_ = -1, vary_at_ = -1;
     int max_order_ = 8, ppc_ = 256, order_ = 1, told_order_ = 1;
