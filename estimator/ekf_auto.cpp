@@ -875,7 +875,8 @@ private:
         // longer the centre's phase)
         if (Nd * T_ * std::fabs(al) > 0.25 * std::fabs(om)) return pause();
         const std::size_t c = je + 1 + (Ne - 1) / 2;                   // centre sample
-        const double mean = (slot(e).pre - slot(je).pre) / Nd + base_;
+        const double iNd = 1.0 / Nd;
+        const double mean = (slot(e).pre - slot(je).pre) * iNd + base_;
         const double th = mean - al * T_ * T_ * (Nd * Nd - 1) / 24 + om * T_ * (static_cast<double>(c) - tmid) + rot_;
         const Slot& sc = slot(c);
         // the samples between two points are averaged into one, so at many samples per cycle
@@ -888,14 +889,13 @@ private:
         // u is averaged over the same cycle: the tracker's u follows each sample's noise (and,
         // while the shape is still wrong, its warp); as a regressor it must not carry the noise
         // of the sample it explains
-        double u = (slot(e).upre - slot(je).upre) / Nd * ugain_;
+        double u = (slot(e).upre - slot(je).upre) * iNd * ugain_;
         // The tracker lags a jerk by about jerk/wn^3, and that lag is in the averaged phase too
         // (it is no periodic warp); u swings with it (at reversals, +-1e-2) while the samples do
         // not vary, and h1 fitted to that is a direction of errors. Where the lag exceeds
         // kMaxLagRad (or the jerk is not known yet) the point teaches h0 but not h1: its u is
         // the memory's mean.
-        const double lag = std::fabs(jerk) / (wn_ * wn_ * wn_);
-        if (!(lag < kMaxLagRad)) {
+        if (!(std::fabs(jerk) < kMaxLagRad * (wn_ * wn_ * wn_))) {  // lag = |jerk|/wn^3 (NaN: not known)
             const double W = trig_[0][0].real();
             u = W > 0 ? trig_[1][0].real() / W : 0.0;
         }
