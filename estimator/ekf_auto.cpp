@@ -1052,9 +1052,15 @@ private:
             G(n0 + a, n0 + a) += lambda;
         }
         G.diagonal().array() += 1e-12 * G.diagonal().maxCoeff();
-        Eigen::LDLT<GramMat> ldlt(G);
-        if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return;
-        const GramVec ss = ldlt.solve(bs), sc = ldlt.solve(bc);
+        // Cholesky (G is positive definite: a Gram matrix with a ridge and 1e-12 of its diagonal
+        // added; not, and the solve is skipped), both channels in one solve
+        Eigen::LLT<GramMat> llt(G);
+        if (llt.info() != Eigen::Success) return;
+        Eigen::Matrix<double, Eigen::Dynamic, 2, 0, kMaxBasis + kVarBasis, 2> B(nb, 2);
+        B.col(0) = bs;
+        B.col(1) = bc;
+        B = llt.solve(B);
+        const GramVec ss = B.col(0), sc = B.col(1);
         if (!ss.allFinite() || !sc.allFinite()) return;
         Coeffs ns{}, nc{}, vs{}, vc{};
         for (int i = 0; i < n0; ++i) { ns[i] = ss(i); nc[i] = sc(i); }
