@@ -96,6 +96,13 @@ constexpr double kMaxWnT = 0.1;               // the adaptive bandwidth's ceilin
 
 using Coeffs = std::array<double, kMaxBasis>;
 using Cx = std::complex<double>;
+// the identifier's normal equations, h0 and h1 at most: on the stack (a solve every 32 points)
+using GramMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxBasis + kVarBasis, kMaxBasis + kVarBasis>;
+using GramVec = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, kMaxBasis + kVarBasis, 1>;
+
+// wrap_pi with a fast path: the tracker's phase is already in (-pi, pi] (predict() wraps it),
+// where std::remainder returns it unchanged
+inline double wrap(double x) { return (x > -kPi && x <= kPi) ? x : wrap_pi(x); }
 
 class EkfAuto final : public Estimator {
 public:
@@ -134,6 +141,7 @@ public:
         if (!(cfg.sample_rate_hz > 0)) throw ConfigError("sample_rate_hz", "must be positive");
         fs_ = cfg.sample_rate_hz;
         T_ = 1.0 / fs_;
+        jerk_a_ = T_ / kJerkMemoryS;
         fn_ = p.number("natural_freq_hz");
         // the default 100 Hz needs fs >= 1.26 kHz; below, a default (not a given value) becomes fs/(8 pi)
         if (!cfg.params.contains("natural_freq_hz") && kTwoPi * fn_ / fs_ > 0.25) fn_ = fs_ / (4 * kTwoPi);
@@ -513,15 +521,16 @@ private:
     }
 
     // Mean phase information J_bar over a cycle from the shape and R; q = wn^6 r T (CA), r = 1/J_bar.
+    // J(theta) = h0'(theta)' R^-1 h0'(theta); its mean over a cycle by Parseval, from the
+    // harmonics (harmonic m of h0' is m times that of h0, turned a quarter cycle):
+    // J_bar = sum_m m^2/2 [Ri00 (a_s^2 + b_s^2) + 2 Ri01 (a_s a_c + b_s b_c) + Ri11 (a_c^2 + b_c^2)]
+    // (the mean over a 64-point grid, as it was, to rounding: 2 order < 64)
     void update_prior() {
-        constexpr int kGrid = 64;
-        double sum = 0;
-        for (int k = 0; k < kGrid; ++k) {
-            double h[2], d[2], h1[2], d1[2];
-            eval(kTwoPi * k / kGrid, h, d, h1, d1);
-            sum += d[0] * d[0] * Ri_[0] + 2 * d[0] * d[1] * Ri_[1] + d[1] * d[1] * Ri_[2];
+        double jbar = 0;
+        for (int m = 1; m <= order_; ++m) {
+            const double as = c0s_[2 * m - 1], bs = c0s_[2 * m], ac = c0c_[2 * m - 1], bc = c0c_[2 * m];
+            jbar += 0.5 * m * m * ((as * as + bs * bs) * Ri_[0] + 2 * (as * ac + bs * bc) * Ri_[1] + (ac * ac + bc * bc) * Ri_[2]);
         }
-        const double jbar = sum / kGrid;
         r_bar_ = jbar > 0 ? 1.0 / jbar : 1.0;
         set_q();
     }
@@ -532,11 +541,12 @@ private:
     // acceleration (the slope between two of its running means, less their noise); the bandwidth
     // never falls below natural_freq_hz (the floor: no jerk measured) nor rises above fs/(10 pi).
     void adapt() {
-        const double tf = 3.0 / wn_, ts = 3 * tf;           // the two running means of alpha, s
-        ema_f_ += T_ / tf * (x_[2] - ema_f_);
-        ema_s_ += T_ / ts * (x_[2] - ema_s_);
-        const double j = (ema_f_ - ema_s_) / (ts - tf);     // rad/s^3: a ramp of alpha lags them by j tf and j ts
-        j2_ += T_ / kJerkMemoryS * (j * j - j2_);
+        // the two running means of alpha, time constants tf = 3/wn and ts = 3 tf (s); their
+        // rates T/tf, T/ts and 1/(ts - tf) are set with wn_ (set_q())
+        ema_f_ += ema_af_ * (x_[2] - ema_f_);
+        ema_s_ += ema_as_ * (x_[2] - ema_s_);
+        const double j = (ema_f_ - ema_s_) * ema_inv_;      // rad/s^3: a ramp of alpha lags them by j tf and j ts
+        j2_ += jerk_a_ * (j * j - j2_);
         if (++since_q_ < 16) return;
         since_q_ = 0;
         // the noise in j: alpha's error (P22, correlated over 1/wn) through the two means
@@ -556,6 +566,10 @@ private:
     }
 
     void set_q() {
+        const double tf = 3.0 / wn_, ts = 3 * tf;
+        ema_af_ = T_ / tf;
+        ema_as_ = T_ / ts;
+        ema_inv_ = 1.0 / (ts - tf);
         const double q = std::pow(wn_, 6) * r_bar_ * T_;
         const double T = T_;
         Q_[0][0] = q * std::pow(T, 5) / 20; Q_[0][1] = Q_[1][0] = q * std::pow(T, 4) / 8;
@@ -571,7 +585,7 @@ private:
     // ... and g, the fundamental of h0 (the direction of v), with its derivative.
     void eval(double theta, double h[2], double d[2], double h1[2], double d1[2], double g[2], double dg[2]) const {
         double s1, c1;
-        sincos_small(wrap_pi(theta), s1, c1);
+        sincos_small(wrap(theta), s1, c1);
         g[0] = c0s_[1] * c1 + c0s_[2] * s1;
         g[1] = c0c_[1] * c1 + c0c_[2] * s1;
         dg[0] = c0s_[2] * c1 - c0s_[1] * s1;
@@ -604,7 +618,7 @@ private:
     // d^2/dtheta^2 of h0 + u h1, both channels (V/rad^2).
     void second_derivative(double theta, double u, double out[2]) const {
         double s1, c1;
-        sincos_small(wrap_pi(theta), s1, c1);
+        sincos_small(wrap(theta), s1, c1);
         double cm = c1, sm = s1, vs = 0, vc = 0;
         const int mv = var_order();
         for (int m = 1; m <= order_; ++m) {
@@ -689,9 +703,10 @@ private:
             const double T00 = HPH00 + R_[0], T01 = HPH01 + R_[1], T11 = HPH11 + R_[2];
             const double dt = T00 * T11 - T01 * T01;
             if (dt > 0) {
-                const double nis = (T11 * rs * rs - 2 * T01 * rs * rc + T00 * rc * rc) / dt;
-                if (nis > kOutlierNis) return false;
-                if (nis > kHuberNis) w = kHuberNis / nis;
+                // nis = num / dt; compared as num against dt (no division per sample)
+                const double num = T11 * rs * rs - 2 * T01 * rs * rc + T00 * rc * rc;
+                if (num > kOutlierNis * dt) return false;
+                if (num > kHuberNis * dt) w = kHuberNis * dt / num;
             }
         }
         // the noise covariance R: the a priori residuals' covariance less the state's part H P H'
@@ -706,8 +721,10 @@ private:
         const double floor = std::max(1e-12 * (c0s_[1] * c0s_[1] + c0s_[2] * c0s_[2] + c0c_[1] * c0c_[1] + c0c_[2] * c0c_[2]), 1e-24);
         R_[0] = std::max({R_[0], 0.25 * Rraw_[0], floor});
         R_[2] = std::max({R_[2], 0.25 * Rraw_[2], floor});
-        const double rmax = 0.999 * std::sqrt(R_[0] * R_[2]);
-        R_[1] = std::clamp(R_[1], -rmax, rmax);
+        if (R_[1] * R_[1] > 0.998001 * (R_[0] * R_[2])) {  // 0.999^2: the square root only when it binds
+            const double rmax = 0.999 * std::sqrt(R_[0] * R_[2]);
+            R_[1] = std::clamp(R_[1], -rmax, rmax);
+        }
         if (++since_noise_ == 256) {  // R and q together, so the tracker's bandwidth stays fn
             since_noise_ = 0;
             noise_inv();
@@ -716,7 +733,8 @@ private:
         const double S00 = HPH00 + R_[0], S01 = HPH01 + R_[1], S11 = HPH11 + R_[2];
         const double det = S00 * S11 - S01 * S01;
         if (!(det > 0)) return true;
-        const double i00 = S11 / det, i01 = -S01 / det, i11 = S00 / det;
+        const double idet = 1.0 / det;
+        const double i00 = S11 * idet, i01 = -S01 * idet, i11 = S00 * idet;
         double K[kNx][2];
         for (int i = 0; i < kNx; ++i) {
             K[i][0] = PH[i][0] * i00 + PH[i][1] * i01;
@@ -739,7 +757,7 @@ private:
     // --- the delay line and the cycle-centred phase ---
 
     Slot& slot(std::size_t idx) { return ring_[idx & (cap_ - 1)]; }
-    std::size_t live_start() const { return std::max(seg0_, k_ > cap_ ? k_ - cap_ : std::size_t{0}); }
+    std::size_t live_start() const { return std::max({seg0_, k_ > cap_ ? k_ - cap_ : std::size_t{0}, rebase_floor_}); }
 
     void push(double zs, double zc) {
         Slot& s = slot(k_);
@@ -760,14 +778,21 @@ private:
             s.upre = prev.upre + s.u;
         }
         ++k_;
-        if ((k_ - seg0_) % (cap_ / 4) == 0) rebase();
+        if (((k_ - seg0_) & (cap_ / 4 - 1)) == 0) rebase();  // cap_ is a power of 2
     }
 
-    // Prefix sums relative to a nearer base, so they stay small (exact re-summation).
+    // Prefix sums relative to a nearer base, so they stay small (exact re-summation). Only the
+    // slots a window can still reach are re-summed: 8 of the last window's length (a point
+    // reaches back 2.5 windows; a motion that slows by more than 3x before the next rebase
+    // pauses learning until its windows fit), and the older ones leave the live range. (All of
+    // the ring, 2^17 slots of 96 bytes each 2^15 samples, was 8 % of the run time.)
     void rebase() {
         base_ = slot(k_ - 1).th;
+        std::size_t from = live_start();
+        if (last_window_ > 0) from = std::max(from, k_ - std::min(k_, 8 * last_window_ + 1024));
+        rebase_floor_ = from;
         double acc = 0, uacc = 0;
-        for (std::size_t j = live_start(); j < k_; ++j) {
+        for (std::size_t j = from; j < k_; ++j) {
             Slot& s = slot(j);
             acc += s.th - base_;
             uacc += s.u;
@@ -839,8 +864,10 @@ private:
         const double al = std::isfinite(jerk) ? al_mid + jerk * (tmid - mid) * T_ : al_mid;
         // no reversal or standstill inside: the tracker's own speed at both ends and in the middle
         // agrees with the window's mean speed to within a factor of 2
+        // (om/2 < om_i < 2 om for om > 0, the other way round for om < 0: no division)
+        const double lo_om = om > 0 ? 0.5 * om : 2.0 * om, hi_om = om > 0 ? 2.0 * om : 0.5 * om;
         for (const std::size_t i : {kp, je, e, k})
-            if (!(slot(i).om / om > 0.5 && slot(i).om / om < 2.0)) return pause();
+            if (!(slot(i).om > lo_om && slot(i).om < hi_om)) return pause();
         if (k_ < clean_after_) return pause();
         const std::size_t Ne = e - je;
         const double Nd = static_cast<double>(Ne);
@@ -848,7 +875,8 @@ private:
         // longer the centre's phase)
         if (Nd * T_ * std::fabs(al) > 0.25 * std::fabs(om)) return pause();
         const std::size_t c = je + 1 + (Ne - 1) / 2;                   // centre sample
-        const double mean = (slot(e).pre - slot(je).pre) / Nd + base_;
+        const double iNd = 1.0 / Nd;
+        const double mean = (slot(e).pre - slot(je).pre) * iNd + base_;
         const double th = mean - al * T_ * T_ * (Nd * Nd - 1) / 24 + om * T_ * (static_cast<double>(c) - tmid) + rot_;
         const Slot& sc = slot(c);
         // the samples between two points are averaged into one, so at many samples per cycle
@@ -861,14 +889,13 @@ private:
         // u is averaged over the same cycle: the tracker's u follows each sample's noise (and,
         // while the shape is still wrong, its warp); as a regressor it must not carry the noise
         // of the sample it explains
-        double u = (slot(e).upre - slot(je).upre) / Nd * ugain_;
+        double u = (slot(e).upre - slot(je).upre) * iNd * ugain_;
         // The tracker lags a jerk by about jerk/wn^3, and that lag is in the averaged phase too
         // (it is no periodic warp); u swings with it (at reversals, +-1e-2) while the samples do
         // not vary, and h1 fitted to that is a direction of errors. Where the lag exceeds
         // kMaxLagRad (or the jerk is not known yet) the point teaches h0 but not h1: its u is
         // the memory's mean.
-        const double lag = std::fabs(jerk) / (wn_ * wn_ * wn_);
-        if (!(lag < kMaxLagRad)) {
+        if (!(std::fabs(jerk) < kMaxLagRad * (wn_ * wn_ * wn_))) {  // lag = |jerk|/wn^3 (NaN: not known)
             const double W = trig_[0][0].real();
             u = W > 0 ? trig_[1][0].real() / W : 0.0;
         }
@@ -930,7 +957,7 @@ private:
         const double ww = w * scale_;
         const int M = max_order_;
         double s1, c1;
-        sincos_small(wrap_pi(th), s1, c1);
+        sincos_small(wrap(th), s1, c1);
         const Cx e1(c1, s1);
         Cx e = 1.0;
         const double wu = ww * u, wuu = wu * u;
@@ -1007,7 +1034,7 @@ private:
         std::array<std::array<Cx, kMaxOrder + 1>, 2> d1;
         for (int ch = 0; ch < 2; ++ch)
             for (int k = 0; k <= kMaxOrder; ++k) d1[ch][k] = data_[ch][1][k] - ubar * data_[ch][0][k];
-        Eigen::MatrixXd G(nb, nb);
+        GramMat G(nb, nb);
         for (int a = 0; a < n0; ++a)
             for (int b = 0; b <= a; ++b) G(a, b) = G(b, a) = gram(trig_[0], a, b);
         for (int a = 0; a < n1; ++a) {
@@ -1017,7 +1044,7 @@ private:
         // ridge on h1 towards the common gain (h1 = h0): h1 moves away from it only when u
         // varies by more than about kURidge over the memory
         const double lambda = sq(kURidge) * W;
-        Eigen::VectorXd bs(nb), bc(nb);
+        GramVec bs(nb), bc(nb);
         for (int a = 0; a < n0; ++a) { bs(a) = rhs(data_[0][0], a); bc(a) = rhs(data_[1][0], a); }
         for (int a = 0; a < n1; ++a) {
             bs(n0 + a) = rhs(d1[0], a) + lambda * c0s_[a];
@@ -1025,9 +1052,15 @@ private:
             G(n0 + a, n0 + a) += lambda;
         }
         G.diagonal().array() += 1e-12 * G.diagonal().maxCoeff();
-        Eigen::LDLT<Eigen::MatrixXd> ldlt(G);
-        if (ldlt.info() != Eigen::Success || !ldlt.isPositive()) return;
-        const Eigen::VectorXd ss = ldlt.solve(bs), sc = ldlt.solve(bc);
+        // Cholesky (G is positive definite: a Gram matrix with a ridge and 1e-12 of its diagonal
+        // added; not, and the solve is skipped), both channels in one solve
+        Eigen::LLT<GramMat> llt(G);
+        if (llt.info() != Eigen::Success) return;
+        Eigen::Matrix<double, Eigen::Dynamic, 2, 0, kMaxBasis + kVarBasis, 2> B(nb, 2);
+        B.col(0) = bs;
+        B.col(1) = bc;
+        B = llt.solve(B);
+        const GramVec ss = B.col(0), sc = B.col(1);
         if (!ss.allFinite() || !sc.allFinite()) return;
         Coeffs ns{}, nc{}, vs{}, vc{};
         for (int i = 0; i < n0; ++i) { ns[i] = ss(i); nc[i] = sc(i); }
@@ -1046,8 +1079,9 @@ private:
         rotate(vs, std::min(fit_order, kVarOrder), phi1);
         rotate(vc, std::min(fit_order, kVarOrder), phi1);
         // rotate the sums into theta' = theta + phi1: sum w u^p e^{ik theta} * e^{ik phi1}
-        for (int k = 0; k < kTrig; ++k) {
-            const Cx r = std::polar(1.0, k * phi1);
+        const Cx r1 = std::polar(1.0, phi1);
+        Cx r = 1.0;
+        for (int k = 0; k < kTrig; ++k, r *= r1) {
             for (auto& t : trig_) t[k] *= r;
             if (k <= kMaxOrder)
                 for (auto& ch : data_)
@@ -1139,6 +1173,8 @@ private:
     // the adaptive bandwidth: wn_ is the tracker's now, wn_floor_ natural_freq_hz's
     bool adaptive_ = true;
     double wn_floor_ = 0, ema_f_ = 0, ema_s_ = 0, j2_ = 0, wn_peak_ = 0, stats_wn_ = 0;
+    double ema_af_ = 0, ema_as_ = 0, ema_inv_ = 0;  // adapt()'s rates for wn_
+    double jerk_a_ = 0;                             // T / kJerkMemoryS
     int since_q_ = 0;
     long long stats_n_ = 0, n_in_ = 0, shape_at_ = -1, vary_at_ = -1;
     int max_order_ = 8, ppc_ = 256, order_ = 1, told_order_ = 1;
@@ -1177,7 +1213,7 @@ private:
     Coeffs c0s_{}, c0c_{}, c1s_{}, c1c_{}, told_s_{}, told_c_{};
     // delay line
     std::vector<Slot> ring_;
-    std::size_t cap_ = 1, k_ = 0, seg0_ = 0, wstart_ = 0, clean_after_ = 0, last_window_ = 0, moving_since_ = 0;
+    std::size_t cap_ = 1, k_ = 0, seg0_ = 0, rebase_floor_ = 0, wstart_ = 0, clean_after_ = 0, last_window_ = 0, moving_since_ = 0;
     double base_ = 0, rot_ = 0, ugain_ = 1;
     // identifier sums, scaled by scale_: trig_[p][k] = sum w u^p e^{ik theta},
     // data_[ch][p][k] = sum w u^p z_ch e^{ik theta}
