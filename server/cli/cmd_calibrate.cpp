@@ -151,8 +151,8 @@ int run_calibrate(const CalibrateCliOptions& o) {
                     r.periodic_rms_rad, r.noise_rms_rad, r.settle_s,
                     r.settle_from == "given" ? "--settle-s" : r.settle_from == "capture" ? "the capture's recording scenario" : "default");
         std::printf("  offset: %.4g rad (%s)\n", c.offset_rad, r.source == "truth"    ? "the error's mean against the truth, less the table's mean over the record"
-                    : c.has_lissajous ? "no truth: keeps the zero atan2 had with the calibration it is told"
-                                      : "none: no truth to measure it against");
+                    : c.has_lissajous ? "self-referenced, the zero not observable: keeps the one atan2 had with the calibration it is told"
+                                      : "none: no truth to measure it against (self-referenced)");
         std::printf("  table: %zu entries, linear interpolation, from %d harmonics; leaves %.4g rad rms of the periodic error\n",
                     c.table.size(), o.harmonics, r.table_residual_rms_rad);
         std::printf("  predicted residual: %.4g rad rms", r.predicted_rms_rad);
