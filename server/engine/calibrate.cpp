@@ -56,50 +56,69 @@ double kept_zero(const CalibrateOptions& o, const est::Correction& c) {
     return n ? sum / static_cast<double>(n) : 0.0;
 }
 
-// The table's mean over the scored samples (those after the settle time), at the angles atan2
-// reads. Against truth the offset is the error's mean less this: the corrected record's mean is
-// then zero. Over whole periods sampled evenly the table's mean is zero, but a record that is not
-// (a step sweep that skips or repeats a step, a motion that speeds up) weights the angles
-// unevenly, and with the paper's 4e-2 rad 1x error one step in 128 moved the mean by 5.6e-4 rad.
-double table_mean_rad(const CalibrateOptions& o, double settle_s, const est::Correction& c) {
-    double sum = 0;
-    std::uint64_t n = 0;
-    for_each_reading(o, c, [&](double t_s, double phi_rad, double) {
-        if (t_s < settle_s) return;
-        sum += c.table_value(phi_rad);
-        ++n;
-    });
-    return n ? sum / static_cast<double>(n) : 0.0;
-}
-
-// Of kCoverageBins equal arcs of the electrical period, how many the scored samples' angles
-// (as atan2 reads them) visit. Travel is not coverage: +-1 rad back and forth for 11 "cycles"
-// fitted harmonics to a third of the circle, and the table was garbage elsewhere (2.4e-2 rad
-// measured on another capture, worse than no correction, where 2.7e-4 was predicted).
 // A sparse record (a 128-step sweep) may miss an arc here and there: what is refused is a gap
 // of more than kMaxGapBins arcs in a row (22.5 degrees), where the table would be extrapolated.
 constexpr int kCoverageBins = 64, kMaxGapBins = 4;
 struct Coverage {
     int visited = 0, largest_gap = 0;  // arcs seen; the longest run of arcs not seen (around the circle)
 };
-Coverage angle_coverage(const CalibrateOptions& o, double settle_s, const est::Correction& c) {
-    std::vector<char> seen(kCoverageBins, 0);
-    for_each_reading(o, c, [&](double t_s, double phi_rad, double) {
-        if (t_s < settle_s) return;
-        double u = phi_rad / kTwoPi;
-        u -= std::floor(u);
-        seen[std::min(kCoverageBins - 1, static_cast<int>(u * kCoverageBins))] = 1;
-    });
-    Coverage cov;
-    cov.visited = static_cast<int>(std::count(seen.begin(), seen.end(), 1));
-    if (cov.visited == 0) return {0, kCoverageBins};
-    int run = 0;
-    for (int i = 0; i < 2 * kCoverageBins; ++i) {  // twice around: a gap across angle 0
-        run = seen[static_cast<std::size_t>(i % kCoverageBins)] ? 0 : run + 1;
-        cov.largest_gap = std::max(cov.largest_gap, std::min(run, kCoverageBins));
+
+// The scored samples' angles as atan2 reads them (those after the settle time), read from the
+// capture once: per fine bin of the period, the count and the sum of the angle. Coverage and the
+// table's mean over the record (in each pass of the constant's fixed point) come from it. The
+// table is linear within a fine bin (2^16 of them) but for the bins that hold one of its nodes,
+// so its mean over a bin's samples is its value at their mean angle.
+class AngleRecord {
+public:
+    AngleRecord(const CalibrateOptions& o, double settle_s, const est::Correction& c) : count_(kFine, 0), sum_rad_(kFine, 0.0) {
+        for_each_reading(o, c, [&](double t_s, double phi_rad, double) {
+            if (t_s < settle_s) return;
+            double u = phi_rad / kTwoPi;
+            u -= std::floor(u);
+            const std::size_t b = std::min(kFine - 1, static_cast<std::size_t>(u * static_cast<double>(kFine)));
+            ++count_[b];
+            sum_rad_[b] += u * kTwoPi;
+            ++n_;
+        });
     }
-    return cov;
-}
+
+    // The table's mean over the record. Against truth the offset is the error's mean less this:
+    // the corrected record's mean is then zero. Over whole periods sampled evenly it is zero, but
+    // a record that is not (a step sweep that skips or repeats a step, a motion that speeds up)
+    // weights the angles unevenly: with the paper's 4e-2 rad 1x error one step in 128 moved the
+    // mean by 5.6e-4 rad.
+    double table_mean_rad(const est::Correction& c) const {
+        double sum = 0;
+        for (std::size_t b = 0; b < kFine; ++b)
+            if (count_[b]) sum += static_cast<double>(count_[b]) * c.table_value(sum_rad_[b] / static_cast<double>(count_[b]));
+        return n_ ? sum / static_cast<double>(n_) : 0.0;
+    }
+
+    // Of kCoverageBins equal arcs of the period, how many the record visits, and the longest run
+    // it never does. Travel is not coverage: +-1 rad back and forth for 11 "cycles" fitted
+    // harmonics to a third of the circle, and the table was garbage elsewhere (2.4e-2 rad measured
+    // on another capture, worse than no correction, where 2.7e-4 was predicted).
+    Coverage coverage() const {
+        std::vector<char> seen(kCoverageBins, 0);
+        for (std::size_t b = 0; b < kFine; ++b)
+            if (count_[b]) seen[b / (kFine / kCoverageBins)] = 1;
+        Coverage cov;
+        cov.visited = static_cast<int>(std::count(seen.begin(), seen.end(), 1));
+        if (cov.visited == 0) return {0, kCoverageBins};
+        int run = 0;
+        for (int i = 0; i < 2 * kCoverageBins; ++i) {  // twice around: a gap across angle 0
+            run = seen[static_cast<std::size_t>(i % kCoverageBins)] ? 0 : run + 1;
+            cov.largest_gap = std::max(cov.largest_gap, std::min(run, kCoverageBins));
+        }
+        return cov;
+    }
+
+private:
+    static constexpr std::size_t kFine = std::size_t{1} << 16;
+    std::vector<std::uint64_t> count_;
+    std::vector<double> sum_rad_;  // the angles wrapped to [0, 2 pi)
+    std::uint64_t n_ = 0;
+};
 
 }  // namespace
 
@@ -205,7 +224,8 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
         rests = {{"windows", sr.at("windows")}, {"cycles", sr.at("cycles")}, {"samples", sr.at("samples")},
                  {"orders_fitted", h.size()}};
     }
-    if (const Coverage cov = angle_coverage(o, res.settle_s, res.correction); cov.largest_gap > kMaxGapBins) {
+    const AngleRecord record(o, res.settle_s, res.correction);  // the Lissajous stage is final: atan2's angles are too
+    if (const Coverage cov = record.coverage(); cov.largest_gap > kMaxGapBins) {
         char msg[400];
         std::snprintf(msg, sizeof msg,
                       "the record does not cover the electrical period: %d of %d arcs visited after the settle time, %d in a row never seen "
@@ -221,15 +241,13 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
     // angles the record visited: over whole cycles sampled evenly that is C, but over 1.3 cycles
     // of the paper's signal m was C + 6.5e-3 rad, and inverting e(s) = m + harmonics put the
     // table at angles 6.5e-3 rad off (3.8e-4 rad measured on another capture against 2.3e-4 with
-    // C). C is the fixed point C = m - (the table's mean over the record), a few passes.
+    // C). C is the fixed point C = m - (the table's mean over the record), a few passes over the record.
     PeriodicFit f;
     double constant_rad = mean;
     try {
         for (int pass = 0; pass < 6; ++pass) {
             f = periodic_correction(h, constant_rad, po);
-            est::Correction trial = res.correction;  // its Lissajous stage: the angles atan2 reads
-            trial.table = f.correction.table;
-            const double next_rad = mean - table_mean_rad(o, res.settle_s, trial);
+            const double next_rad = mean - record.table_mean_rad(f.correction);
             const bool settled = std::fabs(next_rad - constant_rad) < 1e-9;
             constant_rad = next_rad;
             if (settled) break;
@@ -243,7 +261,7 @@ CalibrateResult calibrate_capture(const CalibrateOptions& o) {
     res.correction.table = f.correction.table;
     // Against a truth the error's mean is an error too (the ellipse fit of a distorted signal
     // shifts it); against the self-referenced reference it is the signals' phase convention.
-    if (res.source == "truth") res.correction.offset_rad = mean - table_mean_rad(o, res.settle_s, res.correction);
+    if (res.source == "truth") res.correction.offset_rad = mean - record.table_mean_rad(res.correction);
     else if (res.correction.has_lissajous) res.correction.offset_rad = kept_zero(o, res.correction);
     res.periodic_rms_rad = f.error_rms_rad;
     res.table_residual_rms_rad = f.table_residual_rms_rad;
