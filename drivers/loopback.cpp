@@ -69,6 +69,7 @@ public:
         const double q_fine = fine_step_v();
         noise_v_ = std::hypot(s.at("noise_v").get<double>(), s.at("noise_lsb").get<double>() * q_fine);
         rng_ = Xoshiro256pp(static_cast<std::uint64_t>(s.at("seed").get<long long>()));
+        noise_ = NoiseField(static_cast<std::uint64_t>(s.at("seed").get<long long>()), kLoopbackNoiseStream, 2);
         drop_after_ = s.at("drop_after").get<long long>();
         drop_count_ = s.at("drop_count").get<long long>();
         stall_after_ = s.at("stall_after").get<long long>();
@@ -331,12 +332,18 @@ private:
             held_[1] = h_[1][m - 1];
             last_update_ = static_cast<std::int64_t>(written_ + m - 1);
         }
-        // The noise, drawn in the chain's order: sin, then cos, sample by sample.
+        // The noise: normal number ch of stream sample k, a function of (seed, k) alone
+        // (counter-based, NoiseField), so any split into blocks gives the same samples; drawn
+        // sixteen at a time where the CPU has AVX-512.
         const bool noisy = noise_v_ > 0;
-        if (noisy) {
+        const double* zs[2] = {nullptr, nullptr};
+        if (noisy && !noise_.view(written_, m, zs)) {
             nz_[0].resize(m);
             nz_[1].resize(m);
-            standard_normal_pairs(rng_, m, nz_[0].data(), nz_[1].data());
+            double* out[2] = {nz_[0].data(), nz_[1].data()};
+            noise_.fill(written_, m, out);
+            zs[0] = nz_[0].data();
+            zs[1] = nz_[1].data();
         }
         // Each channel through its filters. A filter with no cutoff passes its input through
         // (y = x + 0, its state stays zero while the input is finite): skipped then, unless the
@@ -352,7 +359,7 @@ private:
         for (int ch = 0; ch < 2; ++ch) {
             const double* h = h_[ch].data();
             double* a = a_[ch].data();
-            const double* z = noisy ? nz_[ch].data() : nullptr;
+            const double* z = zs[ch];
             if (direct) {
                 if (noisy)
                     for (std::size_t i = 0; i < m; ++i) a[i] = h[i] + nv * z[i];
@@ -413,7 +420,11 @@ private:
     Biquad recon_[2], aa_[2];
     int latency_ = 0;
     double noise_v_ = 0, fs_ = 0;
-    Xoshiro256pp rng_{1};
+    Xoshiro256pp rng_{1};  // the play/record path's noise, drawn in order
+    // The stream path's noise (write): its own stream id, so that it is not the generator's
+    // (stream 1) when the loopback's seed and the scenario's are the same.
+    static constexpr std::uint64_t kLoopbackNoiseStream = 0x6c6f6f70ULL;  // "loop"
+    NoiseField noise_{1, kLoopbackNoiseStream, 2};
     // The chain's output: sin and cos in two rings (a deque allocated and freed a chunk every
     // 512 samples), and the gaps (samples lost just before a frame) by the frame's position in
     // the stream of frames pushed.

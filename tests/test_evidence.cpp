@@ -297,7 +297,9 @@ TEST_CASE("external: the contract's violations are errors naming what happened",
         p.update(extra);
         sc.estimators[0] = {"external", "fw", p, std::nullopt};
         sc.limits = {{"fw", "rms_rad", 1.0, std::nullopt, 0.0}};
-        return execute_run(sc);
+        RunOptions o;
+        o.block = 65536;  // the whole run in one block: the counts below are the run's
+        return execute_run(sc, o);
     };
     SECTION("one extra frame") {
         const json r = run_with("extra");

@@ -35,7 +35,7 @@ struct CaptureRunOptions {
     std::optional<EncoderProfile> encoder;
     double settle_s = 0.1;
     std::string estimates_path;  // optional CSV t,theta_rad,omega_rad_s,valid
-    std::size_t block = 65536;
+    std::size_t block = 16384;
     std::function<void(std::uint64_t done)> progress;
     CaptureOptions capture;  // a sigrok session's channel map, the expanded-size cap
     // The DUT's ABZ readout (docs/abz.md): the capture driver decodes the capture's a/b/z lines

@@ -21,7 +21,11 @@
 namespace fringe {
 
 struct RunOptions {
-    std::size_t block = 65536;
+    // Frames per pipeline step. 16384 keeps a step's frames and each lane's outputs (a few MB)
+    // in the cores' caches and the run's memory at about 30 MB; 65536 took 20-30 % more CPU
+    // time on perf-1e7-atan2.json (README "Measured performance"). Reports do not depend on it
+    // beyond the last bits of sums taken per block.
+    std::size_t block = 16384;
     std::size_t trace_points = 2000;
     std::function<void(std::uint64_t done, std::uint64_t total)> progress;
     const std::atomic<bool>* cancel = nullptr;
