@@ -37,8 +37,9 @@
 //             common gain (h1 = h0), so it moves only when u varies measurably, and learns
 //             only from points where the tracker's lag to a jerk (jerk/wn^3) is below 1e-4 rad.
 //             Each point (an average over a bin of samples) has its bias h'' var/2 taken out.
-//   convention (docs/model.md): theta is defined by the fundamental of the sin channel of h0. After
-//             each solve its phase phi1 is moved into the tracker and all sums are rotated.
+//   convention (docs/model.md): theta is defined by the fundamental of the sin channel of the
+//             shape at the memory's mean variation (h0 + ubar h1; h0 itself when u does not vary).
+//             After each solve its phase phi1 is moved into the tracker and all sums are rotated.
 //   order:    the highest harmonic of h0 or u h1 above 4 standard errors (max_order at most), at least 1.
 //   stages:   acquisition (atan2 line fit, output invalid) -> bootstrap (order 1, until the
 //             identifier has seen bootstrap_cycles electrical cycles; output valid from its
@@ -1082,15 +1083,23 @@ private:
         // (a light source that drifts scales the pedestal too; the fundamental alone, as it
         // started, left a drift of a few % in the first 0.1-0.2 s as an offset and 4e-3 rad)
         if (n1 == 0) { vs = ns; vc = nc; }
-        // the fit is the shape at u = ubar: h0 = fit - ubar h1
-        for (int i = 0; i < n1; ++i) { ns[i] -= ubar * vs[i]; nc[i] -= ubar * vc[i]; }
-        // phase convention: the sin channel's fundamental a1 cos + b1 sin = R sin(theta + phi1)
+        // phase convention: the sin channel's fundamental a1 cos + b1 sin = R sin(theta + phi1), of
+        // the fit, the shape at the memory's mean variation ubar (h0 + ubar h1)
         if (!(std::hypot(ns[1], ns[2]) > 0)) return;
         const double phi1 = std::atan2(ns[1], ns[2]);
         rotate(ns, fit_order, phi1);
         rotate(nc, fit_order, phi1);
         rotate(vs, std::min(fit_order, kVarOrder), phi1);
         rotate(vc, std::min(fit_order, kVarOrder), phi1);
+        // h0 = fit - ubar h1, h1 first rid of its component along the fit's derivative and of a
+        // cos term in its sin fundamental (remove_phase(); again below once the order is known),
+        // so that h0, h1 and the fit all have theta where the sin fundamental says. Taking off
+        // ubar h1 with those in it turned h0 by ubar times h1's errors (h1 is learnt from a few %
+        // of a drift in the first cycles), and h0 defined theta: as the memory slid over the
+        // drift ubar moved, and theta with it, a phase bias that followed the gain (+-4 % at
+        // 1.5 Hz, 0.6 s from 0.1 s: 3-4e-5 rad from 0.1 s to 0.3 s, 1.55x the oracle)
+        if (n1 > 0) remove_phase(vs, vc, ns, nc, std::min(fit_order, kVarOrder));
+        for (int i = 0; i < n1; ++i) { ns[i] -= ubar * vs[i]; nc[i] -= ubar * vc[i]; }
         // rotate the sums into theta' = theta + phi1: sum w u^p e^{ik theta} * e^{ik phi1}
         const Cx r1 = std::polar(1.0, phi1);
         Cx r = 1.0;
@@ -1123,19 +1132,8 @@ private:
         // h1: no component along h0' (that is a phase change, not a shape change), |h1| = |h0|
         const int mv = std::min(order, kVarOrder);
         for (int i = 2 * mv + 1; i < kMaxBasis; ++i) { vs[i] = 0; vc[i] = 0; }
-        double dot = 0, dd = 0, n0sq = 0, n1sq = 0;
-        for (int m = 1; m <= mv; ++m) {
-            const double ds_c = m * ns[2 * m], ds_s = -m * ns[2 * m - 1], dc_c = m * nc[2 * m], dc_s = -m * nc[2 * m - 1];
-            dot += vs[2 * m - 1] * ds_c + vs[2 * m] * ds_s + vc[2 * m - 1] * dc_c + vc[2 * m] * dc_s;
-            dd += ds_c * ds_c + ds_s * ds_s + dc_c * dc_c + dc_s * dc_s;
-        }
-        if (dd > 0)
-            for (int m = 1; m <= mv; ++m) {
-                vs[2 * m - 1] -= dot / dd * m * ns[2 * m];
-                vs[2 * m] += dot / dd * m * ns[2 * m - 1];
-                vc[2 * m - 1] -= dot / dd * m * nc[2 * m];
-                vc[2 * m] += dot / dd * m * nc[2 * m - 1];
-            }
+        remove_phase(vs, vc, ns, nc, mv);
+        double n0sq = 0, n1sq = 0;
         for (int i = 1; i < n0; ++i) n0sq += ns[i] * ns[i] + nc[i] * nc[i];
         for (int i = 0; i < 2 * mv + 1; ++i) n1sq += vs[i] * vs[i] + vc[i] * vc[i];
         if (!(n1sq > 0) || !(n0sq > 0)) return;
@@ -1171,6 +1169,28 @@ private:
         update_prior();
         ++refits_;
         ++refits_since_start_;
+    }
+
+    // h1 (vs, vc) less its component along h0' (h0: ns, nc) over harmonics 1..mv, both channels,
+    // and with no cos term in its sin channel's fundamental: theta is the phase of the sin
+    // channel's fundamental in every model (docs/model.md), so no variation turns it (h1's sin
+    // fundamental held at zero, the projection leaves that coordinate out: h1 is then orthogonal
+    // to h0' all the same)
+    static void remove_phase(Coeffs& vs, Coeffs& vc, const Coeffs& ns, const Coeffs& nc, int mv) {
+        vs[1] = 0;
+        double dot = 0, dd = 0;
+        for (int m = 1; m <= mv; ++m) {
+            const double ds_c = m == 1 ? 0.0 : m * ns[2 * m], ds_s = -m * ns[2 * m - 1], dc_c = m * nc[2 * m], dc_s = -m * nc[2 * m - 1];
+            dot += vs[2 * m - 1] * ds_c + vs[2 * m] * ds_s + vc[2 * m - 1] * dc_c + vc[2 * m] * dc_s;
+            dd += ds_c * ds_c + ds_s * ds_s + dc_c * dc_c + dc_s * dc_s;
+        }
+        if (dd > 0)
+            for (int m = 1; m <= mv; ++m) {
+                if (m > 1) vs[2 * m - 1] -= dot / dd * m * ns[2 * m];
+                vs[2 * m] += dot / dd * m * ns[2 * m - 1];
+                vc[2 * m - 1] -= dot / dd * m * nc[2 * m];
+                vc[2 * m] += dot / dd * m * nc[2 * m - 1];
+            }
     }
 
     static void rotate(Coeffs& c, int order, double phi) {
