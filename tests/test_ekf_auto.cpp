@@ -180,10 +180,8 @@ std::vector<ShortKind> short_suite() {
         auto e = fixture_encoder("agc-drift");
         e.noise.drift_amplitude = 0.04;
         e.noise.drift_freq_hz = 1.5;
-        // not yet at 1.5x: 0.1-0.2 s still carry up to 7e-4 rad (the drift's direction is learnt
-        // from its own first few % of change); a regression guard until it is
         s.push_back({"short-light-drift", e, constant_electrical(103.0, lines), "ekf-diffraction",
-                     {{"kinematics", "ca"}, {"agc", true}, {"q_gain_per_s", 0.01}}, {}, 15.0});
+                     {{"kinematics", "ca"}, {"agc", true}, {"q_gain_per_s", 0.01}}});
     }
     {  // an accelerating ramp (15 -> ~900 Hz electrical in 0.6 s) with small offsets
         auto e = fixture_encoder("paper-duty1p6");
