@@ -6,6 +6,9 @@
 #include <cmath>
 #include <vector>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_noise_cpp {
+
 using namespace fringe;
 using Catch::Matchers::WithinAbs;
 
@@ -128,3 +131,5 @@ TEST_CASE("standard_normal_pairs gives the numbers of standard_normal, in its or
     }
     CHECK(batch.next() == one.next());  // the generators end in the same state
 }
+
+}  // namespace test_noise_cpp
