@@ -22,6 +22,9 @@
 #include <thread>
 #include <unistd.h>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_align_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 
@@ -559,3 +562,5 @@ TEST_CASE("align: one absurd or non-finite sample is left out", "[align][issue22
     CHECK_FALSE(r.ok);
     CHECK_THAT(r.error, Catch::Contains("are not finite or lie beyond"));
 }
+
+}  // namespace test_align_cpp

@@ -15,6 +15,9 @@
 #include <atomic>
 #include <cmath>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_analysers_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 
@@ -221,3 +224,5 @@ TEST_CASE("analysers: an estimator that vouches for nothing is diagnosed as such
         CHECK(warned);
     }
 }
+
+}  // namespace test_analysers_cpp

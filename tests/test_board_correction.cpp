@@ -22,6 +22,9 @@
 #include <functional>
 #include <fstream>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_board_correction_cpp {
+
 using namespace fringe;
 using namespace fringe::dev;
 using nlohmann::json;
@@ -396,3 +399,5 @@ TEST_CASE("board correction: an external child gets the correction file's absolu
     std::ofstream(dir.path / "bad.json") << R"({"schema": "nope"})";
     CHECK_THROWS_WITH(run({{"command", child + " correction"}, {"correction", (dir.path / "bad.json").string()}}), Catch::Contains("params.correction"));
 }
+
+}  // namespace test_board_correction_cpp

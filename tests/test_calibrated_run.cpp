@@ -18,6 +18,9 @@
 #include <fstream>
 #include <sstream>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_calibrated_run_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 using test::TempDir;
@@ -523,3 +526,5 @@ TEST_CASE("calibrated run: a board with a correction table takes the correction 
     CHECK(q.scenario.calibrate->table_size == 64);
     CHECK(json(q.scenario)["calibrate"]["table_size"] == 64);  // the report's scenario says the size used
 }
+
+}  // namespace test_calibrated_run_cpp

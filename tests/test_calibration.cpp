@@ -22,6 +22,9 @@
 #include <functional>
 #include <sstream>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_calibration_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 using test::TempDir;
@@ -527,3 +530,5 @@ TEST_CASE("calibration: the predicted residual on another capture counts the coe
     CHECK(predicted_residual_rad(3e-4, 4e-4, 1e12, 16) == Approx(5e-4).epsilon(1e-9));  // a long record: the plain sum in quadrature
     CHECK(predicted_residual_rad(3e-4, 4e-4, 20, 16) == predicted_residual_rad(3e-4, 4e-4));  // fewer samples than coefficients: not scaled
 }
+
+}  // namespace test_calibration_cpp

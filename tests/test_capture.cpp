@@ -10,6 +10,9 @@
 #include <fstream>
 #include <limits>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_capture_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 
@@ -418,3 +421,5 @@ TEST_CASE("capture: expanded_bytes is what a reader goes through (uncompressed f
     std::filesystem::remove(tmp("size.json"));
     CHECK(CaptureReader(tmp("size.csv")).expanded_bytes() == std::filesystem::file_size(tmp("size.csv")));
 }
+
+}  // namespace test_capture_cpp

@@ -13,6 +13,9 @@
 #include <limits>
 #include <vector>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_config_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 using Catch::Matchers::WithinAbs;
@@ -173,3 +176,5 @@ TEST_CASE("Ring: first in, first out across growth and wrap-around", "[config]")
     r.clear();
     CHECK(r.empty());
 }
+
+}  // namespace test_config_cpp

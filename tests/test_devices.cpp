@@ -23,6 +23,9 @@
 #include <thread>
 #include <tuple>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_devices_cpp {
+
 using namespace fringe;
 using namespace fringe::dev;
 using json = nlohmann::json;
@@ -348,3 +351,5 @@ TEST_CASE("devices: a device with streams and steps is streamed, and one without
     CHECK_THROWS_WITH(make_instrument_source(sc, gen, gen), Catch::Contains("device.input") && Catch::Contains("cannot record"));
     CHECK_THROWS_WITH(make_instrument_source(sc, none, gen), Catch::Contains("device.output") && Catch::Contains("cannot play"));
 }
+
+}  // namespace test_devices_cpp

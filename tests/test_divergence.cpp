@@ -12,6 +12,9 @@
 #include <cmath>
 #include <set>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_divergence_cpp {
+
 using namespace fringe;
 using namespace fringe::test;
 using nlohmann::json;
@@ -137,3 +140,5 @@ TEST_CASE("the loss-of-lock reference is not slipped by spikes and follows fast 
         CHECK(worst < 0.5);
     }
 }
+
+}  // namespace test_divergence_cpp

@@ -13,6 +13,9 @@
 #include <random>
 #include <tuple>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_ekf_auto_cpp {
+
 using namespace fringe;
 using namespace fringe::test;
 using nlohmann::json;
@@ -506,3 +509,4 @@ TEST_CASE("ekf-auto: an amplitude jump is a signal change: re-acquired, then tra
     CHECK(a.m.std_rad < 1.5 * a.bounds["pcrb_rad"].get<double>());
 }
 
+}  // namespace test_ekf_auto_cpp

@@ -10,6 +10,9 @@
 
 #include <random>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_estimators_cpp {
+
 using namespace fringe;
 using namespace fringe::test;
 using nlohmann::json;
@@ -296,3 +299,5 @@ TEST_CASE("Fig. 10c: on the 1.6 % duty-cycle signal the ideal-sine EKF shows mod
     auto par = run_estimator("ekf-parallel", json::object(), sc.encoder, b, sc.sample_rate_hz, sc.encoder, 0.1);
     CHECK(par.m.rms_rad < 1.5 * pcrb);
 }
+
+}  // namespace test_estimators_cpp

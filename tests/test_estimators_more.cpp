@@ -11,6 +11,9 @@
 #include <chrono>
 #include <random>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_estimators_more_cpp {
+
 using namespace fringe;
 using namespace fringe::test;
 using nlohmann::json;
@@ -244,3 +247,5 @@ TEST_CASE("no cycle slip in 10^7 samples of the paper's signal at 937 samples/cy
     CHECK(m.slipped_samples == 0);
     CHECK(m.max_abs_rad < 2e-4);
 }
+
+}  // namespace test_estimators_more_cpp

@@ -20,6 +20,9 @@
 #include <sstream>
 #include <unistd.h>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_evidence_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 
@@ -504,3 +507,5 @@ TEST_CASE("replay: a capture without rate truth has no rate metrics", "[evidence
     CHECK(measurement(r, "atan2", "omega_error_std_rad_s")->at("outcome") == "FAIL");
     CHECK(r["estimators"][0]["metrics"]["lag_s"].is_null());
 }
+
+}  // namespace test_evidence_cpp

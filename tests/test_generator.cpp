@@ -10,6 +10,9 @@
 #include <cmath>
 #include <random>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_generator_cpp {
+
 using namespace fringe;
 using Catch::Matchers::WithinAbs;
 using Catch::Matchers::WithinRel;
@@ -279,3 +282,5 @@ TEST_CASE("fast_sincos agrees with libm to about an ulp over its whole range", "
     INFO("largest difference from libm " << worst);
     CHECK(worst <= 3.4e-16);
 }
+
+}  // namespace test_generator_cpp

@@ -25,6 +25,9 @@
 #include <thread>
 #include <vector>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_hostile_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 namespace fs = std::filesystem;
@@ -618,3 +621,5 @@ TEST_CASE("hostile: one client trickling headers on every connection it can open
     CHECK(n > 0);
     CHECK(std::string(buf, n > 0 ? static_cast<std::size_t>(n) : 0).rfind("HTTP/1.1 200", 0) == 0);
 }
+
+}  // namespace test_hostile_cpp

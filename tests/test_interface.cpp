@@ -12,6 +12,9 @@
 #include <catch2/catch.hpp>
 #include <nlohmann/json.hpp>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_interface_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 
@@ -233,3 +236,5 @@ TEST_CASE("a lane told another amplitude than the signals have is warned amplitu
         }
     CHECK(warned == std::vector<std::string>{"estimators[0]"});
 }
+
+}  // namespace test_interface_cpp

@@ -15,6 +15,9 @@
 #include <fstream>
 #include <set>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_keys_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 
@@ -135,3 +138,5 @@ TEST_CASE("keys: the scenario's and a limit's own keys are described where they 
     REQUIRE(schema["motion"].size() == motion_kinds().size());
     for (std::size_t i = 0; i < motion_kinds().size(); ++i) CHECK(schema["motion"][i]["params"] == json(motion_kinds()[i].keys.keys()));
 }
+
+}  // namespace test_keys_cpp

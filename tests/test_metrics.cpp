@@ -19,6 +19,9 @@
 #include <fstream>
 #include <sstream>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_metrics_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 namespace fs = std::filesystem;
@@ -228,3 +231,5 @@ TEST_CASE("metrics: reserved labels, an empty limit band and a non-finite figure
     CHECK_FALSE(run_metric_value("signal_ab_ratio", json{{"signal", {{"periods", 3}, {"ab_ratio", HUGE_VAL}}}}, &why));
     CHECK_FALSE(metric_value("rms_rad", json{{"rms", {{"rad", std::nan("")}}}}, json()));
 }
+
+}  // namespace test_metrics_cpp

@@ -24,6 +24,9 @@
 #include <mutex>
 #include <thread>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_modbus_cpp {
+
 using namespace fringe;
 using namespace fringe::dev;
 using nlohmann::json;
@@ -534,3 +537,5 @@ TEST_CASE("modbus faults: a step that fails keeps every step measured before it 
     CHECK(r["error"].get<std::string>().find("board dut-interpolator at 127.0.0.1:") != std::string::npos);
     CHECK(r["samples"]["processed"] == 20);  // 16 before: the block's 4 measured steps were dropped
 }
+
+}  // namespace test_modbus_cpp

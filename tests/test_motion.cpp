@@ -10,6 +10,9 @@
 #include <fstream>
 #include <vector>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_motion_cpp {
+
 using namespace fringe;
 using Catch::Matchers::WithinAbs;
 using Catch::Matchers::WithinRel;
@@ -100,3 +103,5 @@ TEST_CASE("table motion interpolates a CSV, bad tables are named", "[motion]") {
     std::remove(path.c_str());
     CHECK_THROWS_WITH(motion_from_json(j, "", 1024), Catch::Contains("motion.file") && Catch::Contains("cannot open"));
 }
+
+}  // namespace test_motion_cpp

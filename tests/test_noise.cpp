@@ -7,6 +7,9 @@
 #include <cstdint>
 #include <vector>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_noise_cpp {
+
 using namespace fringe;
 using Catch::Matchers::WithinAbs;
 
@@ -183,3 +186,4 @@ TEST_CASE("the ziggurat's squeeze decides every wedge as the exact test does", "
         CHECK(a.next() == b.next());
     }
 }
+}  // namespace test_noise_cpp

@@ -10,6 +10,9 @@
 
 #include <cmath>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_optics_cpp {
+
 using namespace fringe;
 using Catch::Matchers::WithinAbs;
 
@@ -107,3 +110,5 @@ TEST_CASE("2nd harmonic for 1 < kappa <= 1.5 follows h2 = (kappa-1)/(kappa-1/2) 
     CHECK(f.amplitude[2] < 1e-12);  // no 3rd harmonic below kappa = 1.5
     if (kappa == 1.1149 && w == 2.8713) CHECK_THAT(std::fabs(h2), WithinAbs(0.0252, 0.0001));
 }
+
+}  // namespace test_optics_cpp

@@ -22,6 +22,9 @@
 #include <fstream>
 #include <random>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_pipeline_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 namespace fs = std::filesystem;
@@ -223,3 +226,5 @@ TEST_CASE("one pipeline: a DUT's ABZ lines score the same through fringe estimat
     CHECK(a["estimators"][0]["metrics"] == r["estimators"][0]["metrics"]);
     CHECK(a["measurements"] == r["measurements"]);
 }
+
+}  // namespace test_pipeline_cpp

@@ -17,6 +17,9 @@
 #include <cmath>
 #include <fstream>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_plan_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 
@@ -158,3 +161,5 @@ TEST_CASE("plan: a sweep row and a capture evaluation construct their estimator 
         CHECK(CountedAtan2::constructed == 1);
     }
 }
+
+}  // namespace test_plan_cpp

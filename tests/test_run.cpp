@@ -25,6 +25,9 @@
 #include <sstream>
 #include <unistd.h>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_run_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 
@@ -626,3 +629,5 @@ TEST_CASE("store URIs: passwords redacted however they are written, and URIs lib
         CHECK(std::string(e.what()).find("%2F") != std::string::npos);
     }
 }
+
+}  // namespace test_run_cpp

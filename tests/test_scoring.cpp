@@ -12,6 +12,9 @@
 
 #include <random>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_scoring_cpp {
+
 using namespace fringe;
 
 namespace {
@@ -293,3 +296,5 @@ TEST_CASE("scorer: an estimate further off than 1e9 rad keeps its error (a const
     CHECK(m.unremoved_error_rad == 0.0);
     CHECK_FALSE(to_json(m, 0).contains("cycles_not_removed"));
 }
+
+}  // namespace test_scoring_cpp

@@ -12,6 +12,9 @@
 #include <cstring>
 #include <functional>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_scpi_cpp {
+
 using namespace fringe::dev;
 using namespace fringe::dev::scpi;
 
@@ -198,3 +201,5 @@ TEST_CASE("text: term_escape shows every control visibly and keeps the rest", "[
     CHECK(fringe::term_escape("two\nlines", true) == "two\nlines");
     CHECK(fringe::log_escape("x\\y\xc2\x85") == "x\\\\y\\u0085");
 }
+
+}  // namespace test_scpi_cpp

@@ -21,6 +21,9 @@
 #include <set>
 #include <vector>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_self_reference_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 using test::TempDir;
@@ -491,3 +494,5 @@ TEST_CASE("a capture: scenario takes what it leaves out (rate, length, encoder, 
     loop["device"] = "loopback:";
     CHECK_THROWS(scenario_from_json(loop, FRINGE_SOURCE_DIR "/fixtures/scenarios"));
 }
+
+}  // namespace test_self_reference_cpp

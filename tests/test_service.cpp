@@ -31,6 +31,9 @@
 #include <random>
 #include <thread>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_service_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 namespace fs = std::filesystem;
@@ -1200,3 +1203,5 @@ TEST_CASE("service: a capture without truth evaluated against an interface profi
         }
     }
 }
+
+}  // namespace test_service_cpp

@@ -11,6 +11,9 @@
 #include <random>
 #include <vector>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_signal_quality_cpp {
+
 using namespace fringe;
 
 namespace {
@@ -284,3 +287,5 @@ TEST_CASE("signal quality: each recorded period's place along the scale, forward
         CHECK(*std::max_element(p.begin(), p.end()) >= 0);
     }
 }
+
+}  // namespace test_signal_quality_cpp

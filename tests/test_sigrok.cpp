@@ -21,6 +21,9 @@
 #include <string>
 #include <vector>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_sigrok_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 namespace fs = std::filesystem;
@@ -662,3 +665,5 @@ TEST_CASE("sigrok: an archive declaring a huge central directory is refused befo
     std::ofstream(d / "big.sr", std::ios::binary) << s;
     CHECK_THAT(error_of(d / "big.sr"), Catch::Contains("a central directory of 17825792 bytes (at most 65536 entries and 16 MiB)"));
 }
+
+}  // namespace test_sigrok_cpp

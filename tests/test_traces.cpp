@@ -8,6 +8,9 @@
 #include <cmath>
 #include <random>
 
+// This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
+namespace test_traces_cpp {
+
 using namespace fringe;
 using nlohmann::json;
 
@@ -387,3 +390,5 @@ TEST_CASE("spectrum: the real-input FFT's power equals a direct DFT's", "[spectr
     CHECK_THROWS(RealPowerSpectrum(12));
     CHECK_THROWS(RealPowerSpectrum(2));
 }
+
+}  // namespace test_traces_cpp
