@@ -157,6 +157,15 @@ P=$(port_of "$SIM_AT")
 "$FRINGE" run "$S" --no-db -q --device "modbus+tcp://127.0.0.1:$P?board=dut-interpolator&timeout_ms=500&retries=20" --report "$dir/term.json" > "$dir/term.log" 2>&1 &
 R=$!; pids+=($R)
 sleep 1
+# Under the sanitizers and a loaded machine the run may still be starting a second later: wait
+# until it catches SIGTERM (SigCgt bit 14 in /proc), then give it half a second of steps.
+waited=0
+for _ in $(seq 200); do
+  mask=$(awk '/^SigCgt:/{print $2}' "/proc/$R/status" 2>/dev/null || echo 0)
+  (( (0x${mask:-0} >> 14) & 1 )) && break
+  waited=1; sleep 0.05
+done
+[ $waited -eq 0 ] || sleep 0.5
 t0=$(date +%s%N); kill -TERM $R; set +e; wait $R; rc=$?; set -e; t1=$(date +%s%N)
 ms=$(( (t1 - t0) / 1000000 ))
 [ $ms -lt 1000 ] || fail "SIGTERM honoured ${ms} ms late"
