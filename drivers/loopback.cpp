@@ -68,8 +68,9 @@ public:
         // is not there). noise_lsb is in LSB of the finer converter; noise_v adds in quadrature.
         const double q_fine = fine_step_v();
         noise_v_ = std::hypot(s.at("noise_v").get<double>(), s.at("noise_lsb").get<double>() * q_fine);
-        rng_ = Xoshiro256pp(static_cast<std::uint64_t>(s.at("seed").get<long long>()));
-        noise_ = NoiseField(static_cast<std::uint64_t>(s.at("seed").get<long long>()), kLoopbackNoiseStream, 2);
+        const auto seed = static_cast<std::uint64_t>(s.at("seed").get<long long>());
+        rng_ = Xoshiro256pp(seed);
+        noise_ = NoiseField(seed, kLoopbackNoiseStream, 2);
         drop_after_ = s.at("drop_after").get<long long>();
         drop_count_ = s.at("drop_count").get<long long>();
         stall_after_ = s.at("stall_after").get<long long>();

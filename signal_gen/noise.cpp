@@ -121,20 +121,6 @@ struct CounterBits {
 
 double standard_normal(Xoshiro256pp& rng) { return ziggurat_from(rng.next(), rng); }
 
-void standard_normal_pairs(Xoshiro256pp& rng, std::size_t n, double* a, double* b) {
-    // The ziggurat's fast path inline; a miss continues from the same bits, as standard_normal.
-    const ZigguratTables& t = tables();
-    auto one = [&] {
-        const std::uint64_t bits = rng.next();
-        const auto i = draw_layer(bits);
-        const double u = draw_u(bits);
-        return std::fabs(u) < t.ratio[i] ? u * t.x[i] : ziggurat_from(bits, rng);
-    };
-    for (std::size_t i = 0; i < n; ++i) {
-        a[i] = one();
-        b[i] = one();
-    }
-}
 
 
 NoiseField::NoiseField(std::uint64_t seed, std::uint64_t stream_id, int streams)

@@ -42,8 +42,6 @@ private:
 // Standard normal by the 128-layer ziggurat (Marsaglia & Tsang; Doornik's ZIGNOR layout):
 // one 64-bit draw on the fast path (~97 % of calls: the mean of x[i+1]/x[i]).
 double standard_normal(Xoshiro256pp& rng);
-// 2n of them in the same order as 2n calls of standard_normal: a[0], b[0], a[1], b[1], ...
-void standard_normal_pairs(Xoshiro256pp& rng, std::size_t n, double* a, double* b);
 
 // n standard normals that depend only on (key, i): counter-based bits (splitmix64 of
 // key + i), the ziggurat's fast path over the whole array (branch-free, sixteen at a time

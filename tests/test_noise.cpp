@@ -120,19 +120,6 @@ TEST_CASE("fill_normals: the vectorised fast path gives exactly the portable pat
     }
 }
 
-TEST_CASE("standard_normal_pairs gives the numbers of standard_normal, in its order", "[noise]") {
-    // 10^6 pairs pass through the ziggurat's wedges and tail too (about 2.8 % of draws miss the fast path).
-    Xoshiro256pp one(77), batch(77);
-    const std::size_t n = 1000000;
-    std::vector<double> a(n), b(n);
-    standard_normal_pairs(batch, n, a.data(), b.data());
-    for (std::size_t i = 0; i < n; ++i) {
-        REQUIRE(a[i] == standard_normal(one));
-        REQUIRE(b[i] == standard_normal(one));
-    }
-    CHECK(batch.next() == one.next());  // the generators end in the same state
-}
-
 namespace {
 // The ziggurat of noise.cpp with its wedge decided by exp() alone (no squeeze): the tables
 // rebuilt from their definition (Marsaglia & Tsang's 128 layers, Doornik's layout), the same
