@@ -14,6 +14,7 @@
 #include "server/engine/sweep.hpp"
 #include "signal_gen/base/config.hpp"
 #include "signal_gen/fastmath.hpp"
+#include "signal_gen/noise.hpp"
 
 #include <catch2/catch.hpp>
 
@@ -112,6 +113,45 @@ TEST_CASE("loopback: the same frames whatever the write and read sizes", "[devic
             REQUIRE(std::memcmp(&wc[k], &bc[k], sizeof(double)) == 0);
         }
     }
+}
+
+TEST_CASE("loopback: the streamed noise is white, of noise_v rms, and not the generator's numbers for the same seed", "[device][loopback]") {
+    // Ideal converters and a zero input: the output is noise_v times the chain's normals. Their
+    // rms, mean and correlations against the normal distribution's (2^17 samples a channel:
+    // the rms's standard error 0.2 %, a correlation's 0.3 %).
+    const std::size_t n = std::size_t{1} << 17;
+    const double nv = 1e-3;
+    auto d = dev::open("loopback:?dac_bits=0&adc_bits=0&noise_lsb=0&noise_v=0.001&seed=1");
+    dev::StreamPort* p = d->stream();
+    REQUIRE(p);
+    p->start(1e5);
+    const std::vector<double> zero(n, 0.0);
+    p->write(zero, zero);
+    std::vector<double> a(n), b(n);
+    REQUIRE(p->read(a, b, 0).frames == n);
+    // the generator's normals for seed 1 (signal_gen/generator.cpp: NoiseField(seed, 1, 3))
+    NoiseField gen_noise(1, 1, 3);
+    std::vector<double> g0(n), g1(n), g2(n);
+    double* g[3] = {g0.data(), g1.data(), g2.data()};
+    gen_noise.fill(0, n, g);
+    auto dot = [&](const std::vector<double>& x, const std::vector<double>& y) {
+        double s2 = 0;
+        for (std::size_t i = 0; i < n; ++i) s2 += x[i] * y[i];
+        return s2 / static_cast<double>(n);
+    };
+    for (auto* ch : {&a, &b}) {
+        double mean = 0;
+        for (double& v : *ch) { v /= nv; mean += v; }
+        mean /= static_cast<double>(n);
+        CHECK(std::fabs(mean) < 0.015);                     // 5 standard errors
+        CHECK(std::fabs(std::sqrt(dot(*ch, *ch)) - 1.0) < 0.01);
+        for (const auto* gv : {&g0, &g1, &g2}) CHECK(std::fabs(dot(*ch, *gv)) < 0.015);
+    }
+    CHECK(std::fabs(dot(a, b)) < 0.015);  // the two channels independent
+    // neighbouring samples uncorrelated (white)
+    double lag1 = 0;
+    for (std::size_t i = 1; i < n; ++i) lag1 += a[i] * a[i - 1];
+    CHECK(std::fabs(lag1 / static_cast<double>(n - 1)) < 0.015);
 }
 
 TEST_CASE("loopback: a slower DAC holds each code until its next update", "[device][loopback]") {
