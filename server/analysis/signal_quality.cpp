@@ -228,10 +228,12 @@ PeriodQuality SignalQuality::analyse_period(const std::vector<double>& t_s, cons
     {
         double r2_min = std::numeric_limits<double>::infinity(), r2_max = 0;
         const std::size_t last = phi.size() > 0 ? phi.size() - 1 : 0;
+        const double* av = a_v.data();
+        const double* bv = b_v.data();
         // the samples are finite: their minimum and maximum in any order are the same
 #pragma omp simd reduction(min : r2_min) reduction(max : r2_max)
         for (std::size_t i = 1; i < last; ++i) {
-            const double r2 = a_v[i] * a_v[i] + b_v[i] * b_v[i];
+            const double r2 = av[i] * av[i] + bv[i] * bv[i];
             r2_min = std::min(r2_min, r2);
             r2_max = std::max(r2_max, r2);
         }
@@ -251,8 +253,9 @@ PeriodQuality SignalQuality::analyse_period(const std::vector<double>& t_s, cons
     constexpr std::size_t kFitPoints = 256;
     if (phi.size() > kFitPoints + 2) {
         const std::size_t stride = (phi.size() - 2 + kFitPoints - 1) / kFitPoints;
-        std::vector<double> dt, dp, da, db;
-        for (auto* v : {&dt, &dp, &da, &db}) v->reserve(kFitPoints + 3);
+        // scratch kept per thread (this call's own: the call below does not decimate again)
+        thread_local std::vector<double> dt, dp, da, db;
+        for (auto* v : {&dt, &dp, &da, &db}) v->clear();
         for (std::size_t i = 0; i + 1 < phi.size(); i += (i == 0 ? 1 : stride)) {
             dt.push_back(t_s[i]);
             dp.push_back(phi[i]);
@@ -270,7 +273,8 @@ PeriodQuality SignalQuality::analyse_period(const std::vector<double>& t_s, cons
         return q;
     }
     const std::size_t n = phi.size();
-    std::vector<double> w(n, 0.0);
+    thread_local std::vector<double> w, c1, s1, ck_tab, sk_tab;  // scratch kept per thread
+    w.assign(n, 0.0);
     for (std::size_t i = 0; i + 1 < n; ++i) {
         const double h = 0.5 * std::fabs(phi[i + 1] - phi[i]);
         w[i] += h;
@@ -280,26 +284,69 @@ PeriodQuality SignalQuality::analyse_period(const std::vector<double>& t_s, cons
     p.t_end_s = t_s.back();
     p.direction = phi.back() >= phi.front() ? 1 : -1;
     p.samples = n >= 2 ? n - 2 : 0;
-    // cos and sin of each angle: exact at the ends and every 64 points, by rotation between
-    // (uniform sampling: one rotation for the whole period).
-    std::vector<double> c1(n), s1(n);
-    double last_step = std::numeric_limits<double>::quiet_NaN(), rc = 1, rs = 0;
-    for (std::size_t i = 0; i < n; ++i) {
-        if (i == 0 || i + 1 == n || i % 64 == 0) {
-            c1[i] = std::cos(phi[i]);
-            s1[i] = std::sin(phi[i]);
-            continue;
-        }
-        const double step = phi[i] - phi[i - 1];
-        if (!(std::fabs(step - last_step) <= 1e-12 * std::fabs(step))) {
-            rc = std::cos(step);
-            rs = std::sin(step);
-            last_step = step;
-        }
-        c1[i] = c1[i - 1] * rc - s1[i - 1] * rs;
-        s1[i] = s1[i - 1] * rc + c1[i - 1] * rs;
+    // cos and sin of each angle: exact at the ends, at point 1 and every 64 points, rotated in
+    // between. Sampling is uniform inside a period (its ends are the interpolated crossings):
+    // when every step from point 1 to point n-2 is within 1e-9 of the first (time stamps far
+    // into a run differ by 1e-10 relative), point e + j is point e (exact) turned by j steps,
+    // from a table of cos, sin of j steps (one chain of 63 rotations a period, then a pass that
+    // vectorises; at most 2e-9 rad off). Otherwise one rotation per step, in order.
+    c1.resize(n);
+    s1.resize(n);
+    constexpr std::size_t kExact = 64;
+    bool uniform = n > 4;
+    const double step1 = n > 2 ? phi[2] - phi[1] : 0.0;
+    if (uniform) {
+        const double* ph = phi.data();
+        std::size_t off = 0;
+#pragma omp simd reduction(+ : off)
+        for (std::size_t i = 2; i < n - 1; ++i) off += !(std::fabs((ph[i] - ph[i - 1]) - step1) <= 1e-9 * std::fabs(step1));
+        uniform = off == 0;
     }
-    std::vector<double> ck_tab, sk_tab;
+    if (uniform) {
+        double tc[kExact], ts[kExact];  // cos, sin of j steps
+        tc[0] = 1;
+        ts[0] = 0;
+        tc[1] = std::cos(step1);
+        ts[1] = std::sin(step1);
+        for (std::size_t j = 2; j < kExact; ++j) {
+            tc[j] = tc[j - 1] * tc[1] - ts[j - 1] * ts[1];
+            ts[j] = ts[j - 1] * tc[1] + tc[j - 1] * ts[1];
+        }
+        c1[0] = std::cos(phi[0]);
+        s1[0] = std::sin(phi[0]);
+        for (std::size_t e = 1; e + 1 < n; e += kExact) {  // blocks from points 1, 65, 129, ...
+            const double ce = std::cos(phi[e]), se = std::sin(phi[e]);
+            const std::size_t len = std::min(kExact, n - 1 - e);
+            double* cc = c1.data() + e;
+            double* ss = s1.data() + e;
+#pragma omp simd
+            for (std::size_t j = 0; j < len; ++j) {
+                cc[j] = ce * tc[j] - se * ts[j];
+                ss[j] = se * tc[j] + ce * ts[j];
+            }
+            cc[0] = ce;
+            ss[0] = se;
+        }
+        c1[n - 1] = std::cos(phi[n - 1]);
+        s1[n - 1] = std::sin(phi[n - 1]);
+    } else {
+        double last_step = std::numeric_limits<double>::quiet_NaN(), rc = 1, rs = 0;
+        for (std::size_t i = 0; i < n; ++i) {
+            if (i == 0 || i + 1 == n || i % kExact == 0) {
+                c1[i] = std::cos(phi[i]);
+                s1[i] = std::sin(phi[i]);
+                continue;
+            }
+            const double step = phi[i] - phi[i - 1];
+            if (!(std::fabs(step - last_step) <= 1e-9 * std::fabs(step))) {
+                rc = std::cos(step);
+                rs = std::sin(step);
+                last_step = step;
+            }
+            c1[i] = c1[i - 1] * rc - s1[i - 1] * rs;
+            s1[i] = s1[i - 1] * rc + c1[i - 1] * rs;
+        }
+    }
     harmonic_table(c1, s1, ck_tab, sk_tab);
     Coeffs fa, fb;
     if (n < kLeastSquaresBelow) coeffs_least_squares(ck_tab, sk_tab, a_v, b_v, fa, fb);
@@ -354,8 +401,15 @@ void SignalQuality::close_period(double t, double a, double b) {
         ++skipped_unsteady_;
         return;
     }
-    std::vector<double> phi(pt_.size());
-    for (std::size_t i = 0; i < pt_.size(); ++i) phi[i] = dir_ * kTwoPi * (pt_[i] - t0) / T;
+    std::vector<double>& phi = phi_;
+    phi.resize(pt_.size());
+    {
+        const double* pt = pt_.data();
+        double* ph = phi.data();
+        const double d2pi = dir_ * kTwoPi;
+#pragma omp simd
+        for (std::size_t i = 0; i < phi.size(); ++i) ph[i] = d2pi * (pt[i] - t0) / T;
+    }
     const PeriodQuality p = analyse_period(pt_, phi, pa_, pb_);
     const bool finite = std::isfinite(p.a.amplitude_v) && std::isfinite(p.b.amplitude_v) && std::isfinite(p.a.noise_v_rms) &&
                         std::isfinite(p.b.noise_v_rms) && std::isfinite(p.phase_deg) && std::isfinite(p.ab_ratio) && p.b.amplitude_v > 0;
@@ -428,17 +482,40 @@ void SignalQuality::close_period(double t, double a, double b) {
 void SignalQuality::bin_lissajous(const std::vector<double>& phi_rad) {
     const double scale = static_cast<double>(kLissajousBins) / kTwoPi;
     const std::size_t n = phi_rad.size();
-    for (std::size_t i = 1; i + 1 < n; ++i) {  // the first and last points are the crossings, not samples
-        double u = phi_rad[i] * scale;           // backwards, phi runs 0..-2 pi: its angle is 2 pi + phi
-        if (u < 0) u += static_cast<double>(kLissajousBins);
-        const std::size_t k = std::min(kLissajousBins - 1, static_cast<std::size_t>(u));
+    // Each sample's bin first (a pass that vectorises); then the sums, a bin's kept in registers
+    // while its samples last (neighbours share a bin: a period's ~kLissajousBins runs), added in
+    // sample order.
+    bins_.resize(n);
+    std::uint32_t* kb = bins_.data();
+    const double* ph = phi_rad.data();
+#pragma omp simd
+    for (std::size_t i = 0; i < n; ++i) {
+        double u = ph[i] * scale;  // backwards, phi runs 0..-2 pi: its angle is 2 pi + phi
+        u = u < 0 ? u + static_cast<double>(kLissajousBins) : u;
+        const double k = u < static_cast<double>(kLissajousBins - 1) ? std::trunc(u) : static_cast<double>(kLissajousBins - 1);
+        kb[i] = static_cast<std::uint32_t>(k);
+    }
+    const double* pa = pa_.data();
+    const double* pb = pb_.data();
+    for (std::size_t i = 1; i + 1 < n;) {  // the first and last points are the crossings, not samples
+        const std::uint32_t k = kb[i];
         LissajousBin& bin = lissajous_[k];
-        const double a = pa_[i], b = pb_[i], r2 = a * a + b * b;
-        bin.sum_a_v += a;
-        bin.sum_b_v += b;
-        bin.r2_min = std::min(bin.r2_min, r2);
-        bin.r2_max = std::max(bin.r2_max, r2);
-        ++bin.count;
+        double sa = bin.sum_a_v, sb = bin.sum_b_v, lo = bin.r2_min, hi = bin.r2_max;
+        std::size_t c = bin.count;
+        do {
+            const double a = pa[i], b = pb[i], r2 = a * a + b * b;
+            sa += a;
+            sb += b;
+            lo = std::min(lo, r2);
+            hi = std::max(hi, r2);
+            ++c;
+            ++i;
+        } while (i + 1 < n && kb[i] == k);
+        bin.sum_a_v = sa;
+        bin.sum_b_v = sb;
+        bin.r2_min = lo;
+        bin.r2_max = hi;
+        bin.count = c;
     }
 }
 
@@ -491,13 +568,46 @@ int quadrant(double a, double b) {
 }
 }  // namespace
 
+namespace {
+// The first index from i on (n if none) whose sample is not usable or not in quadrant Q,
+// kScan samples at a time while all are (a pass that vectorises), then one at a time.
+template <int Q>
+std::size_t scan_run_q(const double* t_s, const double* a_v, const double* b_v, std::size_t i, std::size_t n) {
+    constexpr std::size_t kScan = 32;
+    constexpr double kMax = SignalQuality::kMaxAbsV;
+    std::size_t j = i;
+    while (j + kScan <= n) {
+        unsigned bad = 0;
+#pragma omp simd reduction(+ : bad)
+        for (std::size_t k = 0; k < kScan; ++k) {
+            const double t = t_s[j + k], a = a_v[j + k], b = b_v[j + k];
+            // quadrant(a, b) == Q as two comparisons (false for NaN, as quadrant() gives -2 then)
+            const bool in_q = Q == 0 ? (a >= 0) & (b > 0) : Q == 1 ? (a > 0) & (b <= 0) : Q == 2 ? (a <= 0) & (b < 0) : (a < 0) & (b >= 0);
+            bad += static_cast<unsigned>(!(((t - t) == 0.0) & (std::fabs(a) < kMax) & (std::fabs(b) < kMax) & in_q));
+        }
+        if (bad) break;
+        j += kScan;
+    }
+    while (j < n && std::isfinite(t_s[j]) && std::fabs(a_v[j]) < kMax && std::fabs(b_v[j]) < kMax && quadrant(a_v[j], b_v[j]) == Q) ++j;
+    return j;
+}
+std::size_t scan_run(const double* t_s, const double* a_v, const double* b_v, std::size_t i, std::size_t n, int q) {
+    switch (q) {
+    case 0: return scan_run_q<0>(t_s, a_v, b_v, i, n);
+    case 1: return scan_run_q<1>(t_s, a_v, b_v, i, n);
+    case 2: return scan_run_q<2>(t_s, a_v, b_v, i, n);
+    case 3: return scan_run_q<3>(t_s, a_v, b_v, i, n);
+    default: return i;
+    }
+}
+}  // namespace
+
 void SignalQuality::add(const double* t_s, const double* a_v, const double* b_v, std::size_t n) {
     for (std::size_t i = 0; i < n; ++i) {
         // Most samples are usable and in the quadrant of the one before: such a run is counted
         // and kept in bulk (what the sample-by-sample path below does with each of them).
         if (have_prev_) {
-            std::size_t j = i;
-            while (j < n && std::isfinite(t_s[j]) && std::fabs(a_v[j]) < kMaxAbsV && std::fabs(b_v[j]) < kMaxAbsV && quadrant(a_v[j], b_v[j]) == prev_q_) ++j;
+            std::size_t j = scan_run(t_s, a_v, b_v, i, n, prev_q_);
             if (j > i) {
                 samples_ += j - i;
                 if (open_ && !too_long_) {

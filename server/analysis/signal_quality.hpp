@@ -16,6 +16,7 @@
 #include <array>
 #include <limits>
 #include <cstddef>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -85,6 +86,8 @@ private:
     int dir_ = 1;
     bool too_long_ = false;
     std::vector<double> pt_, pa_, pb_;
+    std::vector<double> phi_;          // the closing period's angles (scratch)
+    std::vector<std::uint32_t> bins_;  // its samples' Lissajous bins (scratch)
     // Totals
     std::size_t periods_ = 0, skipped_ = 0, samples_ = 0;
     std::size_t skipped_short_ = 0, skipped_long_ = 0;  // fewer than kMinPeriodSamples; more than kMaxPeriodSamples
