@@ -103,6 +103,10 @@ struct DeviceInfo {
     // replay's ABZ lines): declared by the driver, which delivers it through those ports.
     bool dut_position = false;
     int latency_samples = 0;  // known input delay relative to the output, samples
+    // Blocks of output a stream source keeps written ahead of the input it reads: a real-time
+    // board must never run dry while the host reads (4); a simulated device waits for nobody (1:
+    // the run's working set, and its first-touch page faults, shrink by three blocks).
+    int output_ahead_blocks = 4;
     nlohmann::json settings = nlohmann::json::object();  // resolved settings
     ConverterInfo converter;
     // Instrument mode (issue 14): such devices run on their own clocks with an unknown delay

@@ -113,6 +113,7 @@ public:
         i.description = "simulated DAC -> filters -> noise -> ADC";
         i.board_id = "loopback";
         i.latency_samples = latency_;
+        i.output_ahead_blocks = 1;  // simulated: the input never waits for a clock
         i.settings = s_;
         if (own_clock_) {
             i.description = "simulated generator and digitizer on separate clocks: delay, clock offset, gain, offset, noise, DAC and ADC";

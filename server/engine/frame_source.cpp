@@ -83,7 +83,8 @@ class StreamSource final : public FrameSource {
 public:
     StreamSource(const Scenario& sc, dev::StreamPort& d, const dev::DeviceInfo& info, std::size_t block)
         : sc_(sc), dev_(d), gen_(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed, sc.t0_s),
-          ahead_gen_(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed, sc.t0_s), block_(block), total_(sc.samples()) {
+          ahead_gen_(sc.encoder, sc.motion, sc.sample_rate_hz, sc.seed, sc.t0_s), block_(block), total_(sc.samples()),
+          ahead_(static_cast<std::uint64_t>(std::max(1, info.output_ahead_blocks))) {
         // The first latency_samples input frames predate the signal and are not scored.
         if (info.latency_samples > 0) {
             Block lat;
@@ -104,13 +105,14 @@ public:
             dev_.stop();
         }
     }
-    // Call c of next() writes block c + 3 once the first call has written blocks 0..3 (four
-    // blocks ahead, every call reading one): this generates block c + 4, for call c + 1, with
-    // a generator of its own. The generator's output depends only on the sample index.
+    // Call c of next() writes block c + A - 1 once the first call has written blocks 0..A-1 (A
+    // = the device's output_ahead_blocks, every call reading one): this generates block c + A,
+    // for call c + 1, with a generator of its own. The generator's output depends only on the
+    // sample index.
     void generate_ahead() override {
         const std::uint64_t c = ahead_calls_++;
         const std::size_t slot = static_cast<std::size_t>(c % 2);
-        const std::uint64_t first = (c + 4) * block_;
+        const std::uint64_t first = (c + ahead_) * block_;
         pre_first_[slot] = kNone;
         if (first >= total_) return;
         const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(block_, total_ - first));
@@ -123,9 +125,9 @@ public:
         // What generate_ahead() made beside the call before (another slot than the one it fills now).
         const std::size_t ready = static_cast<std::size_t>((call + 1) % 2);
         const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(max, total_ - k_in_));
-        // Output runs up to four blocks ahead of input: a real-time board (USB) must never run
-        // dry while the host reads. Truth is queued as it is written.
-        while (k_out_ < std::min<std::uint64_t>(total_, k_in_ + 4 * block_)) {
+        // Output runs up to A blocks ahead of input (four for a real-time board, which must
+        // never run dry while the host reads). Truth is queued as it is written.
+        while (k_out_ < std::min<std::uint64_t>(total_, k_in_ + ahead_ * block_)) {
             const std::size_t nw = static_cast<std::size_t>(std::min<std::uint64_t>(block_, total_ - k_out_));
             Block* b = &b_;
             if (call > 0 && pre_first_[ready] == k_out_ && pre_[ready].size() == nw) {
@@ -220,7 +222,7 @@ private:
     std::uint64_t pre_first_[2] = {kNone, kNone};
     std::uint64_t next_calls_ = 0, ahead_calls_ = 0;
     std::size_t block_;
-    std::uint64_t total_, k_out_ = 0, k_in_ = 0;
+    std::uint64_t total_, ahead_, k_out_ = 0, k_in_ = 0;
     TruthFifo pending_;
     bool started_ = false;
 };
