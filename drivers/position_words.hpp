@@ -251,7 +251,7 @@ struct LogicSignals {
 struct EmitterTiming {
     double sample_rate_hz = 1e6;
     int half_clock_samples = 2;   // samples per half clock period (>= 1)
-    int idle_samples = 40;        // idle before each frame (a frame's timeout must fit in it)
+    int idle_samples = 40;        // lines at rest before each frame (the timeout after it is added by the emitter)
     int ack_bits = 1;             // BiSS: Ack length in clock periods (>= 1)
 };
 
