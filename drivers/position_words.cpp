@@ -1,11 +1,13 @@
 #include "position_words.hpp"
 #include "signal_gen/base/constants.hpp"
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstdlib>
 #include <limits>
 #include <stdexcept>
+#include <type_traits>
 
 namespace fringe {
 
@@ -575,6 +577,158 @@ nlohmann::json PositionStreamParser::to_json() const {
     j["lines"] = st_.samples;
     j.erase("samples");
     return j;
+}
+
+// ---- Settings as JSON ----
+
+namespace {
+
+// Reads the keys of j into a config: each key must be one `read` knows.
+class Fields {
+public:
+    Fields(const nlohmann::json& j, const char* who) : j_(j), who_(who) {
+        if (!j.is_object()) throw std::invalid_argument(std::string(who) + ": the settings must be a JSON object");
+    }
+    template <class T>
+    void get(const char* key, T& out) {
+        known_.push_back(key);
+        const auto it = j_.find(key);
+        if (it == j_.end()) return;
+        try {
+            if constexpr (std::is_same_v<T, bool>) {
+                if (!it->is_boolean()) throw std::invalid_argument("not a boolean");
+            } else if constexpr (std::is_integral_v<T>) {
+                if (!it->is_number_integer()) throw std::invalid_argument("not an integer");
+                constexpr auto hi = static_cast<std::uint64_t>(std::numeric_limits<T>::max());
+                constexpr auto lo = static_cast<std::int64_t>(std::numeric_limits<T>::min());
+                bool fits;
+                if (it->is_number_unsigned()) {
+                    fits = it->template get<std::uint64_t>() <= hi;
+                } else {
+                    const std::int64_t v = it->template get<std::int64_t>();
+                    fits = v >= lo && (v < 0 || static_cast<std::uint64_t>(v) <= hi);
+                }
+                if (!fits) throw std::invalid_argument("out of range");
+            } else if constexpr (std::is_floating_point_v<T>) {
+                if (!it->is_number()) throw std::invalid_argument("not a number");
+            } else {
+                if (!it->is_string()) throw std::invalid_argument("not a string");
+            }
+            out = it->template get<T>();
+        } catch (const std::exception& e) {
+            throw std::invalid_argument(std::string(who_) + ": " + key + ": " + e.what());
+        }
+    }
+    void code(WordCode& out) {
+        std::string s = out == WordCode::gray ? "gray" : "binary";
+        get("code", s);
+        if (s != "binary" && s != "gray") throw std::invalid_argument(std::string(who_) + ": code must be \"binary\" or \"gray\"");
+        out = s == "gray" ? WordCode::gray : WordCode::binary;
+    }
+    void angle(WordAngleMap& m) {
+        get("counts_per_rev", m.counts_per_rev);
+        get("cycles_per_rev", m.cycles_per_rev);
+        get("offset_rad", m.offset_rad);
+    }
+    void no_others() const {
+        for (const auto& kv : j_.items())
+            if (std::find(known_.begin(), known_.end(), kv.key()) == known_.end()) {
+                std::string keys;
+                for (const std::string& k : known_) keys += (keys.empty() ? "" : ", ") + k;
+                throw std::invalid_argument(std::string(who_) + ": unknown setting \"" + kv.key() + "\" (known: " + keys + ")");
+            }
+    }
+
+private:
+    const nlohmann::json& j_;
+    const char* who_;
+    std::vector<std::string> known_;
+};
+
+void put_angle(nlohmann::json& j, const WordAngleMap& m) {
+    j["counts_per_rev"] = m.counts_per_rev;
+    j["cycles_per_rev"] = m.cycles_per_rev;
+    j["offset_rad"] = m.offset_rad;
+}
+
+}  // namespace
+
+void to_json(nlohmann::json& j, const SsiConfig& c) {
+    j = {{"position_bits", c.position_bits}, {"code", code_name(c.code)}, {"error_bits", c.error_bits},
+         {"error_active_high", c.error_active_high}, {"timeout_s", c.timeout_s}};
+    put_angle(j, c.angle);
+}
+
+void from_json(const nlohmann::json& j, SsiConfig& c) {
+    c = SsiConfig{};
+    Fields f(j, "SSI readout");
+    f.get("position_bits", c.position_bits);
+    f.code(c.code);
+    f.get("error_bits", c.error_bits);
+    f.get("error_active_high", c.error_active_high);
+    f.get("timeout_s", c.timeout_s);
+    f.angle(c.angle);
+    f.no_others();
+}
+
+void to_json(nlohmann::json& j, const BissConfig& c) {
+    j = {{"position_bits", c.position_bits}, {"code", code_name(c.code)}, {"max_ack_bits", c.max_ack_bits}, {"timeout_s", c.timeout_s}};
+    put_angle(j, c.angle);
+}
+
+void from_json(const nlohmann::json& j, BissConfig& c) {
+    c = BissConfig{};
+    Fields f(j, "BiSS-C readout");
+    f.get("position_bits", c.position_bits);
+    f.code(c.code);
+    f.get("max_ack_bits", c.max_ack_bits);
+    f.get("timeout_s", c.timeout_s);
+    f.angle(c.angle);
+    f.no_others();
+}
+
+void to_json(nlohmann::json& j, const SpiConfig& c) {
+    j = {{"mode", c.mode},
+         {"word_bits", c.word_bits},
+         {"msb_first", c.msb_first},
+         {"position_bits", c.position_bits},
+         {"position_shift", c.position_shift},
+         {"error_bit", c.error_bit},
+         {"error_active_high", c.error_active_high},
+         {"code", code_name(c.code)}};
+    put_angle(j, c.angle);
+}
+
+void from_json(const nlohmann::json& j, SpiConfig& c) {
+    c = SpiConfig{};
+    Fields f(j, "SPI readout");
+    f.get("mode", c.mode);
+    f.get("word_bits", c.word_bits);
+    f.get("msb_first", c.msb_first);
+    f.get("position_bits", c.position_bits);
+    f.get("position_shift", c.position_shift);
+    f.get("error_bit", c.error_bit);
+    f.get("error_active_high", c.error_active_high);
+    f.code(c.code);
+    f.angle(c.angle);
+    f.no_others();
+}
+
+void to_json(nlohmann::json& j, const StreamConfig& c) {
+    j = {{"time_unit", c.time_unit}, {"sample_rate_hz", c.sample_rate_hz}, {"position_bits", c.position_bits},
+         {"max_line_bytes", c.max_line_bytes}};
+    put_angle(j, c.angle);
+}
+
+void from_json(const nlohmann::json& j, StreamConfig& c) {
+    c = StreamConfig{};
+    Fields f(j, "position stream");
+    f.get("time_unit", c.time_unit);
+    f.get("sample_rate_hz", c.sample_rate_hz);
+    f.get("position_bits", c.position_bits);
+    f.get("max_line_bytes", c.max_line_bytes);
+    f.angle(c.angle);
+    f.no_others();
 }
 
 // ---- Emitters ----

@@ -275,4 +275,17 @@ void emit_idle(const EmitterTiming& tm, int samples, LogicSignals& out);
 
 nlohmann::json to_json(const PositionWordStats& s);
 
+// Settings as JSON, in one place (docs/dut-readouts.md tables; the angle keys counts_per_rev,
+// cycles_per_rev and offset_rad sit beside the protocol's). from_json starts from the defaults,
+// and throws std::invalid_argument naming the key for an unknown key or a value of the wrong
+// type or out of its range; the decoders' constructors check the combination.
+void to_json(nlohmann::json& j, const SsiConfig& c);
+void from_json(const nlohmann::json& j, SsiConfig& c);
+void to_json(nlohmann::json& j, const BissConfig& c);
+void from_json(const nlohmann::json& j, BissConfig& c);
+void to_json(nlohmann::json& j, const SpiConfig& c);
+void from_json(const nlohmann::json& j, SpiConfig& c);
+void to_json(nlohmann::json& j, const StreamConfig& c);
+void from_json(const nlohmann::json& j, StreamConfig& c);
+
 }  // namespace fringe

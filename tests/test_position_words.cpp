@@ -679,4 +679,62 @@ TEST_CASE("Decoder reports name their settings and counts", "[dut][words]") {
     CHECK(j.value("protocol", "") == "ssi");
 }
 
+TEST_CASE("Readout settings round-trip through JSON; unknown keys and wrong types are refused by name", "[dut][words]") {
+    SsiConfig ssi;
+    ssi.position_bits = 25;
+    ssi.code = WordCode::gray;
+    ssi.error_bits = 1;
+    ssi.error_active_high = false;
+    ssi.timeout_s = 30e-6;
+    ssi.angle = {1u << 25, 2048, 0.25};
+    const SsiConfig ssi2 = nlohmann::json(ssi).get<SsiConfig>();
+    CHECK(nlohmann::json(ssi2) == nlohmann::json(ssi));
+    CHECK((ssi2.position_bits == 25 && ssi2.code == WordCode::gray && ssi2.error_bits == 1 && !ssi2.error_active_high &&
+           ssi2.timeout_s == 30e-6 && ssi2.angle.counts_per_rev == (1u << 25) && ssi2.angle.cycles_per_rev == 2048 && ssi2.angle.offset_rad == 0.25));
+    BissConfig biss;
+    biss.position_bits = 64;
+    biss.max_ack_bits = 5;
+    biss.angle.counts_per_rev = ~std::uint64_t{0};
+    const BissConfig biss2 = nlohmann::json(biss).get<BissConfig>();
+    CHECK((biss2.position_bits == 64 && biss2.max_ack_bits == 5 && biss2.angle.counts_per_rev == ~std::uint64_t{0}));
+    SpiConfig spi;
+    spi.mode = 3;
+    spi.word_bits = 16;
+    spi.msb_first = false;
+    spi.position_bits = 14;
+    spi.position_shift = 1;
+    spi.error_bit = 15;
+    const SpiConfig spi2 = nlohmann::json(spi).get<SpiConfig>();
+    CHECK(nlohmann::json(spi2) == nlohmann::json(spi));
+    CHECK((spi2.mode == 3 && !spi2.msb_first && spi2.position_shift == 1 && spi2.error_bit == 15));
+    StreamConfig st;
+    st.time_unit = "sample";
+    st.sample_rate_hz = 1e5;
+    st.max_line_bytes = 80;
+    const StreamConfig st2 = nlohmann::json(st).get<StreamConfig>();
+    CHECK((st2.time_unit == "sample" && st2.sample_rate_hz == 1e5 && st2.max_line_bytes == 80));
+    // a missing key keeps its default
+    const SpiConfig d = nlohmann::json{{"word_bits", 12}}.get<SpiConfig>();
+    CHECK((d.word_bits == 12 && d.mode == 0 && d.msb_first && d.error_bit == -1));
+    auto refused = [](const nlohmann::json& j, const std::string& words) {
+        try {
+            (void)j.get<SpiConfig>();
+        } catch (const std::invalid_argument& e) {
+            CHECK_THAT(e.what(), Catch::Contains(words));
+            return;
+        }
+        FAIL("accepted " << j.dump());
+    };
+    refused({{"word_bits", 12}, {"wordbits", 12}}, "unknown setting \"wordbits\"");
+    refused({{"word_bits", "12"}}, "word_bits: not an integer");
+    refused({{"word_bits", 12.5}}, "word_bits: not an integer");
+    refused({{"mode", 4294967296LL}}, "mode: out of range");
+    refused({{"msb_first", 1}}, "msb_first: not a boolean");
+    refused({{"code", "bcd"}}, "code must be");
+    refused({{"offset_rad", "0"}}, "offset_rad: not a number");
+    refused({{"counts_per_rev", -1}}, "counts_per_rev: out of range");
+    refused(nlohmann::json::array(), "a JSON object");
+    CHECK_THROWS_AS(nlohmann::json({{"time_unit", 3}}).get<StreamConfig>(), std::invalid_argument);
+}
+
 }  // namespace test_position_words_cpp
