@@ -248,16 +248,14 @@ void BissDecoder::process(std::size_t n, const double* t, const double* ma, cons
         }
         if (!c && prev_ma_) {  // falling edge: read SLO
             if (in_frame_) {
+                // Falls 1, 2, ...: with an Ack of A clocks, the Ack is read at falls 2 .. A+1 and
+                // the Start bit at fall A+2; A > max_ack_bits is no_start.
                 switch (phase_) {
                 case Phase::request:
-                    ++waited_;
-                    if (!d) phase_ = Phase::ack;
-                    else if (waited_ > cfg_.max_ack_bits + 2) phase_ = Phase::overrun;
-                    break;
                 case Phase::ack:
-                    ++waited_;
-                    if (d) phase_ = Phase::data;
-                    else if (waited_ > cfg_.max_ack_bits + 2) phase_ = Phase::overrun;
+                    if (++waited_ > cfg_.max_ack_bits + 2) phase_ = Phase::overrun;
+                    else if (phase_ == Phase::request && !d) phase_ = Phase::ack;
+                    else if (phase_ == Phase::ack && d) phase_ = Phase::data;
                     break;
                 case Phase::data:
                     if (nbits_ < frame_bits) bits_.push_back(d ? 1 : 0);

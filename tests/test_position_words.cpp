@@ -368,6 +368,26 @@ TEST_CASE("BiSS-C: a slave that never acknowledges gives no_start, one per frame
     CHECK(d.stats().no_start == 3);
 }
 
+TEST_CASE("BiSS-C: an Ack of max_ack_bits clocks is read, one clock longer is no_start", "[dut][words]") {
+    for (int max_ack : {1, 4, 32}) {
+        BissConfig c;
+        c.position_bits = 16;
+        c.max_ack_bits = max_ack;
+        for (int ack : {max_ack, max_ack + 1}) {
+            CAPTURE(max_ack, ack);
+            EmitterTiming tm = timing();
+            tm.ack_bits = ack;
+            LogicSignals s;
+            emit_biss_frame(c, tm, 0xBEEF, {}, s);
+            BissDecoder d(c);
+            const auto w = run(d, s);
+            REQUIRE(w.size() == 1);
+            if (ack <= max_ack) CHECK((w[0].valid && w[0].value == 0xBEEF));
+            else CHECK(w[0].error == "no_start");
+        }
+    }
+}
+
 TEST_CASE("SPI faults: each is counted and invalidates exactly its word", "[dut][words]") {
     SpiConfig c;
     c.mode = 3;
