@@ -699,7 +699,7 @@ TEST_CASE("Decoder reports name their settings and counts", "[dut][words]") {
     CHECK(j.value("protocol", "") == "ssi");
 }
 
-TEST_CASE("Readout settings round-trip through JSON; unknown keys and wrong types are refused by name", "[dut][words]") {
+TEST_CASE("Readout settings round-trip through JSON, unknown keys and wrong types are refused by name", "[dut][words]") {
     SsiConfig ssi;
     ssi.position_bits = 25;
     ssi.code = WordCode::gray;
