@@ -10,6 +10,10 @@
 #include <vector>
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size);
+// A target's teardown, if it defines one: threads it started are stopped here, inside main(),
+// while every static they may use still exists (after main() returns, statics built later
+// than the target's own, e.g. by a run on a worker thread, are destroyed first).
+extern "C" void FringeFuzzTeardown() __attribute__((weak));
 
 int main(int argc, char** argv) {
     namespace fs = std::filesystem;
@@ -37,6 +41,7 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "replay: %s (%zu bytes)\n", f.string().c_str(), bytes.size());
         LLVMFuzzerTestOneInput(reinterpret_cast<const std::uint8_t*>(bytes.data()), bytes.size());
     }
+    if (FringeFuzzTeardown) FringeFuzzTeardown();
     std::printf("replayed %zu inputs, none crashed\n", files.size());
     return 0;
 }
