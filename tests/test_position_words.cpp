@@ -60,6 +60,16 @@ std::vector<PositionWord> run(Decoder& d, const LogicSignals& s, const std::vect
     return out;
 }
 
+// Every word valid, with the value sent and stamped at the emitter's latch time.
+void round_trip(const std::vector<PositionWord>& w, const std::vector<std::uint64_t>& vals, const std::vector<double>& latch) {
+    REQUIRE(w.size() == vals.size());
+    for (std::size_t i = 0; i < w.size(); ++i) {
+        CHECK(w[i].valid);
+        CHECK(w[i].value == vals[i]);
+        CHECK(w[i].t_s == latch[i]);
+    }
+}
+
 void same_words(const std::vector<PositionWord>& a, const std::vector<PositionWord>& b) {
     REQUIRE(a.size() == b.size());
     for (std::size_t i = 0; i < a.size(); ++i) {
@@ -130,12 +140,7 @@ TEST_CASE("SSI words round-trip at the edges of every range, binary and Gray", "
                 for (std::uint64_t v : vals) latch.push_back(emit_ssi_frame(c, tm, v, {}, s));
                 SsiDecoder d(c);
                 const auto w = run(d, s);
-                REQUIRE(w.size() == vals.size());
-                for (std::size_t i = 0; i < w.size(); ++i) {
-                    CHECK(w[i].valid);
-                    CHECK(w[i].value == vals[i]);
-                    CHECK(w[i].t_s == latch[i]);
-                }
+                round_trip(w, vals, latch);
                 CHECK(d.stats().valid_words == vals.size());
                 CHECK(d.stats().invalid_words == 0);
             }
@@ -157,12 +162,7 @@ TEST_CASE("BiSS-C words round-trip at the edges of every range, CRC checked", "[
                 for (std::uint64_t v : vals) latch.push_back(emit_biss_frame(c, tm, v, {}, s));
                 BissDecoder d(c);
                 const auto w = run(d, s);
-                REQUIRE(w.size() == vals.size());
-                for (std::size_t i = 0; i < w.size(); ++i) {
-                    CHECK(w[i].valid);
-                    CHECK(w[i].value == vals[i]);
-                    CHECK(w[i].t_s == latch[i]);
-                }
+                round_trip(w, vals, latch);
                 CHECK(d.stats().crc_errors == 0);
                 CHECK(d.stats().invalid_words == 0);
             }
@@ -207,12 +207,7 @@ TEST_CASE("SPI words round-trip in every mode, MSB and LSB first, 1..64 bits", "
                 for (std::uint64_t v : vals) latch.push_back(emit_spi_frame(c, tm, v, {}, s));
                 SpiDecoder d(c);
                 const auto w = run(d, s);
-                REQUIRE(w.size() == vals.size());
-                for (std::size_t i = 0; i < w.size(); ++i) {
-                    CHECK(w[i].valid);
-                    CHECK(w[i].value == vals[i]);
-                    CHECK(w[i].t_s == latch[i]);
-                }
+                round_trip(w, vals, latch);
             }
 }
 
