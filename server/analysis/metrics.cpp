@@ -213,7 +213,9 @@ std::vector<MetricInfo> build_catalog() {
               const json ro = sub(metrics_of(e), "readout");
               if (!ro.is_object()) return none(why, "only a DUT read out by its own device has it (device.dut)");
               if (ro.contains("abz")) return number(sub(ro, "abz").value("illegal_transitions", json()), why, "not counted");
-              return number(ro.value("invalid_words", json()), why, "not counted");
+              // Invalid words, and lines that made no word at all.
+              if (!ro.value("invalid_words", json()).is_number()) return none(why, "not counted");
+              return number(json(ro["invalid_words"].get<double>() + ro.value("malformed_lines", 0.0)), why, "not counted");
           }),
         M("dut_crc_errors", "words", "DUT readout: words with a bad CRC (BiSS-C; docs/dut-readouts.md)", "the dut lane of a run with device.dut", count, "",
           [](const json& e, std::string* why) -> Value {

@@ -90,7 +90,12 @@ struct Lane {
         double prev_t = 0, prev_th = 0, prev_om = 0;
         bool prev_known = false;
         std::uint64_t received = 0, before_run = 0, scored_truth_known = 0;
+        std::string failed;  // the readout's fault, raised at the next block
     } feed;
+    // A readout fault not yet raised (its block was the run's last).
+    void fail_pending() const {
+        if (readout && !feed.failed.empty()) throw std::runtime_error(feed.failed);
+    }
 
     void estimate_words(const Frames& f, int slot) {
         Slot& o = out[slot];
@@ -99,10 +104,13 @@ struct Lane {
         auto& w = feed;
         w.words.clear();
         const double off = readout->readout_to_run_s();
+        // A readout that fails: the words it read are still scored, and the run ends at the next
+        // block (or after this one, if it was the last: fail_pending()).
+        if (!w.failed.empty()) throw std::runtime_error(w.failed);
         if (m > 0) {
             const dev::StreamResult r = readout->read_words(f.t_s[m - 1] - off, w.words, static_cast<int>(readout->stall_s() * 1000));
             if (r.status != dev::StreamStatus::Ok)
-                throw std::runtime_error(std::string("device.dut: ") + dev::to_string(r.status) + ": " + r.message + " (the words read before it are scored)");
+                w.failed = std::string("device.dut: ") + dev::to_string(r.status) + ": " + r.message + " (the words read before it are scored)";
         }
         const std::size_t n = w.words.size();
         w.received += n;
@@ -626,6 +634,7 @@ RunReport execute_pass(RunPlan plan, const RunOptions& o) {
             if (analysis_error) std::rethrow_exception(analysis_error);
         }
         if (source_failure) std::rethrow_exception(source_failure);
+        for (const auto& lane : lanes) lane->fail_pending();
         source->stop();
         if (dut_device) dut_device->readout()->stop();
         if (dinfo.dut_position)
