@@ -78,6 +78,12 @@ public:
     // source ends; returns the status of the underlying read.
     virtual StreamResult pull(double up_to_s, std::deque<PositionWord>& q, int timeout_ms) = 0;
     virtual nlohmann::json stats() const = 0;
+    // Why the source's end is a fault when the run needs words up to up_to_s ("" when it is not):
+    // a live stream that stops more than slack_s before the run's time.
+    virtual std::string end_fault(double up_to_s, double slack_s) const {
+        (void)up_to_s, (void)slack_s;
+        return "";
+    }
 };
 
 // A sigrok session's logic lines through a decoder.
@@ -273,11 +279,6 @@ public:
                 parser_->finish(words_);
                 ended_ = true;
                 take_last();
-                if (tcp_) {
-                    r.status = StreamStatus::Error;
-                    r.message = "the DUT closed the connection (its stream reached t = " + (have_last_ ? std::to_string(last_t_) : std::string("nothing")) +
-                                " s; the run needs words up to " + std::to_string(up_to_s) + " s)";
-                }
                 break;
             }
             bytes_ += static_cast<std::uint64_t>(got);
@@ -287,6 +288,11 @@ public:
         for (auto& w : words_) q.push_back(std::move(w));
         words_.clear();
         return r;
+    }
+    std::string end_fault(double up_to_s, double slack_s) const override {
+        if (!tcp_ || !ended_ || (have_last_ && last_t_ >= up_to_s - slack_s)) return "";
+        return "the DUT closed the connection (its stream reached t = " + (have_last_ ? std::to_string(last_t_) : std::string("nothing")) +
+               " s; the run needs words up to " + std::to_string(up_to_s) + " s)";
     }
     nlohmann::json stats() const override {
         nlohmann::json j = parser_->to_json();
@@ -371,6 +377,13 @@ public:
     StreamResult read_words(double up_to_s, std::vector<PositionWordOut>& out, int timeout_ms) override {
         StreamResult r;
         if (q_.empty() || q_.back().t_s <= up_to_s) r = src_->pull(up_to_s, q_, timeout_ms);
+        // A live stream may end with the run (within two words of its last frame), not before.
+        if (r.status == StreamStatus::Ok) {
+            if (const std::string why = src_->end_fault(up_to_s, 2.0 / rate_hz_); !why.empty()) {
+                r.status = StreamStatus::Error;
+                r.message = why;
+            }
+        }
         std::size_t n = 0;
         while (!q_.empty() && (q_.front().t_s <= up_to_s || !std::isfinite(q_.front().t_s))) {
             const PositionWord& w = q_.front();
