@@ -174,12 +174,35 @@ public:
 // A waveform generator: upload both channels (V) at sample_rate_hz and start the output;
 // cyclic repeats the block until stop_output, else it plays once. Throws DeviceError when
 // the instrument reports an error (naming its native error text).
+class SequencePort;
 class PlayPort {
 public:
     virtual ~PlayPort() = default;
     virtual void play(std::span<const double> sin_v, std::span<const double> cos_v, double sample_rate_hz, bool cyclic) = 0;
     virtual void stop_output() = 0;
     virtual std::size_t memory_samples() const = 0;  // per channel; 0: unlimited
+    // Segmented playback of a signal longer than the memory (SequencePort); null when the
+    // generator has none, and then sequence_refusal() says why (instrument and mode).
+    virtual SequencePort* sequencer() { return nullptr; }
+    virtual std::string sequence_refusal() const { return "it has no segmented (sequence or streaming) playback"; }
+};
+
+// What a generator's segmented playback allows (docs/bench.md "Segmented playback").
+struct SequenceLimits {
+    std::size_t max_segments = 0;         // segments in one playback
+    std::size_t min_segment_samples = 1;  // per channel; the last segment too
+    std::size_t max_segment_samples = 0;  // per channel (at most the memory)
+};
+
+// A generator playing one signal longer than its memory as segments back to back from one
+// start (armed and triggered as PlayPort::play, played once), sample-continuous: no gap and no
+// repeated sample at a join. segment_samples per segment, the last one shorter; stop with
+// PlayPort::stop_output. Throws DeviceError when the limits are broken or the instrument fails.
+class SequencePort {
+public:
+    virtual ~SequencePort() = default;
+    virtual SequenceLimits sequence_limits() const = 0;
+    virtual void play_segments(std::span<const double> sin_v, std::span<const double> cos_v, std::size_t segment_samples, double sample_rate_hz) = 0;
 };
 
 // A digitizer or scope: acquire up to sin_v.size() input frames at (nominally)
