@@ -525,7 +525,7 @@ TEST_CASE("scenario: device as output and input instruments, errors name the fie
         FAIL("no error");
     } catch (const ConfigError& e) {
         CHECK(e.field() == "device.dut");
-        CHECK_THAT(e.message(), Catch::Contains("not supported yet"));
+        CHECK_THAT(e.message(), Catch::Contains("readout:"));
     }
     bad["device"]["dut"] = "modbus+tcp://127.0.0.1:1502?bogus=1";
     CHECK_THROWS_WITH(plan_run(scenario_from_json(bad, base)), Catch::Contains("device.dut.bogus"));

@@ -374,7 +374,7 @@ TEST_CASE("hostile: device URIs over HTTP are sandboxed", "[service][hostile][so
             const auto r = s2.post("/api/v1/runs", json{{"scenario", isc}}.dump());
             check_error(r, 403, "device_not_allowed");
             CHECK(r.error()["field"] == "scenario.device.dut");
-            no_leak(r);
+            CHECK(r.body.find("root:") == std::string::npos);  // the URI is echoed, never what it names
         }
     }
     SECTION("a calibrated run's after pass and a correction file are held to the same policy (found by a hostile trial)") {
