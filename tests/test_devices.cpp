@@ -46,6 +46,7 @@ std::vector<std::string> ports_of(Device& d) {
     if (d.player()) p.push_back("play");
     if (d.recorder()) p.push_back("record");
     if (d.replay()) p.push_back("replay");
+    if (d.readout()) p.push_back("readout");
     return p;
 }
 
@@ -106,6 +107,15 @@ void exercise(Device& d) {
         CHECK(r.status == StreamStatus::Ok);
         CHECK(r.frames > 0);
         CHECK(rp->last_truth(std::span(th).first(r.frames), std::span(om).first(r.frames)));
+    }
+    if (ReadoutPort* ro = d.readout()) {
+        ro->start();
+        std::vector<PositionWordOut> w;
+        const auto r = ro->read_words(1.0, w, 1000);
+        CHECK(r.status == StreamStatus::Ok);
+        CHECK(r.frames == w.size());
+        CHECK(!w.empty());
+        ro->stop();
     }
 }
 
@@ -276,6 +286,16 @@ TEST_CASE("devices: every kind has exactly the ports docs/architecture.md lists,
         }
         auto d = open("capture:" + path);
         run("capture", *d);
+    }
+    {
+        test::TempDir dir;
+        const std::string path = (dir.path / "words.txt").string();
+        {
+            std::ofstream f(path);
+            for (int k = 0; k < 100; ++k) f << k * 1e-3 << " " << (k * 37) % 4096 << "\n";
+        }
+        auto d = open("readout:" + path + "?counts_per_rev=4096");
+        run("readout", *d);
     }
     {
         BoardSimOptions o;
