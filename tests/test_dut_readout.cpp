@@ -143,6 +143,8 @@ TEST_CASE("a DUT's line stream is scored word by word at its latch instants, its
         CHECK(ro["malformed_lines"] == 3);
         CHECK(ro["word_rate_hz"].get<double>() == Approx(10000).epsilon(1e-6));
         if (latency_s > 0) CHECK(ro["latency_s"].get<double>() == Approx(latency_s).epsilon(0.02));
+        // Without its latency the DUT's error is its count's quantisation alone.
+        CHECK(ro["rms_without_latency_rad"].get<double>() == Approx(step_rad / std::sqrt(12.0)).epsilon(0.05));
         bool warned = false;
         for (const auto& w : r["warnings"]) warned |= w["code"] == "dut_wire_errors";
         CHECK(warned);
@@ -205,6 +207,7 @@ TEST_CASE("a BiSS-C DUT recorded by a logic analyser: CRC errors counted and nev
     CHECK(ro["valid_words"] == frames - flipped);
     CHECK(m["slipped_samples"] == 0);
     CHECK(ro["latency_s"].get<double>() == Approx(latency_s).epsilon(0.02));
+    CHECK(ro["rms_without_latency_rad"].get<double>() == Approx(2 * kPi / static_cast<double>(M) / std::sqrt(12.0)).epsilon(0.05));
     // Invalid words are counted, not scored: the valid fraction says how many.
     const double vf = m["evidence"]["valid_fraction"].get<double>();
     CHECK(vf < 1.0);

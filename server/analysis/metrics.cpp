@@ -223,8 +223,15 @@ std::vector<MetricInfo> build_catalog() {
               if (!ro.is_object()) return none(why, "only a DUT read out by its own device has it (device.dut)");
               return number(ro.value("crc_errors", json()), why, "the protocol carries no CRC");
           }),
-        M("dut_latency_s", "s", "DUT readout: the age of the position a word carries at its latch instant (the lag fit of its error against the "
-          "true rate; docs/dut-readouts.md)", "the dut lane of a run with device.dut, on a moving motion", "none: a fit", "latency",
+        M("dut_rms_without_latency_rad", "rad", "DUT readout: rms error of its words with the fitted latency taken out (its interpolation "
+          "apart from its delay; docs/dut-readouts.md)", "the dut lane of a run with device.dut, on a moving motion", "none", "rms w/o latency",
+          [](const json& e, std::string* why) -> Value {
+              const json ro = sub(metrics_of(e), "readout");
+              if (!ro.is_object()) return none(why, "only a DUT read out by its own device has it (device.dut)");
+              return number(ro.value("rms_without_latency_rad", json()), why, "not measured: the motion did not move while words were scored");
+          }),
+        M("dut_latency_s", "s", "DUT readout: the age of the position a word carries at its latch instant (least squares of its error "
+          "against the true rate; docs/dut-readouts.md)", "the dut lane of a run with device.dut, on a moving motion", "none: a fit", "latency",
           [](const json& e, std::string* why) -> Value {
               const json ro = sub(metrics_of(e), "readout");
               if (!ro.is_object()) return none(why, "only a DUT read out by its own device has it (device.dut)");

@@ -20,6 +20,7 @@
 #include <cstdlib>
 #include <ctime>
 #include <limits>
+#include <numbers>
 #include <random>
 #include <thread>
 
@@ -78,7 +79,8 @@ struct Lane {
     double estimator_s = 0;  // time inside the estimator
     bool self_reference = false;  // keep the estimator's own flags for the self-referenced analyser
     std::function<void(std::size_t, const double*, const double*, const double*, const std::uint8_t*)> tap;  // RunOptions::estimates
-    Lane(const EstimatorSpec* s, const LaneContext& ctx) : spec(s), analysers(ctx), self_reference(ctx.self_reference) {}
+    Lane(const EstimatorSpec* s, const LaneContext& ctx) : spec(s), analysers(ctx), self_reference(ctx.self_reference), settle_s(ctx.settle_s) {}
+    double settle_s = 0;
 
     // A DUT read out by its own device (device.dut): its words, each scored once against the
     // truth at its latch instant, which falls between two frames (cubic Hermite through their
@@ -91,6 +93,10 @@ struct Lane {
         bool prev_known = false;
         std::uint64_t received = 0, before_run = 0, scored_truth_known = 0;
         std::string failed;  // the readout's fault, raised at the next block
+        // The latency fit: e = -omega * tau over the valid words after the settle time (e the
+        // word's error wrapped to (-pi, pi]), least squares through zero, and what is left.
+        bool have_t0 = false;
+        double t0 = 0, n = 0, see = 0, seo = 0, soo = 0;
     } feed;
     // A readout fault not yet raised (its block was the run's last).
     void fail_pending() const {
@@ -159,6 +165,11 @@ struct Lane {
             o.wknown[k] = static_cast<std::uint8_t>(k0 && k1);
             w.scored_truth_known += o.wknown[k];
             o.valid[k] = static_cast<std::uint8_t>(w.words[k].valid && o.wknown[k] && std::isfinite(o.th[k]));
+            if (!w.have_t0) { w.have_t0 = true; w.t0 = tw; }
+            if (o.valid[k] && std::isfinite(om) && tw - w.t0 >= settle_s) {
+                const double err = std::remainder(o.th[k] - th, 2 * std::numbers::pi);
+                w.n += 1; w.see += err * err; w.seo += err * om; w.soo += om * om;
+            }
         }
         if (m > 0) {
             w.have_prev = true;
@@ -324,7 +335,14 @@ std::vector<EstimatorReport> score_lanes(const Scenario& sc, const dev::DeviceIn
             ro["words_received"] = lane->feed.received;
             ro["words_before_run"] = lane->feed.before_run;
             ro["words_with_truth"] = lane->feed.scored_truth_known;
-            ro["latency_s"] = m.lag_s ? json(*m.lag_s) : json();
+            // The latency by least squares over the valid words (null when the motion never
+            // moved), and the rms error with it taken out: what the DUT's interpolation is
+            // worth apart from its delay.
+            const auto& fw = lane->feed;
+            const bool fit = fw.n >= 2 && fw.soo > 0;
+            ro["latency_s"] = fit ? json(-fw.seo / fw.soo) : json();
+            ro["latency_words"] = fw.n;
+            ro["rms_without_latency_rad"] = fit ? json(std::sqrt(std::max(0.0, fw.see - fw.seo * fw.seo / fw.soo) / fw.n)) : json();
             e.readout = ro;
             std::vector<std::pair<const char*, const char*>> causes = {
                 {"crc_errors", "bad CRC"}, {"short_frames", "short frames"}, {"long_frames", "long frames"}, {"error_flags", "error bit set"},
