@@ -419,6 +419,10 @@ SigrokSession::SigrokSession(const std::string& path, const std::map<std::string
         m.analog.emplace(col, std::move(s));
     }
     for (const char* col : kLogicColumns) {
+        // A readout's lines are read only when asked for by name (a capture's a/b/z are found
+        // by their own names too): a capture's channels named clk or data stay unread.
+        const bool word_line = std::string_view(col) == "clk" || std::string_view(col) == "data" || std::string_view(col) == "cs";
+        if (word_line && !channel_for.count(col)) continue;
         const auto c = find_channel(col, true);
         if (!c) continue;
         claim(col);
