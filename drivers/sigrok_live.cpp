@@ -299,6 +299,8 @@ void SigrokLive::probe() {
         }
         if (hi >= 64) throw DeviceError(name_, "channel " + device_channels_[hi] + " is beyond the 64 bits fringe reads per sample");
         unitsize_ = hi / 8 + 1;
+        identity_bits_ = true;
+        for (std::size_t k = 0; k < logic_bit_.size(); ++k) identity_bits_ = identity_bits_ && logic_bit_[k] == static_cast<int>(k);
     } else {
         analog_q_.assign(cfg_.analog_channels.size(), {});
     }
@@ -342,10 +344,12 @@ bool SigrokLive::reap(int wait_ms) {
         if (r == pid_) {
             wait_status_ = st;
             reaped_ = true;
+            t_end_ = std::chrono::steady_clock::now();
             return true;
         }
         if (r < 0 && errno != EINTR) {  // not our child any more (reaped elsewhere)
             reaped_ = true;
+            t_end_ = std::chrono::steady_clock::now();
             wait_status_ = -1;
             return true;
         }
@@ -370,12 +374,29 @@ bool SigrokLive::parse_stdout(std::string& error) {
     if (!analog_mode()) {
         const std::size_t units = buf_.size() / unitsize_;
         const auto* p = reinterpret_cast<const unsigned char*>(buf_.data());
-        for (std::size_t u = 0; u < units; ++u, p += unitsize_) {
-            std::uint64_t raw = 0;
-            for (std::size_t b = 0; b < unitsize_; ++b) raw |= static_cast<std::uint64_t>(p[b]) << (8 * b);  // little-endian units
-            std::uint64_t v = 0;
-            for (std::size_t k = 0; k < logic_bit_.size(); ++k) v |= ((raw >> logic_bit_[k]) & 1u) << k;
-            logic_q_.push_back(v);
+        if (logic_head_ > 0 && logic_head_ >= logic_q_.size() / 2) {  // drop what was delivered
+            logic_q_.erase(logic_q_.begin(), logic_q_.begin() + static_cast<std::ptrdiff_t>(logic_head_));
+            logic_head_ = 0;
+        }
+        const std::size_t at = logic_q_.size();
+        logic_q_.resize(at + units);
+        std::uint64_t* dst = logic_q_.data() + at;
+        const std::size_t nbits = logic_bit_.size();
+        const std::uint64_t mask = nbits >= 64 ? ~0ull : (1ull << nbits) - 1;
+        if (identity_bits_ && unitsize_ == 1) {
+            for (std::size_t u = 0; u < units; ++u) dst[u] = p[u] & mask;
+        } else {
+            for (std::size_t u = 0; u < units; ++u, p += unitsize_) {
+                std::uint64_t raw = 0;
+                for (std::size_t b = 0; b < unitsize_; ++b) raw |= static_cast<std::uint64_t>(p[b]) << (8 * b);  // little-endian units
+                if (identity_bits_) {
+                    dst[u] = raw & mask;
+                    continue;
+                }
+                std::uint64_t v = 0;
+                for (std::size_t k = 0; k < nbits; ++k) v |= ((raw >> logic_bit_[k]) & 1u) << k;
+                dst[u] = v;
+            }
         }
         buf_.erase(0, units * unitsize_);
         received_ += units;
@@ -412,7 +433,7 @@ bool SigrokLive::parse_stdout(std::string& error) {
 }
 
 std::size_t SigrokLive::frames_ready() const {
-    if (!analog_mode()) return logic_q_.size();
+    if (!analog_mode()) return logic_q_.size() - logic_head_;
     std::size_t complete = SIZE_MAX;
     for (const auto& q : analog_q_) complete = std::min(complete, q.size());
     return complete;
@@ -474,6 +495,10 @@ StreamResult SigrokLive::read(std::size_t max, std::vector<std::uint64_t>& logic
             while (true) {
                 const ssize_t got = ::read(out_fd_, b, sizeof b);
                 if (got > 0) {
+                    if (!have_first_) {
+                        t_first_ = std::chrono::steady_clock::now();
+                        have_first_ = true;
+                    }
                     buf_.append(b, static_cast<std::size_t>(got));
                     bytes_ += static_cast<std::uint64_t>(got);
                     if (buf_.size() >= (1u << 20)) break;
@@ -506,8 +531,13 @@ StreamResult SigrokLive::read(std::size_t max, std::vector<std::uint64_t>& logic
                 analog_q_[c].erase(analog_q_[c].begin(), analog_q_[c].begin() + static_cast<std::ptrdiff_t>(n));
             }
         } else {
-            logic.assign(logic_q_.begin(), logic_q_.begin() + static_cast<std::ptrdiff_t>(n));
-            logic_q_.erase(logic_q_.begin(), logic_q_.begin() + static_cast<std::ptrdiff_t>(n));
+            const auto first = logic_q_.begin() + static_cast<std::ptrdiff_t>(logic_head_);
+            logic.assign(first, first + static_cast<std::ptrdiff_t>(n));
+            logic_head_ += n;
+            if (logic_head_ == logic_q_.size()) {
+                logic_q_.clear();
+                logic_head_ = 0;
+            }
         }
         delivered_ += n;
         r.frames = n;
@@ -522,6 +552,7 @@ StreamResult SigrokLive::read(std::size_t max, std::vector<std::uint64_t>& logic
 
 void SigrokLive::stop() {
     if (pid_ > 0 && !reaped_) {
+        t_end_ = std::chrono::steady_clock::now();
         wait_status_ = wait_or_kill(pid_, 0);
         reaped_ = true;
     }
@@ -535,15 +566,26 @@ void SigrokLive::stop() {
 }
 
 nlohmann::json SigrokLive::stats() const {
-    const double wall_s = started_ ? std::chrono::duration<double>(std::chrono::steady_clock::now() - t0_).count() : 0.0;
+    const auto now = started_ && reaped_ ? t_end_ : std::chrono::steady_clock::now();
+    const double wall_s = started_ ? std::chrono::duration<double>(now - t0_).count() : 0.0;
     double expected = wall_s * cfg_.samplerate_hz;
-    if (cfg_.limit_samples) expected = std::min(expected, static_cast<double>(cfg_.limit_samples));
+    // From the first byte on: sigrok-cli's own start (process, scan of the driver, device open;
+    // 50-80 ms for the demo) is not a loss.
+    const double data_s = have_first_ ? std::chrono::duration<double>(now - t_first_).count() : 0.0;
+    double expected_data = data_s * cfg_.samplerate_hz;
+    if (cfg_.limit_samples) {
+        expected = std::min(expected, static_cast<double>(cfg_.limit_samples));
+        expected_data = std::min(expected_data, static_cast<double>(cfg_.limit_samples));
+    }
     nlohmann::json j = {{"device", name_},
                         {"samples", delivered_},
                         {"samples_received", received_},
                         {"bytes", bytes_},
                         {"wall_s", wall_s},
                         {"expected_samples_by_wall_clock", std::floor(expected)},
+                        {"first_data_s", have_first_ ? std::chrono::duration<double>(t_first_ - t0_).count() : -1.0},
+                        {"data_wall_s", data_s},
+                        {"expected_samples_since_first_data", std::floor(expected_data)},
                         {"samplerate_hz", cfg_.samplerate_hz},
                         {"limit_samples", cfg_.limit_samples},
                         {"logic_channels", cfg_.logic_channels},

@@ -94,10 +94,14 @@ private:
     std::string buf_;          // unparsed stdout bytes
     std::string stderr_tail_;  // last kStderrTail bytes
     std::vector<std::deque<double>> analog_q_;
-    std::deque<std::uint64_t> logic_q_;
+    std::vector<std::uint64_t> logic_q_;  // decoded samples from logic_head_ on
+    std::size_t logic_head_ = 0;
+    bool identity_bits_ = false;           // logic_channels are the device's first ones, in order
     std::uint64_t delivered_ = 0, received_ = 0, bytes_ = 0;
     std::string exit_note_;
-    std::chrono::steady_clock::time_point t0_;
+    std::chrono::steady_clock::time_point t0_, t_first_;  // spawn; first stdout byte
+    std::chrono::steady_clock::time_point t_end_;  // the child reaped: the clocks of stats() stop
+    bool have_first_ = false;
 };
 
 }  // namespace fringe::dev

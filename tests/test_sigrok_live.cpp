@@ -2,6 +2,7 @@
 // sigrok's demo driver (exact counts, channel mapping against the demo's documented patterns,
 // continuous streaming, a killed and a frozen child) and fake sigrok-cli scripts (garbage, a
 // short unit, an early or failed exit). Every acquisition is bounded by its timeouts and stop().
+#include "drivers/device.hpp"
 #include "drivers/sigrok_live.hpp"
 
 #include <catch2/catch.hpp>
@@ -393,6 +394,32 @@ TEST_CASE("sigrok live: hostile sigrok-cli output (fake program)", "[sigrok_live
         s.stop();
         CHECK(reaped(pid));
     }
+}
+
+TEST_CASE("sigrok live: the sigrok: device records the demo's analog channels as sin and cos", "[sigrok_live]") {
+    auto d = dev::open("sigrok:demo?samplerate=100000&sin=A1&cos=A0");
+    const auto info = d->info();
+    CHECK(info.driver == "sigrok");
+    CHECK(info.can_record);
+    CHECK(info.own_clock);
+    REQUIRE(d->recorder());
+    std::vector<double> sin_v(600), cos_v(600);
+    auto r = d->recorder()->record(sin_v, cos_v, 50000, 10.0);
+    INFO(r.message);
+    REQUIRE(r.status == StreamStatus::Ok);
+    REQUIRE(r.frames == 600);
+    for (std::size_t i = 0; i < 600; ++i) {
+        INFO("sample " << i);
+        REQUIRE(std::fabs(sin_v[i] - 10 * std::sin(kTwoPi * static_cast<double>(i % 20) / 20)) < 1e-3);
+        REQUIRE(std::fabs(std::fabs(cos_v[i]) - 10) < 1e-3);
+    }
+    // The URI's rate, not the run's, is what was asked of the device.
+    const auto last = d->info().settings.value("last_record", nlohmann::json::object());
+    CHECK(last.value("samplerate_hz", 0.0) == 100000.0);
+    CHECK(last.value("samples", 0u) == 600u);
+    CHECK_THROWS_WITH(dev::open("sigrok:demo?sin=A9"), Catch::Contains("no channel 'A9'"));
+    CHECK_THROWS_WITH(dev::open("sigrok:nosuchdriver"), Catch::Contains("Driver nosuchdriver not found"));
+    CHECK_THROWS_WITH(dev::open("sigrok:"), Catch::Contains("needs a driver"));
 }
 
 }  // namespace test_sigrok_live_cpp
