@@ -449,9 +449,9 @@ StreamResult SigrokLive::read(std::size_t max, std::vector<std::uint64_t>& logic
         r.message = name_ + ": read before start()";
         return r;
     }
-    if (stopped_) {
+    if (stopped_ || max == 0) {
         r.status = StreamStatus::Error;
-        r.message = name_ + ": read after stop()";
+        r.message = name_ + (max == 0 ? ": read of 0 samples (0 frames with Ok is the end)" : ": read after stop()");
         return r;
     }
     const auto until = std::chrono::steady_clock::now() + std::chrono::milliseconds(std::max(timeout_ms, 0));
@@ -474,7 +474,11 @@ StreamResult SigrokLive::read(std::size_t max, std::vector<std::uint64_t>& logic
                 fail("the channels ended with different sample counts; " + exit_text());
             } else if (!exited0 && !analog_teardown) {
                 fail("acquisition ended after " + std::to_string(received_) + " samples: " + exit_text());
-            } else if (cfg_.limit_samples && received_ != cfg_.limit_samples) {
+            } else if (!cfg_.limit_samples) {
+                // Continuous: only stop() ends it; sigrok-cli ending by itself (a device gone,
+                // a key it took for a stop) is not the end of the data.
+                fail("the continuous acquisition ended by itself after " + std::to_string(received_) + " samples; " + exit_text());
+            } else if (received_ != cfg_.limit_samples) {
                 fail("acquisition ended after " + std::to_string(received_) + " of " + std::to_string(cfg_.limit_samples) + " samples; " + exit_text());
             } else {
                 if (analog_teardown) exit_note_ = "sigrok-cli 0.7.2's analog teardown assertion (exit status 1) after all samples: accepted";

@@ -372,7 +372,7 @@ TEST_CASE("sigrok live: hostile sigrok-cli output (fake program)", "[sigrok_live
         CHECK_THAT(cap.last.message, Catch::Contains("unparsable") && Catch::Contains("this is not sigrok"));
     }
     SECTION("analog values with SI prefixes, in base units") {
-        auto c = fake(d.script("prefix", "printf 'D1: 250 mV DC\\nD2: 3.5 V\\nD1: -12 \\302\\265V\\nD2: 2 kV\\n'"), {}, 0);
+        auto c = fake(d.script("prefix", "printf 'D1: 250 mV DC\\nD2: 3.5 V\\nD1: -12 \\302\\265V\\nD2: 2 kV\\n'"), {}, 2);
         c.analog_channels = {"D1", "D2"};
         SigrokLive s(c);
         s.start();
@@ -383,6 +383,14 @@ TEST_CASE("sigrok live: hostile sigrok-cli output (fake program)", "[sigrok_live
         CHECK(cap.analog[0][1] == Approx(-12e-6));
         CHECK(cap.analog[1][0] == Approx(3.5));
         CHECK(cap.analog[1][1] == Approx(2000));
+    }
+    SECTION("a continuous acquisition that ends by itself is an error, not the end") {
+        SigrokLive s(fake(d.script("quits", "printf 'abc'"), {"D0"}, 0));
+        s.start();
+        auto cap = read_all(s, 0);
+        CHECK(cap.logic.size() == 3);
+        CHECK(cap.last.status == StreamStatus::Error);
+        CHECK_THAT(cap.last.message, Catch::Contains("continuous acquisition ended by itself after 3 samples") && Catch::Contains("exited with status 0"));
     }
     SECTION("a child that writes nothing and never exits: timeouts, then stop() ends it") {
         SigrokLive s(fake(d.script("silent", "exec sleep 60"), {"D0"}, 0));
