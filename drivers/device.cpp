@@ -29,6 +29,7 @@ void register_capture(std::vector<DriverInfo>& r);
 void register_modbus(std::vector<DriverInfo>& r);
 void register_usb(std::vector<DriverInfo>& r);
 void register_scpi(std::vector<DriverInfo>& r);
+void register_readout(std::vector<DriverInfo>& r);
 void register_sigrok(std::vector<DriverInfo>& r);
 
 const char* to_string(StreamStatus s) {
@@ -49,6 +50,7 @@ std::vector<std::string> DeviceInfo::ports() const {
     if (can_play) p.push_back("play");
     if (can_record) p.push_back("record");
     if (replay) p.push_back("replay");
+    if (readout) p.push_back("readout");
     return p;
 }
 
@@ -63,6 +65,7 @@ DeviceInfo Device::info() const {
     i.max_play_samples = play ? play->memory_samples() : 0;
     i.can_record = self.recorder() != nullptr;
     i.replay = self.replay() != nullptr;
+    i.readout = self.readout() != nullptr;
     return i;
 }
 
@@ -98,6 +101,7 @@ const std::vector<DriverInfo>& drivers() {
         register_modbus(r);
         register_usb(r);
         register_scpi(r);
+        register_readout(r);
         register_sigrok(r);
         return r;
     }();

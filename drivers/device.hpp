@@ -99,6 +99,7 @@ struct DeviceInfo {
     bool can_play = false;    // PlayPort: a generator playing a block from its memory
     bool can_record = false;  // RecordPort: a digitizer recording a block
     bool replay = false;      // ReplayPort: an input-only source (capture replay)
+    bool readout = false;     // ReadoutPort: a DUT's own position words (a scenario's device.dut)
     // The device reads out a DUT's own position (a step's StepResult::dut_theta_rad, or a
     // replay's ABZ lines): declared by the driver, which delivers it through those ports.
     bool dut_position = false;
@@ -173,12 +174,35 @@ public:
 // A waveform generator: upload both channels (V) at sample_rate_hz and start the output;
 // cyclic repeats the block until stop_output, else it plays once. Throws DeviceError when
 // the instrument reports an error (naming its native error text).
+class SequencePort;
 class PlayPort {
 public:
     virtual ~PlayPort() = default;
     virtual void play(std::span<const double> sin_v, std::span<const double> cos_v, double sample_rate_hz, bool cyclic) = 0;
     virtual void stop_output() = 0;
     virtual std::size_t memory_samples() const = 0;  // per channel; 0: unlimited
+    // Segmented playback of a signal longer than the memory (SequencePort); null when the
+    // generator has none, and then sequence_refusal() says why (instrument and mode).
+    virtual SequencePort* sequencer() { return nullptr; }
+    virtual std::string sequence_refusal() const { return "it has no segmented (sequence or streaming) playback"; }
+};
+
+// What a generator's segmented playback allows (docs/bench.md "Segmented playback").
+struct SequenceLimits {
+    std::size_t max_segments = 0;         // segments in one playback
+    std::size_t min_segment_samples = 1;  // per channel; the last segment too
+    std::size_t max_segment_samples = 0;  // per channel (at most the memory)
+};
+
+// A generator playing one signal longer than its memory as segments back to back from one
+// start (armed and triggered as PlayPort::play, played once), sample-continuous: no gap and no
+// repeated sample at a join. segment_samples per segment, the last one shorter; stop with
+// PlayPort::stop_output. Throws DeviceError when the limits are broken or the instrument fails.
+class SequencePort {
+public:
+    virtual ~SequencePort() = default;
+    virtual SequenceLimits sequence_limits() const = 0;
+    virtual void play_segments(std::span<const double> sin_v, std::span<const double> cos_v, std::size_t segment_samples, double sample_rate_hz) = 0;
 };
 
 // A digitizer or scope: acquire up to sin_v.size() input frames at (nominally)
@@ -208,6 +232,37 @@ public:
     virtual nlohmann::json dut_readout() const = 0;
 };
 
+// A DUT's own answer read out beside the run (a scenario's "device.dut", drivers/readout.cpp,
+// docs/dut-readouts.md): its position words, each time-stamped at its latch instant on the
+// readout's clock. The run maps that clock to its own (readout_to_run_s) and scores every word
+// once, against the truth at its latch instant.
+struct PositionWordOut {
+    double t_s = 0;          // latch instant, readout clock
+    double theta_rad = 0;    // the DUT's electrical angle; NaN when the word is invalid
+    bool valid = false;
+};
+
+class ReadoutPort {
+public:
+    virtual ~ReadoutPort() = default;
+    // Starts acquiring (a live readout starts its instrument here). Throws DeviceError.
+    virtual void start() = 0;
+    // The words latched at or before up_to_s (readout clock), in latch order, appended to out;
+    // a live readout waits up to timeout_ms for its clock to pass up_to_s. status Ok with
+    // frames = words appended; Timeout (nothing new in time: a frozen readout); Error (gone,
+    // unreadable; message says why). After the source's end, Ok with 0 words.
+    virtual StreamResult read_words(double up_to_s, std::vector<PositionWordOut>& out, int timeout_ms) = 0;
+    // Words per second the readout delivers (configured, or measured from its first words).
+    virtual double word_rate_hz() const = 0;
+    // Offset from the readout's clock to the run's: t_run = t_readout + readout_to_run_s.
+    virtual double readout_to_run_s() const = 0;
+    // How long a live readout may stay silent before the run calls it frozen (read_words' timeout).
+    virtual double stall_s() const = 0;
+    // What the readout counted (protocol, settings, words, wire errors by cause).
+    virtual nlohmann::json stats() const = 0;
+    virtual void stop() = 0;
+};
+
 class Device {
 public:
     virtual ~Device() = default;
@@ -225,6 +280,7 @@ public:
     virtual RecordPort* recorder() { return nullptr; }
     virtual ReplayPort* replay() { return nullptr; }
     virtual RegisterPort* registers() { return nullptr; }
+    virtual ReadoutPort* readout() { return nullptr; }
 
 protected:
     virtual DeviceInfo describe() const = 0;

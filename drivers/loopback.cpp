@@ -19,6 +19,8 @@
 #include <algorithm>
 #include <cmath>
 #include <deque>
+#include <limits>
+#include <optional>
 
 namespace fringe::dev {
 
@@ -55,7 +57,7 @@ struct Biquad {
 
 // Without own_clock a stream and a step port; with it a generator and a digitizer (play and
 // record ports) and nothing else.
-class Loopback final : public Device, public StreamPort, public StepPort, public PlayPort, public RecordPort {
+class Loopback final : public Device, public StreamPort, public StepPort, public PlayPort, public SequencePort, public RecordPort {
 public:
     Loopback(std::string uri, const nlohmann::json& s) : uri_(std::move(uri)), s_(s) {
         const double range = s.at("range_v").get<double>();
@@ -86,6 +88,9 @@ public:
         max_play_ = static_cast<std::size_t>(s.at("max_play_samples").get<long long>());
         glitch_at_ = s.at("glitch_at").get<long long>();
         glitch_v_ = s.at("glitch_v").get<double>();
+        max_segments_ = static_cast<std::size_t>(s.at("max_segments").get<long long>());
+        join_slip_ = s.at("join_slip_samples").get<int>();
+        fail_at_segment_ = s.at("fail_at_segment").get<long long>();
     }
     // LSB (V) of the finer of the two converters; 0 when both are ideal.
     double fine_step_v() const {
@@ -230,8 +235,47 @@ public:
         return out;
     }
 
+    SequencePort* sequencer() override { return own_clock_ && max_segments_ > 0 ? this : nullptr; }
+    std::string sequence_refusal() const override { return "the simulated generator plays segments only with max_segments > 0"; }
+    SequenceLimits sequence_limits() const override {
+        return {max_segments_, kMinSegment, max_play_ > 0 ? max_play_ : std::numeric_limits<std::size_t>::max()};
+    }
+    // A streaming generator: each segment is loaded into its memory while the one before it
+    // plays, so the output is the whole signal, sample-continuous. Faults: join_slip_samples
+    // drops (-1) or repeats (+1) one sample at every join; fail_at_segment ends the output
+    // there (the generator lost mid-sequence), which the next record() reports.
+    void play_segments(std::span<const double> s, std::span<const double> c, std::size_t seg, double fs) override {
+        if (s.size() != c.size() || s.empty()) throw DeviceError(uri_, "play_segments: sin and cos must have the same, non-zero length");
+        if (!(fs > 0)) throw DeviceError(uri_, "play_segments: sample rate must be positive");
+        const SequenceLimits lim = sequence_limits();
+        const std::size_t n = (s.size() + seg - 1) / std::max<std::size_t>(seg, 1);
+        const std::size_t last = s.size() - (n - 1) * seg;
+        if (seg < lim.min_segment_samples || seg > lim.max_segment_samples || last < lim.min_segment_samples || n > lim.max_segments)
+            throw DeviceError(uri_, "play_segments: " + std::to_string(n) + " segments of " + std::to_string(seg) + " samples (the last " + std::to_string(last) +
+                                        ") break the generator's limits: at most " + std::to_string(lim.max_segments) + " segments (max_segments) of " +
+                                        std::to_string(lim.min_segment_samples) + ".." + std::to_string(lim.max_segment_samples) + " samples (max_play_samples)");
+        for (auto& p : played_) p.clear();
+        segments_ = n;
+        failed_at_.reset();
+        for (std::size_t i = 0; i < n; ++i) {
+            if (fail_at_segment_ >= 0 && static_cast<long long>(i) == fail_at_segment_) {
+                failed_at_ = i;  // segments 0..i-1 played
+                break;
+            }
+            const std::size_t a = i * seg, b = std::min(s.size(), a + seg);
+            std::size_t from = a;
+            if (i > 0 && join_slip_ < 0) from = a + 1;  // the join loses the segment's first sample
+            if (i > 0 && join_slip_ > 0) { played_[0].push_back(played_[0].back()); played_[1].push_back(played_[1].back()); }
+            for (std::size_t k = from; k < b; ++k) { played_[0].push_back(dac_.apply(s[k])); played_[1].push_back(dac_.apply(c[k])); }
+        }
+        play_fs_ = fs;
+        cyclic_ = false;
+    }
+
     void play(std::span<const double> s, std::span<const double> c, double fs, bool cyclic) override {
         if (s.size() != c.size() || s.empty()) throw DeviceError(uri_, "play: sin and cos must have the same, non-zero length");
+        segments_ = 0;
+        failed_at_.reset();
         if (!(fs > 0)) throw DeviceError(uri_, "play: sample rate must be positive");
         if (max_play_ > 0 && s.size() > max_play_)
             throw DeviceError(uri_, "play: " + std::to_string(s.size()) + " samples per channel exceed the generator memory (max_play_samples " +
@@ -247,6 +291,9 @@ public:
             throw DeviceError(uri_, "record: nothing was played on this loopback (its output and input are one instance: "
                                     "give the same URI as device.output and device.input)");
         if (!(fs > 0)) throw DeviceError(uri_, "record: sample rate must be positive");
+        if (failed_at_)
+            throw DeviceError(uri_, "the generator was lost when segment " + std::to_string(*failed_at_) + " of " + std::to_string(segments_) +
+                                        " (0-based) was due (fail_at_segment): the output ended mid-sequence after " + std::to_string(*failed_at_) + " segments");
         // Sample m is taken at digitizer time m/fs; it shows what the generator emitted delay_s
         // earlier, on a generator clock running clock_ppm fast.
         const double k = 1 + clock_ppm_ * 1e-6;
@@ -478,6 +525,12 @@ private:
     double delay_s_ = 0, clock_ppm_ = 0, gain_ = 1, offset_v_ = 0, cos_gain_ratio_ = 1, cos_offset_v_ = 0, play_fs_ = 0;
     std::size_t max_play_ = 0;
     std::vector<double> played_[2];
+    // Segmented playback (max_segments > 0): a streaming generator; faults at the joins.
+    static constexpr std::size_t kMinSegment = 16;
+    std::size_t max_segments_ = 0, segments_ = 0;
+    int join_slip_ = 0;
+    long long fail_at_segment_ = -1;
+    std::optional<std::size_t> failed_at_;
 };
 
 }  // namespace
@@ -513,6 +566,9 @@ void register_loopback(std::vector<DriverInfo>& r) {
         {"max_play_samples", "samples", ParamType::Integer, 0, 0, 9e15, {}, "own_clock: generator memory per channel (0: unlimited)"},
         {"glitch_at", "samples", ParamType::Integer, -1, -1, 9e15, {}, "own_clock fault: the recorded sin sample at this index reads glitch_v (-1: never)"},
         {"glitch_v", "V", ParamType::Number, 1e300, -1e308, 1e308, {}, "own_clock fault: the value of that sample"},
+        {"max_segments", "", ParamType::Integer, 0, 0, 1e9, {}, "own_clock: segmented playback of a run longer than max_play_samples, at most this many segments of 16..max_play_samples samples, played back to back like a streaming generator (0: none)"},
+        {"join_slip_samples", "samples", ParamType::Integer, 0, -1, 1, {}, "own_clock fault: every segment join drops (-1) or repeats (+1) one sample"},
+        {"fail_at_segment", "", ParamType::Integer, -1, -1, 1e9, {}, "own_clock fault: the generator is lost when this segment (0-based) is due (-1: never)"},
     };
     d.open = [](const std::string& uri, const std::string& path, const nlohmann::json& s) -> std::unique_ptr<Device> {
         if (!path.empty()) throw ConfigError("device", "loopback takes no path (got '" + path + "'); use loopback:?key=value");
@@ -523,7 +579,8 @@ void register_loopback(std::vector<DriverInfo>& r) {
             {"drop_after", -1}, {"drop_count", 0}, {"stall_after", -1}, {"saturate_after", -1}};
         static const std::vector<std::pair<std::string, double>> own_only = {
             {"delay_s", 0}, {"clock_ppm", 0}, {"gain", 1}, {"offset_v", 0}, {"cos_gain_ratio", 1}, {"cos_offset_v", 0},
-            {"swap_channels", 0}, {"max_play_samples", 0}, {"glitch_at", -1}, {"glitch_v", 1e300}};
+            {"swap_channels", 0}, {"max_play_samples", 0}, {"glitch_at", -1}, {"glitch_v", 1e300},
+            {"max_segments", 0}, {"join_slip_samples", 0}, {"fail_at_segment", -1}};
         for (const auto& [key, def] : own ? streaming_only : own_only)
             if (s.at(key).get<double>() != def)
                 throw ConfigError("device." + key, own ? key + " is not simulated with own_clock=1 (the generator/digitizer pair models delay, clock offset, gain, offset, noise and converters)"

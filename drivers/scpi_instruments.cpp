@@ -156,6 +156,23 @@ public:
     }
 
     PlayPort* player() override { return model_->generator ? this : nullptr; }
+    // No family fringe drives can play non-repeating data beyond its memory over SCPI, so none
+    // has a SequencePort (docs/bench.md "Segmented playback"): why, per family.
+    std::string sequence_refusal() const override {
+        switch (model_->family) {
+            case Family::Keysight:
+                return "the " + model_->name + "'s arb sequences (DATA:SEQuence) play segments that are all held in its waveform memory at once, so a sequence of "
+                       "distinct segments is no longer than that memory; with a larger memory option set memory_samples";
+            case Family::Rigol:
+                return "the " + model_->name + "'s sequence mode plays waveforms held in its internal memory together and takes no new data while it plays";
+            case Family::Siglent: return "the " + model_->name + " has no sequence or streaming mode for TrueArb waveforms over SCPI";
+            case Family::RedPitaya:
+                return "the Red Pitaya SCPI server's generator holds 16384 samples per channel; its DAC streaming runs through the streaming server's own "
+                       "protocol, not SCPI, which fringe does not drive";
+            case Family::Scope: break;
+        }
+        return "not a generator";
+    }
     RecordPort* recorder() override { return model_->digitizer ? this : nullptr; }
 
     DeviceInfo describe() const override {

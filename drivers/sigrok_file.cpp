@@ -18,7 +18,8 @@ namespace fringe {
 namespace {
 
 const char* const kAnalogColumns[] = {"sin", "cos", "theta_true", "omega_true", "index"};
-const char* const kLogicColumns[] = {"a", "b", "z"};
+// a, b, z: a DUT's ABZ lines; clk, data, cs: a position-word readout's (drivers/readout.cpp).
+const char* const kLogicColumns[] = {"a", "b", "z", "clk", "data", "cs"};
 constexpr std::uint64_t kMaxChunkNumber = 100000000;  // far beyond any real capture's chunk count
 constexpr std::uint64_t kMaxChannels = 4096;
 constexpr std::uint64_t kMaxUnitsize = 64;
@@ -136,7 +137,9 @@ struct Entry {
 
 }  // namespace
 
-bool sigrok_logic_column(const std::string& c) { return c == "a" || c == "b" || c == "z"; }
+bool sigrok_logic_column(const std::string& c) {
+    return std::find_if(std::begin(kLogicColumns), std::end(kLogicColumns), [&](const char* l) { return c == l; }) != std::end(kLogicColumns);
+}
 
 struct SigrokSession::Impl {
     std::string path;
@@ -227,7 +230,7 @@ SigrokSession::SigrokSession(const std::string& path, const std::map<std::string
         const std::string& ch = kv.second;
         const bool known = sigrok_logic_column(col) || std::find_if(std::begin(kAnalogColumns), std::end(kAnalogColumns),
                                                                     [&](const char* c) { return col == c; }) != std::end(kAnalogColumns);
-        if (!known) throw CaptureError(path + ": channel map: unknown column " + quote(col) + " (sin, cos, theta_true, omega_true, index, a, b, z)");
+        if (!known) throw CaptureError(path + ": channel map: unknown column " + quote(col) + " (sin, cos, theta_true, omega_true, index, a, b, z, clk, data, cs)");
         if (ch.empty()) throw CaptureError(path + ": channel map: empty channel name for column '" + col + "'");
     }
     if (const DirectorySize dir = declared_directory(path); dir.entries > kSigrokMaxEntries || dir.bytes > kSigrokMaxDirectoryBytes)

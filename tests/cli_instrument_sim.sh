@@ -225,4 +225,18 @@ set -e
 [ $rc -eq 2 ] || fail "a clipping digitizer should end the run as ERROR (exit 2), got $rc"
 grep -q "bench: clipping at the input of $DIG?model=generic-scope.* % of sin samples (.*) sit on its largest value, 0.8 V" "$dir/clip-report.json" \
   || fail "the clipping error names the digitizer and the evidence: $(cat "$dir/clip-run.log")"
+
+# 7. A non-periodic run (a ramp) longer than the generator's memory: the Keysight has no
+#    segmented playback over SCPI, so the run is refused naming the memory and why, through the
+#    real driver over TCP (docs/bench.md "Segmented playback").
+isim seg --bench --memory-samples 20000
+scenario "$dir/seg.json" "$GEN?model=keysight-33500b&memory_samples=20000" "$DIG?model=generic-scope&pretrigger_samples=256" \
+  '| .motion = {"kind": "ramp", "velocity_rad_s": 6.1359, "accel_rad_s2": 12.272} | .duration_s = 0.3'
+set +e
+"$FRINGE" run "$dir/seg.json" --no-db -q --report "$dir/seg-report.json" > "$dir/seg-run.log" 2>&1
+rc=$?
+set -e
+[ $rc -eq 2 ] || fail "a ramp beyond the Keysight's memory should end as ERROR (exit 2), got $rc"
+jq -e '.error | test("holds 20000 \\(max_play_samples\\)") and test("cannot play it in segments") and test("DATA:SEQuence")' "$dir/seg-report.json" > /dev/null \
+  || fail "the refusal names the memory and the Keysight's reason: $(jq .error "$dir/seg-report.json")"
 echo "cli_instrument_sim: ok"

@@ -316,6 +316,150 @@ TEST_CASE("run: a generator memory too small plays whole cycles cyclically, or f
     CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("max_play_samples") && Catch::Contains("constant-speed"));
 }
 
+namespace {
+// 0.2 s at 100 kHz: the playback is 64 + 20000 + 84 = 20148 samples (lead, run, tail).
+constexpr std::size_t kSegRunPlay = 20148;
+const std::string kSegLink = "loopback:?own_clock=1&delay_s=1e-4&clock_ppm=20&noise_v=5e-5";
+// An accelerating ramp (1 -> 2 kHz electrical over the run) or a reversal (a 5 Hz swing of
+// 0.3 rad: the speed passes through zero twice).
+Scenario segmented_motion(const std::string& kind) {
+    Scenario sc = small_run("");
+    const double per_hz = kTwoPi / 1024;  // shaft rad/s per electrical Hz
+    if (kind == "ramp") {
+        sc.motion.kind = MotionKind::Ramp;
+        sc.motion.velocity_rad_s = 1000 * per_hz;
+        sc.motion.accel_rad_s2 = 5000 * per_hz;
+    } else {
+        sc.motion.kind = MotionKind::Sine;
+        sc.motion.velocity_rad_s = 0;
+        sc.motion.amplitude_rad = 0.3;
+        sc.motion.freq_hz = 5;
+    }
+    return sc;
+}
+double atan2_rms_rad(const json& r) { return r["estimators"][0]["metrics"]["rms"]["rad"].get<double>(); }
+}  // namespace
+
+TEST_CASE("run: a non-periodic run 4-10x the generator memory plays in segments and scores like an unlimited generator", "[align][run][segmented]") {
+    for (const std::string kind : {"ramp", "reversal"}) {
+        Scenario sc = segmented_motion(kind);
+        sc.device = kSegLink;
+        const json ref = execute_run(sc);
+        INFO(kind << " " << ref["error"].dump());
+        REQUIRE(ref["status"] == "done");
+        CHECK(ref["alignment"]["playback"]["mode"] == "once");
+        for (const std::size_t memory : {std::size_t{5000}, std::size_t{2100}}) {
+            sc.device = kSegLink + "&max_play_samples=" + std::to_string(memory) + "&max_segments=64";
+            const json r = execute_run(sc);
+            INFO("memory " << memory << " " << r["error"].dump());
+            REQUIRE(r["status"] == "done");
+            const json& pb = r["alignment"]["playback"];
+            CHECK(pb["mode"] == "segmented");
+            const auto segments = pb["segments"].get<std::size_t>(), seg = pb["segment_samples"].get<std::size_t>();
+            CHECK(segments == (kSegRunPlay + memory - 1) / memory);  // 5 and 10 segments
+            CHECK(seg <= memory);
+            CHECK((segments - 1) * seg < kSegRunPlay);
+            CHECK(segments * seg >= kSegRunPlay);
+            CHECK(r["alignment"]["delay_s"].get<double>() == Approx(1e-4).margin(1e-9));
+            CHECK(r["alignment"]["clock_offset_ppm"].get<double>() == Approx(20).margin(0.01));
+            CHECK(r["estimators"][0]["metrics"]["slipped_samples"] == 0);
+            // Every segment lies where the one alignment puts it.
+            REQUIRE(pb["segment_offsets_samples"].size() == segments);
+            for (const auto& v : pb["segment_offsets_samples"]) CHECK(std::fabs(v.get<double>()) < 1e-3);
+            const double ra = atan2_rms_rad(ref), rb = atan2_rms_rad(r);
+            INFO("atan2 rms rad: unlimited " << ra << ", segmented " << rb);
+            CHECK(rb < 1.2 * ra);
+            CHECK(rb > ra / 1.2);
+            CHECK(r["estimators"][0]["metrics"]["max_abs"]["rad"].get<double>() < 1.5 * ref["estimators"][0]["metrics"]["max_abs"]["rad"].get<double>());
+        }
+    }
+}
+
+TEST_CASE("run: a sample dropped or repeated at every segment join is caught", "[align][run][segmented]") {
+    for (const std::string kind : {"ramp", "reversal"}) {
+        Scenario sc = segmented_motion(kind);
+        sc.device = kSegLink + "&max_play_samples=5000&max_segments=64";
+        const json good = execute_run(sc);
+        REQUIRE(good["status"] == "done");
+        for (const int slip : {-1, 1}) {
+            sc.device = kSegLink + "&max_play_samples=5000&max_segments=64&join_slip_samples=" + std::to_string(slip);
+            const json r = execute_run(sc);
+            INFO(kind << " slip " << slip << " " << r.value("error", json()).dump() << " " << r["alignment"].dump());
+            // The output runs one more sample (10 us) off the played signal after each join. The
+            // alignment alone would take the slips for a clock offset (some 200 ppm) and the
+            // scores would be 100x worse; the segments' own time shifts disagree instead.
+            CHECK(r["verdict"] == "ERROR");
+            CHECK_THAT(r.value("error", std::string()), Catch::Contains("segment joins") && Catch::Contains("dropped or repeated"));
+            CHECK(r["samples"]["processed"] == 0);
+            double spread = 0;
+            for (const auto& v : r["alignment"]["playback"]["segment_offsets_samples"]) spread = std::max(spread, std::fabs(v.get<double>()));
+            CHECK(spread > 0.05);
+        }
+    }
+}
+
+TEST_CASE("run: segmented playback at the memory's edges, over the segment limit, and a generator lost mid-sequence", "[align][run][segmented]") {
+    Scenario sc = segmented_motion("ramp");
+    // Exactly the memory: one playback.
+    sc.device = kSegLink + "&max_play_samples=" + std::to_string(kSegRunPlay) + "&max_segments=4";
+    json r = execute_run(sc);
+    INFO(r["error"].dump());
+    REQUIRE(r["status"] == "done");
+    CHECK(r["alignment"]["playback"]["mode"] == "once");
+    CHECK(r["alignment"]["playback"]["samples"] == kSegRunPlay);
+    // One sample over: two segments of equal length (not one full and one of a sample).
+    sc.device = kSegLink + "&max_play_samples=" + std::to_string(kSegRunPlay - 1) + "&max_segments=4";
+    r = execute_run(sc);
+    REQUIRE(r["status"] == "done");
+    CHECK(r["alignment"]["playback"]["mode"] == "segmented");
+    CHECK(r["alignment"]["playback"]["segments"] == 2);
+    CHECK(r["alignment"]["playback"]["segment_samples"] == kSegRunPlay / 2);
+    CHECK(r["estimators"][0]["metrics"]["slipped_samples"] == 0);
+    // More segments than the generator allows: refused before playing, naming the limits.
+    sc.device = kSegLink + "&max_play_samples=5000&max_segments=4";
+    r = execute_run(sc);
+    CHECK(r["verdict"] == "ERROR");
+    CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("max_play_samples") && Catch::Contains("at most 5000 samples it needs 5 segments") &&
+                                                  Catch::Contains("the generator's 4 (max_segments)"));
+    CHECK(r["samples"]["processed"] == 0);
+    // A generator without segmented playback: the refusal says so and why.
+    sc.device = kSegLink + "&max_play_samples=5000";
+    r = execute_run(sc);
+    CHECK(r["verdict"] == "ERROR");
+    CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("cannot play it in segments") && Catch::Contains("max_segments > 0"));
+    // Lost when segment 2 of 5 is due: ERROR naming it, the report keeps the playback planned.
+    sc.device = kSegLink + "&max_play_samples=5000&max_segments=64&fail_at_segment=2";
+    r = execute_run(sc);
+    CHECK(r["verdict"] == "ERROR");
+    CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("lost when segment 2 of 5") && Catch::Contains("mid-sequence"));
+    CHECK(r["alignment"]["playback"]["mode"] == "segmented");
+    CHECK(r["alignment"]["playback"]["segments"] == 5);
+    CHECK(r["samples"]["processed"] == 0);
+}
+
+TEST_CASE("loopback: play_segments checks the limits and plays the signal back to back", "[align][segmented]") {
+    auto d = dev::open("loopback:?own_clock=1&max_play_samples=100&max_segments=3&dac_bits=0&adc_bits=0&noise_lsb=0");
+    dev::PlayPort* p = d->player();
+    REQUIRE(p);
+    dev::SequencePort* q = p->sequencer();
+    REQUIRE(q);
+    CHECK(q->sequence_limits().max_segments == 3);
+    CHECK(q->sequence_limits().max_segment_samples == 100);
+    std::vector<double> s(250), c(250);
+    for (std::size_t i = 0; i < s.size(); ++i) { s[i] = std::sin(0.05 * static_cast<double>(i)); c[i] = std::cos(0.05 * static_cast<double>(i)); }
+    CHECK_THROWS_WITH(q->play_segments(s, c, 101, 1000), Catch::Contains("max_segments") && Catch::Contains("16..100"));
+    CHECK_THROWS_WITH(q->play_segments(s, c, 80, 1000), Catch::Contains("4 segments"));
+    CHECK_THROWS_WITH(q->play_segments(s, c, 124, 1000), Catch::Contains("the last 2"));
+    q->play_segments(s, c, 100, 1000);
+    // Recorded at the played rate with no delay: the played samples come back.
+    std::vector<double> rs(250), rc(250);
+    REQUIRE(d->recorder()->record(rs, rc, 1000, 1).status == dev::StreamStatus::Ok);
+    double worst = 0;
+    for (std::size_t i = 0; i < s.size(); ++i) worst = std::max({worst, std::fabs(rs[i] - s[i]), std::fabs(rc[i] - c[i])});
+    CHECK(worst < 1e-9);
+    CHECK_FALSE(dev::open("loopback:?own_clock=1&max_play_samples=100")->player()->sequencer());
+}
+
 TEST_CASE("run: unalignable instruments end the run as ERROR naming why", "[align][run]") {
     Scenario sc = small_run("loopback:?own_clock=1&gain=0&noise_v=1e-3");  // the input sees noise only
     json r = execute_run(sc);

@@ -363,6 +363,20 @@ TEST_CASE("hostile: device URIs over HTTP are sandboxed", "[service][hostile][so
         sc["device"] = "usb:";
         check_error(s2.post("/api/v1/runs", json{{"scenario", sc}}.dump()), 403, "device_not_allowed");
     }
+    SECTION("a DUT readout (device.dut) is a file or a socket on this host: only from the allow-list") {
+        auto c2 = config(d);
+        c2.data_dir = (d.path / "data3").string();
+        Served s2(c2);
+        json isc = sc;
+        for (const std::string& u : std::vector<std::string>{"readout:/etc/passwd", "readout:" + (d.path / "secret.json").string(),
+                                                            "readout:tcp://127.0.0.1:22", "readout:tcp://10.0.0.1:7000?counts_per_rev=4096"}) {
+            isc["device"] = {{"output", "loopback:"}, {"input", "loopback:"}, {"dut", u}};
+            const auto r = s2.post("/api/v1/runs", json{{"scenario", isc}}.dump());
+            check_error(r, 403, "device_not_allowed");
+            CHECK(r.error()["field"] == "scenario.device.dut");
+            no_leak(r);
+        }
+    }
     SECTION("a calibrated run's after pass and a correction file are held to the same policy (found by a hostile trial)") {
         json csc = json::parse(fixture_text("fig10c-loopback"));
         csc["estimators"] = json::array({json{{"name", "atan2"}}});

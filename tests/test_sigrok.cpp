@@ -5,6 +5,7 @@
 #include "drivers/device.hpp"
 #include "server/engine/run.hpp"
 #include "server/engine/scenario.hpp"
+#include "sr_writer.hpp"
 #include "server/http/service.hpp"
 
 #include <catch2/catch.hpp>
@@ -45,22 +46,7 @@ struct Dir {
     std::string operator/(const std::string& name) const { return (path / name).string(); }
 };
 
-// A ZIP written with libzip, entries in the given order (a test's own .sr writer).
-void write_zip(const std::string& path, const std::vector<std::pair<std::string, std::string>>& entries) {
-    fs::remove(path);
-    int err = 0;
-    zip_t* za = zip_open(path.c_str(), ZIP_CREATE | ZIP_TRUNCATE, &err);
-    REQUIRE(za);
-    std::vector<std::string> keep;  // libzip reads the buffers at zip_close
-    keep.reserve(entries.size());
-    for (const auto& [name, data] : entries) {
-        keep.push_back(data);
-        zip_source_t* src = zip_source_buffer(za, keep.back().data(), keep.back().size(), 0);
-        REQUIRE(src);
-        REQUIRE(zip_file_add(za, name.c_str(), src, ZIP_FL_ENC_RAW) >= 0);
-    }
-    REQUIRE(zip_close(za) == 0);
-}
+using fringe::test::write_zip;
 
 std::string floats(const std::vector<float>& v) {
     return std::string(reinterpret_cast<const char*>(v.data()), v.size() * 4);

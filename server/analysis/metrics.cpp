@@ -208,6 +208,28 @@ std::vector<MetricInfo> build_catalog() {
               if (!abz.is_object()) return none(why, "only a DUT read out by ABZ has it (estimator \"dut\" on a capture with a/b lines)");
               return number(abz.value("index_errors", json()), why, "not counted");
           }),
+        M("dut_wire_errors", "words", "DUT readout: words invalid on the wire, every cause (bad CRC, short or long frames, error bit, malformed lines; "
+          "docs/dut-readouts.md)", "the dut lane of a run with device.dut", count, "", [](const json& e, std::string* why) -> Value {
+              const json ro = sub(metrics_of(e), "readout");
+              if (!ro.is_object()) return none(why, "only a DUT read out by its own device has it (device.dut)");
+              if (ro.contains("abz")) return number(sub(ro, "abz").value("illegal_transitions", json()), why, "not counted");
+              // Invalid words, and lines that made no word at all.
+              if (!ro.value("invalid_words", json()).is_number()) return none(why, "not counted");
+              return number(json(ro["invalid_words"].get<double>() + ro.value("malformed_lines", 0.0)), why, "not counted");
+          }),
+        M("dut_crc_errors", "words", "DUT readout: words with a bad CRC (BiSS-C; docs/dut-readouts.md)", "the dut lane of a run with device.dut", count, "",
+          [](const json& e, std::string* why) -> Value {
+              const json ro = sub(metrics_of(e), "readout");
+              if (!ro.is_object()) return none(why, "only a DUT read out by its own device has it (device.dut)");
+              return number(ro.value("crc_errors", json()), why, "the protocol carries no CRC");
+          }),
+        M("dut_latency_s", "s", "DUT readout: the age of the position a word carries at its latch instant (the lag fit of its error against the "
+          "true rate; docs/dut-readouts.md)", "the dut lane of a run with device.dut, on a moving motion", "none: a fit", "latency",
+          [](const json& e, std::string* why) -> Value {
+              const json ro = sub(metrics_of(e), "readout");
+              if (!ro.is_object()) return none(why, "only a DUT read out by its own device has it (device.dut)");
+              return number(ro.value("latency_s", json()), why, "not measured: the motion did not move while words were scored");
+          }),
     };
     // The bounds describe the signal, not the estimator: a limit on them would grade nothing.
     for (auto& m : v) {

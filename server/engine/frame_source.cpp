@@ -338,26 +338,53 @@ private:
         bool cyclic = false;
         double play_fs = fs;
         std::uint64_t L = kLead + N + tail, periods = 0;
+        bool segmented = false;
+        std::uint64_t segments = 0, segment_samples = 0;
         if (max_play_ > 0 && L > max_play_) {
             const auto& m = sc_.motion;
             const std::string limit = "the run needs " + std::to_string(L) + " samples per channel (" + std::to_string(N) + " and " +
                                       std::to_string(kLead + tail) + " around them) but the generator holds " +
                                       std::to_string(max_play_) + " (max_play_samples)";
-            if (m.kind != MotionKind::Constant || m.velocity_rad_s == 0)
-                return fail(limit + ": only a constant-speed motion can play as a repeated block; shorten duration_s or lower sample_rate_hz");
-            if (sc_.encoder.noise.drift_amplitude != 0)
-                return fail(limit + ": the encoder's gain drift (noise.drift_amplitude) does not repeat, so the run cannot play as a repeated block");
-            // The block repeats seamlessly when it holds whole electrical cycles, or whole
-            // revolutions when the encoder has per-revolution effects (eccentricity, gap).
+            dev::SequencePort* seq = out_.sequencer();
+            // Why it cannot play as a repeated block ("" when it can).
+            std::string no_repeat;
             const bool per_rev = sc_.encoder.geometry_varies();
             const double f_hz = std::fabs(m.velocity_rad_s) / kTwoPi * (per_rev ? 1.0 : static_cast<double>(sc_.encoder.lines_per_rev));
-            periods = static_cast<std::uint64_t>(std::floor(static_cast<double>(max_play_) * f_hz / fs));
-            if (periods < 1)
-                return fail(limit + ": one " + std::string(per_rev ? "revolution" : "electrical cycle") + " (" + fmt(fs / f_hz) +
-                            " samples) does not fit; shorten duration_s or lower sample_rate_hz");
-            L = static_cast<std::uint64_t>(std::floor(static_cast<double>(periods) * fs / f_hz));
-            play_fs = static_cast<double>(L) * f_hz / static_cast<double>(periods);  // exactly `periods` periods in L samples
-            cyclic = true;
+            if (m.kind != MotionKind::Constant || m.velocity_rad_s == 0)
+                no_repeat = "only a constant-speed motion can play as a repeated block";
+            else if (sc_.encoder.noise.drift_amplitude != 0)
+                no_repeat = "the encoder's gain drift (noise.drift_amplitude) does not repeat, so the run cannot play as a repeated block";
+            else {
+                // The block repeats seamlessly when it holds whole electrical cycles, or whole
+                // revolutions when the encoder has per-revolution effects (eccentricity, gap).
+                periods = static_cast<std::uint64_t>(std::floor(static_cast<double>(max_play_) * f_hz / fs));
+                if (periods < 1)
+                    no_repeat = "one " + std::string(per_rev ? "revolution" : "electrical cycle") + " (" + fmt(fs / f_hz) + " samples) does not fit";
+            }
+            if (no_repeat.empty()) {
+                L = static_cast<std::uint64_t>(std::floor(static_cast<double>(periods) * fs / f_hz));
+                play_fs = static_cast<double>(L) * f_hz / static_cast<double>(periods);  // exactly `periods` periods in L samples
+                cyclic = true;
+            } else if (!seq) {
+                return fail(limit + ": " + no_repeat + ", and the generator cannot play it in segments (" + out_.sequence_refusal() +
+                            "); shorten duration_s or lower sample_rate_hz");
+            } else {
+                // Segmented: as few segments as the memory allows, of equal length (the last
+                // one shorter by less than the count), played back to back from one start.
+                const dev::SequenceLimits lim = seq->sequence_limits();
+                const std::uint64_t max_seg = std::min<std::uint64_t>(lim.max_segment_samples, max_play_);
+                segments = (L + max_seg - 1) / max_seg;
+                segment_samples = (L + segments - 1) / segments;
+                const std::uint64_t last = L - (segments - 1) * segment_samples;
+                if (segments > lim.max_segments)
+                    return fail(limit + ": " + no_repeat + "; in segments of at most " + std::to_string(max_seg) + " samples it needs " + std::to_string(segments) +
+                                " segments, more than the generator's " + std::to_string(lim.max_segments) +
+                                " (max_segments); shorten duration_s or lower sample_rate_hz");
+                if (segment_samples < lim.min_segment_samples || last < lim.min_segment_samples)
+                    return fail(limit + ": " + no_repeat + "; its segments of " + std::to_string(segment_samples) + " samples (the last " + std::to_string(last) +
+                                ") are shorter than the generator's minimum of " + std::to_string(lim.min_segment_samples));
+                segmented = true;
+            }
         }
         {
             Generator g(sc_.encoder, sc_.motion, play_fs, sc_.seed, sc_.t0_s - static_cast<double>(kLead) / play_fs);
@@ -375,13 +402,18 @@ private:
         // The record runs on past the run by a margin for the delay (the output starts after the record).
         const std::uint64_t pad = std::max<std::uint64_t>(4096, N / 20);
         const std::uint64_t M = N + pad;
-        info_ = {{"playback", {{"mode", cyclic ? "cyclic" : "once"}, {"samples", L}, {"lead_samples", kLead}, {"rate_hz", play_fs}, {"record_samples", M}, {"record_rate_hz", fs}}}};
+        info_ = {{"playback", {{"mode", cyclic ? "cyclic" : segmented ? "segmented" : "once"}, {"samples", L}, {"lead_samples", kLead}, {"rate_hz", play_fs}, {"record_samples", M}, {"record_rate_hz", fs}}}};
         if (cyclic) info_["playback"]["periods"] = periods;
+        if (segmented) {
+            info_["playback"]["segments"] = segments;
+            info_["playback"]["segment_samples"] = segment_samples;
+        }
         // An instrument lost here (gone, frozen) ends the run as an error with this reason and
         // the playback above in its report; the output is switched off as far as it still can be.
         dev::StreamResult r;
         try {
-            out_.play(ps_, pc_, play_fs, cyclic);
+            if (segmented) out_.sequencer()->play_segments(ps_, pc_, static_cast<std::size_t>(segment_samples), play_fs);
+            else out_.play(ps_, pc_, play_fs, cyclic);
             playing_ = true;
             rs_.resize(M);
             rc_.resize(M);
@@ -415,6 +447,24 @@ private:
         aj["playback"] = info_["playback"];
         info_ = aj;
         if (!a.ok) return fail("alignment not confident: " + a.error);
+        if (segmented) {
+            // One alignment spans every segment; a join that dropped or repeated a sample
+            // shifts the segments after it, which the fit can absorb as a clock offset (four
+            // one-sample slips in 20000 samples look like 200 ppm). Each segment's own time
+            // shift against the fit must agree with the others'.
+            const std::vector<double> off = segment_offsets_samples(a, L, segment_samples, play_fs);
+            std::vector<double> sorted;  // segments too short to measure (NaN) are left out
+            for (double v : off)
+                if (std::isfinite(v)) sorted.push_back(v);
+            std::sort(sorted.begin(), sorted.end());
+            const double med = sorted.empty() ? 0.0 : sorted[sorted.size() / 2];
+            info_["playback"]["segment_offsets_samples"] = off;
+            for (std::size_t k = 0; k < off.size(); ++k)
+                if (std::isfinite(off[k]) && std::fabs(off[k] - med) > kMaxSegmentOffsetSamples)
+                    return fail("segment joins: segment " + std::to_string(k) + " of " + std::to_string(off.size()) + " plays " + fmt(off[k] - med) +
+                                " samples off the others (at most " + fmt(kMaxSegmentOffsetSamples) +
+                                "): a sample dropped or repeated where the generator joins segments");
+        }
 
         // Frames from the first record sample at or after the run's first sample (generator time
         // kLead / play_fs: played sample n is at t0 + (n - kLead) / play_fs).
@@ -440,6 +490,41 @@ private:
         std::vector<double>().swap(ps_);
         std::vector<double>().swap(pc_);
         return {};
+    }
+
+    // How far (generator samples) a segment's own time shift may lie from the others'.
+    static constexpr double kMaxSegmentOffsetSamples = 0.05;
+    // Each segment's time shift against the alignment (generator samples; + : the record shows
+    // the segment later than the fit says), by one Gauss-Newton step on the fitted model over
+    // up to 4096 record samples inside the segment (32 samples clear of its joins).
+    std::vector<double> segment_offsets_samples(const AlignResult& a, std::uint64_t L, std::uint64_t seg, double play_fs) const {
+        const std::uint64_t n_seg = (L + seg - 1) / seg;
+        std::vector<double> num(n_seg, 0.0), den(n_seg, 0.0);
+        const double h_s = 0.05 / play_fs;
+        const std::size_t M = rs_.size();
+        const double step = std::max(1.0, static_cast<double>(std::min<std::uint64_t>(seg, M)) / 4096.0);
+        for (double mf = 0; mf < static_cast<double>(M); mf += step) {
+            const auto m = static_cast<std::size_t>(mf);
+            const double t = a.output_time_s(static_cast<double>(m));
+            const double u = t * play_fs;  // generator sample position
+            if (u < 0 || u >= static_cast<double>(L)) continue;
+            const auto k = static_cast<std::uint64_t>(u) / seg;
+            const double in_seg = u - static_cast<double>(k * seg);
+            if (in_seg < 32 || in_seg > static_cast<double>(std::min(seg, L - k * seg)) - 32) continue;
+            for (int ch = 0; ch < 2; ++ch) {
+                const std::span<const double> p = ch == 0 ? std::span<const double>(ps_) : std::span<const double>(pc_);
+                const AlignChannel& c = ch == 0 ? a.sin : a.cos;
+                const double model = c.gain * played_value(p, play_fs, false, t) + c.offset_v;
+                const double d = c.gain * (played_value(p, play_fs, false, t + h_s) - played_value(p, play_fs, false, t - h_s)) / (2 * h_s);
+                const double r = (ch == 0 ? rs_[m] : rc_[m]) - model;
+                // recorded(t) = model(t - dt): r = -d * dt
+                num[k] -= r * d;
+                den[k] += d * d;
+            }
+        }
+        std::vector<double> off(n_seg, 0.0);
+        for (std::uint64_t k = 0; k < n_seg; ++k) off[k] = den[k] > 0 ? num[k] / den[k] * play_fs : std::numeric_limits<double>::quiet_NaN();
+        return off;
     }
 
     const Scenario& sc_;

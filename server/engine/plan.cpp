@@ -82,7 +82,7 @@ void check_limits(const RunPlan& p) {
         } else if (l.estimator != "*") {
             bool found = false;
             for (const auto& e : sc.estimators) found |= e.label == l.estimator;
-            found |= l.estimator == "dut";  // a DUT board's own position (step mode)
+            found |= l.estimator == "dut";  // a DUT board's own position (step mode, an ABZ capture, device.dut)
             if (!found) throw ConfigError(path + ".estimator", "no estimator labelled '" + l.estimator + "' in this scenario");
         }
         // A limit that can never be measured is refused now, not failed later.
@@ -116,9 +116,9 @@ dev::UriParts check_device_uris(const Scenario& sc) {
             throw ConfigError(field, "loopback takes no path (got '" + parts.path + "'); use loopback:?key=value");
         if (field == "device" || field == "device.input") input = parts;
     }
-    if (sc.instruments && !sc.instruments->dut.empty())
-        throw ConfigError("device.dut", "a separate DUT readout device is not supported yet (the URI is valid; runs with output and input instruments "
-                                        "score the estimators under test)");
+    if (sc.instruments && !sc.instruments->dut.empty() && dev::check_uri(sc.instruments->dut).scheme != "readout")
+        throw ConfigError("device.dut", "the DUT's own position is read by a readout: device (readout:/path/x.sr?protocol=..., readout:tcp://host:port; "
+                                        "docs/dut-readouts.md)");
     return input;
 }
 

@@ -11,6 +11,7 @@ using nlohmann::json;
 void to_json(json& j, const EstimatorReport& e) {
     json metrics = to_json(e.metrics, e.lines_per_rev);
     if (e.abz) metrics["abz"] = *e.abz;
+    if (e.readout) metrics["readout"] = *e.readout;
     metrics["convention_violations"] = e.convention_violations;
     json diagnosis = json::array();
     for (const auto& d : e.diagnosis) diagnosis.push_back({{"code", d.code}, {"message", d.message}});

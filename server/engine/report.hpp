@@ -40,6 +40,7 @@ struct EstimatorReport {
     ErrorMetrics metrics;
     int lines_per_rev = 0;                 // for the arcsec figures; 0: the encoder is unknown
     std::optional<nlohmann::json> abz;     // the DUT's ABZ readout (metrics.abz)
+    std::optional<nlohmann::json> readout; // the DUT's own readout device (metrics.readout; device.dut)
     std::uint64_t convention_violations = 0;
     nlohmann::json spectrum;               // ErrorSpectrum::to_json
     nlohmann::json analysers = nlohmann::json::object();  // registered analysers' results by name

@@ -71,14 +71,119 @@ struct Lane {
         std::vector<std::uint8_t> own_valid;  // as the estimator vouched (self-referenced analysis)
         std::vector<double> err;  // theta_hat - theta_true, NaN where invalid (plot traces)
         LaneBlock b;              // what the analysers see (into this slot and the frames)
+        // A readout lane's words: latch instants on the run's clock, the truth there, zeros for the signals.
+        std::vector<double> wt, wtruth, womega, wzeros;
+        std::vector<std::uint8_t> wknown;
     } out[2];
     double estimator_s = 0;  // time inside the estimator
     bool self_reference = false;  // keep the estimator's own flags for the self-referenced analyser
     std::function<void(std::size_t, const double*, const double*, const double*, const std::uint8_t*)> tap;  // RunOptions::estimates
     Lane(const EstimatorSpec* s, const LaneContext& ctx) : spec(s), analysers(ctx), self_reference(ctx.self_reference) {}
 
+    // A DUT read out by its own device (device.dut): its words, each scored once against the
+    // truth at its latch instant, which falls between two frames (cubic Hermite through their
+    // truth and rate: exact to O(h^4) on the motion; linear where a rate is unknown).
+    dev::ReadoutPort* readout = nullptr;
+    struct WordFeed {
+        std::vector<dev::PositionWordOut> words;
+        bool have_prev = false;
+        double prev_t = 0, prev_th = 0, prev_om = 0;
+        bool prev_known = false;
+        std::uint64_t received = 0, before_run = 0, scored_truth_known = 0;
+        std::string failed;  // the readout's fault, raised at the next block
+    } feed;
+    // A readout fault not yet raised (its block was the run's last).
+    void fail_pending() const {
+        if (readout && !feed.failed.empty()) throw std::runtime_error(feed.failed);
+    }
+
+    void estimate_words(const Frames& f, int slot) {
+        Slot& o = out[slot];
+        const std::size_t m = f.size();
+        o.err.assign(m, std::numeric_limits<double>::quiet_NaN());  // the traces are per frame: the words are not at the frames
+        auto& w = feed;
+        w.words.clear();
+        const double off = readout->readout_to_run_s();
+        // A readout that fails: the words it read are still scored, and the run ends at the next
+        // block (or after this one, if it was the last: fail_pending()).
+        if (!w.failed.empty()) throw std::runtime_error(w.failed);
+        if (m > 0) {
+            const dev::StreamResult r = readout->read_words(f.t_s[m - 1] - off, w.words, static_cast<int>(readout->stall_s() * 1000));
+            if (r.status != dev::StreamStatus::Ok)
+                w.failed = std::string("device.dut: ") + dev::to_string(r.status) + ": " + r.message + " (the words read before it are scored)";
+        }
+        const std::size_t n = w.words.size();
+        w.received += n;
+        o.wt.resize(n); o.wtruth.resize(n); o.womega.resize(n); o.wknown.resize(n); o.wzeros.assign(n, 0.0);
+        o.th.resize(n); o.om.assign(n, std::numeric_limits<double>::quiet_NaN()); o.valid.resize(n);
+        std::size_t j = 0;
+        for (std::size_t k = 0; k < n; ++k) {
+            const double tw = w.words[k].t_s + off;
+            while (j < m && f.t_s[j] < tw) ++j;
+            o.wt[k] = tw;
+            o.th[k] = w.words[k].theta_rad;
+            double t0, th0, om0, t1, th1, om1;
+            bool k0, k1;
+            if (j >= m) j = m - 1;  // read up to the last frame: only rounding puts a word past it
+            if (j == 0 && !(f.t_s[0] <= tw) && !w.have_prev) {  // latched before the run's first frame
+                ++w.before_run;
+                o.wknown[k] = 0;
+                o.wtruth[k] = o.womega[k] = 0;
+                o.valid[k] = 0;
+                continue;
+            }
+            if (f.t_s[j] <= tw || (j == 0 && !w.have_prev)) {  // on a frame
+                t0 = t1 = f.t_s[j]; th0 = th1 = f.theta_true_rad[j]; om0 = om1 = f.omega_true_rad_s[j]; k0 = k1 = f.truth_known[j] != 0;
+            } else if (j == 0) {
+                t0 = w.prev_t; th0 = w.prev_th; om0 = w.prev_om; k0 = w.prev_known;
+                t1 = f.t_s[0]; th1 = f.theta_true_rad[0]; om1 = f.omega_true_rad_s[0]; k1 = f.truth_known[0] != 0;
+            } else {
+                t0 = f.t_s[j - 1]; th0 = f.theta_true_rad[j - 1]; om0 = f.omega_true_rad_s[j - 1]; k0 = f.truth_known[j - 1] != 0;
+                t1 = f.t_s[j]; th1 = f.theta_true_rad[j]; om1 = f.omega_true_rad_s[j]; k1 = f.truth_known[j] != 0;
+            }
+            const double h = t1 - t0;
+            double th = th1, om = om1;
+            if (h > 0) {
+                const double s = (tw - t0) / h;
+                if (std::isfinite(om0) && std::isfinite(om1)) {
+                    const double s2 = s * s, s3 = s2 * s;
+                    th = (2 * s3 - 3 * s2 + 1) * th0 + (s3 - 2 * s2 + s) * h * om0 + (-2 * s3 + 3 * s2) * th1 + (s3 - s2) * h * om1;
+                    om = (1 - s) * om0 + s * om1;
+                } else {
+                    th = (1 - s) * th0 + s * th1;
+                    om = std::numeric_limits<double>::quiet_NaN();
+                }
+            }
+            o.wtruth[k] = th;
+            o.womega[k] = om;
+            o.wknown[k] = static_cast<std::uint8_t>(k0 && k1);
+            w.scored_truth_known += o.wknown[k];
+            o.valid[k] = static_cast<std::uint8_t>(w.words[k].valid && o.wknown[k] && std::isfinite(o.th[k]));
+        }
+        if (m > 0) {
+            w.have_prev = true;
+            w.prev_t = f.t_s[m - 1];
+            w.prev_th = f.theta_true_rad[m - 1];
+            w.prev_om = f.omega_true_rad_s[m - 1];
+            w.prev_known = f.truth_known[m - 1] != 0;
+        }
+        LaneBlock& b = o.b;
+        b.n = n;
+        b.t_s = o.wt.data();
+        b.sin_v = o.wzeros.data();
+        b.cos_v = o.wzeros.data();
+        b.theta_true_rad = o.wtruth.data();
+        b.omega_true_rad_s = o.womega.data();
+        b.truth_known = o.wknown.data();
+        b.theta_hat_rad = o.th.data();
+        b.omega_hat_rad_s = nullptr;
+        b.valid = o.valid.data();
+        b.estimator_valid = nullptr;
+    }
+
     // The estimator on one block, into a slot (the analysers take it in the next step).
     void estimate(const Frames& f, int slot) {
+        if (readout) return estimate_words(f, slot);
         Slot& o = out[slot];
         auto& th = o.th;
         auto& om = o.om;
@@ -211,6 +316,29 @@ std::vector<EstimatorReport> score_lanes(const Scenario& sc, const dev::DeviceIn
                                     "dut: the count was off at " + std::to_string(index_errors) + " index pulses (by up to " +
                                         std::to_string(dut_readout.value("max_index_error_counts", 0LL)) + " counts) and was reset there"});
         }
+        if (lane->readout) {
+            // The readout's own account: what it read and what was wrong on the wire, and the
+            // DUT's latency (the lag fit of its error against the true rate), stated apart.
+            json ro = lane->readout->stats();
+            ro["clock_offset_s"] = lane->readout->readout_to_run_s();
+            ro["words_received"] = lane->feed.received;
+            ro["words_before_run"] = lane->feed.before_run;
+            ro["words_with_truth"] = lane->feed.scored_truth_known;
+            ro["latency_s"] = m.lag_s ? json(*m.lag_s) : json();
+            e.readout = ro;
+            std::vector<std::pair<const char*, const char*>> causes = {
+                {"crc_errors", "bad CRC"}, {"short_frames", "short frames"}, {"long_frames", "long frames"}, {"error_flags", "error bit set"},
+                {"not_ready", "not ready"}, {"no_start", "no start bit"}, {"out_of_range", "out of range"},
+                {"malformed_lines", "malformed lines"}, {"time_reversals", "time reversals"}};
+            std::string what;
+            for (const auto& [k, label] : causes)
+                if (ro.value(k, std::uint64_t{0}) > 0) what += (what.empty() ? "" : ", ") + std::to_string(ro[k].get<std::uint64_t>()) + " " + label;
+            if (ro.contains("abz") && ro["abz"].value("illegal_transitions", std::uint64_t{0}) > 0)
+                what += (what.empty() ? "" : ", ") + std::to_string(ro["abz"]["illegal_transitions"].get<std::uint64_t>()) + " illegal A/B transitions";
+            if (!what.empty())
+                warnings.push_back({true, "dut_wire_errors", "estimators.dut",
+                                    "dut: errors on the wire (" + what + "): each invalidated its word, which was not scored"});
+        }
         e.spectrum = res.spectrum;
         e.analysers = res.extra;
         if (m.scored > 0 && lane->e && sc.encoder_known) {  // bounds need the signal model
@@ -300,6 +428,7 @@ RunReport execute_pass(RunPlan plan, const RunOptions& o) {
         sc.sample_rate_hz, planned_electrical_hz(sc), static_cast<std::uint64_t>(std::max(0.0, (sc.duration_s - sc.settle_s) * sc.sample_rate_hz)));
     json alignment = nullptr;
     bool has_truth = true;
+    std::unique_ptr<dev::Device> dut_device;  // device.dut: a readout of the DUT's own words
     try {
         // Separate instruments: the generator (output) and the digitizer (input); the same URI
         // twice is one device. Faults name the scenario field.
@@ -339,15 +468,39 @@ RunReport execute_pass(RunPlan plan, const RunOptions& o) {
         }
         // A board that reports its own interpolated position is scored like an estimator, "dut".
         if (dinfo.dut_position) lanes.push_back(std::make_unique<Lane>(&dut_spec, lane_ctx));
+        // A DUT read out by a device of its own (device.dut): its words at their own rate.
+        if (sc.instruments && !sc.instruments->dut.empty()) {
+            dut_device = open_named("device.dut", sc.instruments->dut);
+            dut_device->set_cancel(o.cancel);
+            dev::ReadoutPort* port = dut_device->readout();
+            if (!port) throw std::runtime_error("device.dut: " + sc.instruments->dut + " reads out no position words (a readout: URI does)");
+            try {
+                port->start();
+            } catch (const std::exception& e) {
+                throw std::runtime_error(std::string("device.dut: ") + e.what());
+            }
+            LaneContext word_ctx = lane_ctx;
+            word_ctx.sample_rate_hz = port->word_rate_hz();
+            word_ctx.self_reference = false;  // no signals of its own to refer to
+            word_ctx.spectrum_segment = ErrorSpectrum::choose_segment(
+                word_ctx.sample_rate_hz, planned_electrical_hz(sc),
+                static_cast<std::uint64_t>(std::max(0.0, (sc.duration_s - sc.settle_s) * word_ctx.sample_rate_hz)));
+            auto lane = std::make_unique<Lane>(&dut_spec, word_ctx);
+            lane->readout = port;
+            lanes.push_back(std::move(lane));
+        }
         {
             std::vector<std::string> labels;
             for (auto& lane : lanes) labels.push_back(lane->spec->label);
             // Angle folds from the settle time on, so a lock transient does not swamp them.
             traces.emplace(total, o.trace_points, labels, sc.t0_s + sc.settle_s);
         }
-        auto source = sc.instruments ? make_instrument_source(sc, *device, input_device ? *input_device : *device)
-                                     : make_frame_source(sc, *device, dinfo, o.block);
-        if (!sc.instruments) dinfo = device->info();  // started: converter figures at the run's rate
+        // One device for output and input that streams (a loopback, a USB board) runs as a
+        // stream even beside a DUT readout; a generator and a digitizer run in instrument mode.
+        const bool instrument_mode = sc.instruments && (input_device || device->player());
+        auto source = instrument_mode ? make_instrument_source(sc, *device, input_device ? *input_device : *device)
+                                      : make_frame_source(sc, *device, dinfo, o.block);
+        if (!instrument_mode) dinfo = device->info();  // started: converter figures at the run's rate
         report.device = dinfo;
         if (input_device) {
             report.device_output = out_info;
@@ -481,7 +634,9 @@ RunReport execute_pass(RunPlan plan, const RunOptions& o) {
             if (analysis_error) std::rethrow_exception(analysis_error);
         }
         if (source_failure) std::rethrow_exception(source_failure);
+        for (const auto& lane : lanes) lane->fail_pending();
         source->stop();
+        if (dut_device) dut_device->readout()->stop();
         if (dinfo.dut_position)
             if (dev::ReplayPort* replay = device->replay()) dut_readout = replay->dut_readout();  // what an ABZ readout counted
         if (status == RunStatus::Done)

@@ -1,0 +1,273 @@
+// A DUT read out by a device of its own (a scenario's device.dut, drivers/readout.cpp): its
+// words scored once each against the truth at their latch instants, its latency measured
+// apart, its wire errors counted; the readout lost or frozen mid-run (docs/dut-readouts.md).
+// Truth here is analytic: a constant electrical frequency f from t = 0 has theta(t) = 2 pi f t.
+#include "drivers/position_words.hpp"
+#include "helpers.hpp"
+#include "server/engine/plan.hpp"
+#include "server/engine/run.hpp"
+#include "server/engine/scenario.hpp"
+#include "sr_writer.hpp"
+
+#include <catch2/catch.hpp>
+#include <nlohmann/json.hpp>
+
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+using namespace fringe;
+using nlohmann::json;
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kFe = 150.0;  // electrical frequency, Hz
+constexpr double kOmega = 2 * kPi * kFe;
+
+double truth_rad(double t_s) { return kOmega * t_s; }
+
+json scenario(const std::string& dut_uri, double duration_s = 0.3) {
+    return {{"name", "dut-readout"},
+            {"encoder", test::clean_ideal(1024)},
+            {"motion", {{"kind", "constant"}, {"electrical_freq_hz", kFe}}},
+            {"sample_rate_hz", 100000},
+            {"duration_s", duration_s},
+            {"seed", 11},
+            {"settle_s", 0.02},
+            {"device", {{"output", "loopback:"}, {"input", "loopback:"}, {"dut", dut_uri}}},
+            {"estimators", json::array({json{{"name", "atan2"}}})}};
+}
+
+json run(const json& sc) { return json(execute_run(scenario_from_json(sc, ""))); }
+
+const json& lane(const json& r, const std::string& label) {
+    for (const auto& e : r["estimators"])
+        if (e["label"] == label) return e;
+    FAIL("no lane " << label);
+    static json none;
+    return none;
+}
+
+// A word of a DUT whose position is `latency_s` old at its latch, in M counts per electrical cycle.
+std::uint64_t count_at(double t_latch_s, double latency_s, std::uint64_t M) {
+    const double cyc = truth_rad(t_latch_s - latency_s) / (2 * kPi);
+    return static_cast<std::uint64_t>(std::floor((cyc - std::floor(cyc)) * static_cast<double>(M))) % M;
+}
+
+std::string lines(double latency_s, std::uint64_t M, double t_end_s, int malformed_every) {
+    std::string s;
+    int k = 0;
+    for (double t = 0.0005; t < t_end_s; t += 1e-4, ++k) {
+        if (malformed_every > 0 && k % malformed_every == 3) s += "12x3 garbage\n";
+        char b[64];
+        std::snprintf(b, sizeof b, "%.9f %llu\n", t, static_cast<unsigned long long>(count_at(t, latency_s, M)));
+        s += b;
+    }
+    return s;
+}
+
+// A TCP server on 127.0.0.1 that sends `text` (the first `cut` bytes, then, unless `hold`, closes;
+// with hold it keeps the connection open and silent until told to stop).
+struct LineServer {
+    int fd = -1, port = 0;
+    std::thread th;
+    std::atomic<bool> stop{false};
+    LineServer(std::string text, std::size_t cut, bool hold) {
+        fd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+        sockaddr_in a{};
+        a.sin_family = AF_INET;
+        a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+        REQUIRE(::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0);
+        socklen_t len = sizeof a;
+        ::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len);
+        port = ntohs(a.sin_port);
+        REQUIRE(::listen(fd, 1) == 0);
+        th = std::thread([this, text = std::move(text), cut, hold] {
+            const int c = ::accept(fd, nullptr, nullptr);
+            if (c < 0) return;
+            std::size_t sent = 0;
+            const std::size_t n = std::min(cut, text.size());
+            while (sent < n) {
+                const ssize_t w = ::send(c, text.data() + sent, std::min<std::size_t>(4096, n - sent), MSG_NOSIGNAL);
+                if (w <= 0) break;
+                sent += static_cast<std::size_t>(w);
+            }
+            while (hold && !stop) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+            ::close(c);
+        });
+    }
+    ~LineServer() {
+        stop = true;
+        ::shutdown(fd, SHUT_RDWR);
+        ::close(fd);
+        if (th.joinable()) th.join();
+    }
+};
+
+}  // namespace
+
+TEST_CASE("a DUT's line stream is scored word by word at its latch instants, its latency measured apart", "[dut_readout]") {
+    test::TempDir d;
+    constexpr std::uint64_t M = 4096;
+    const double step_rad = 2 * kPi / M;
+    for (const double latency_s : {0.0, 50e-6, 230e-6}) {
+        CAPTURE(latency_s);
+        const std::string path = (d.path / "words.txt").string();
+        std::ofstream(path) << lines(latency_s, M, 0.3, 1000);
+        const json r = run(scenario("readout:" + path + "?counts_per_rev=4096"));
+        REQUIRE(r["status"] == "done");
+        const json& dut = lane(r, "dut");
+        const json& m = dut["metrics"];
+        // Every word after the settle time (from the first word) scored once, up to the last frame.
+        int expect_words = 0;
+        for (double t = 0.0005; t < 0.3; t += 1e-4) expect_words += t >= 0.0005 + 0.02 && t <= 0.3 - 1e-5;
+        CHECK(m["evidence"]["scored_samples"].get<double>() == Approx(expect_words).margin(1));
+        CHECK(m["slipped_samples"] == 0);
+        // The error is the latency's -omega*tau plus the count's quantisation, uniform in a step.
+        CHECK(m["mean"]["rad"].get<double>() == Approx(-kOmega * latency_s).margin(0.05 * step_rad));
+        const double rms = m["rms"]["rad"].get<double>();
+        const double expect = std::sqrt(kOmega * latency_s * kOmega * latency_s + step_rad * step_rad / 12);
+        CHECK(rms == Approx(expect).epsilon(0.03));
+        const json& ro = m["readout"];
+        CHECK(ro["protocol"] == "lines");
+        CHECK(ro["malformed_lines"] == 3);
+        CHECK(ro["word_rate_hz"].get<double>() == Approx(10000).epsilon(1e-6));
+        if (latency_s > 0) CHECK(ro["latency_s"].get<double>() == Approx(latency_s).epsilon(0.02));
+        bool warned = false;
+        for (const auto& w : r["warnings"]) warned |= w["code"] == "dut_wire_errors";
+        CHECK(warned);
+    }
+}
+
+TEST_CASE("limits name the DUT readout's wire errors and latency", "[dut_readout]") {
+    test::TempDir d;
+    const std::string path = (d.path / "words.txt").string();
+    std::ofstream(path) << lines(100e-6, 4096, 0.3, 500);
+    json sc = scenario("readout:" + path + "?counts_per_rev=4096");
+    sc["limits"] = json::array({json{{"estimator", "dut"}, {"metric", "dut_wire_errors"}, {"max", 0}},
+                                json{{"estimator", "dut"}, {"metric", "dut_latency_s"}, {"max", 80e-6}}});
+    const json r = run(sc);
+    REQUIRE(r["status"] == "done");
+    CHECK(r["verdict"] == "FAIL");
+    int failed = 0;
+    for (const auto& ms : r["measurements"])
+        if ((ms["metric"] == "dut_wire_errors" || ms["metric"] == "dut_latency_s") && ms["outcome"] == "FAIL") ++failed;
+    CHECK(failed == 2);
+}
+
+TEST_CASE("a BiSS-C DUT recorded by a logic analyser: CRC errors counted and never scored", "[dut_readout]") {
+    test::TempDir d;
+    BissConfig c;
+    c.position_bits = 14;
+    c.angle.counts_per_rev = 1u << 14;
+    const std::uint64_t M = c.angle.counts_per_rev;
+    EmitterTiming tm;
+    tm.sample_rate_hz = 4e6;
+    tm.half_clock_samples = 2;
+    tm.idle_samples = 100;  // longer than the 20 us timeout: the decoder sees the first frame start from idle
+    const double latency_s = 40e-6, word_period_s = 100e-6, end_s = 0.25;
+    LogicSignals sig;
+    int frames = 0, flipped = 0;
+    while (true) {
+        const double start_s = static_cast<double>(sig.t_s.size()) / tm.sample_rate_hz;
+        if (start_s + word_period_s > end_s) break;
+        // Where this frame latches (it does not depend on the value), then the frame itself.
+        LogicSignals probe = sig;
+        const double latch_s = emit_biss_frame(c, tm, 0, {}, probe);
+        WordFault f;
+        if (frames % 37 == 5) {
+            f.flip_bit = 1 + 1 + 1 + 14 + 2 + 3;  // Ack, Start, CDS, data, nE, nW, then a CRC bit
+            ++flipped;
+        }
+        emit_biss_frame(c, tm, count_at(latch_s, latency_s, M), f, sig);
+        ++frames;
+        const auto want = static_cast<std::size_t>(std::llround((start_s + word_period_s) * tm.sample_rate_hz));
+        if (want > sig.t_s.size()) emit_idle(tm, static_cast<int>(want - sig.t_s.size()), sig);
+    }
+    const std::string path = (d.path / "biss.sr").string();
+    test::write_logic_sr(path, tm.sample_rate_hz, {"ma", "slo"}, {&sig.clk, &sig.data});
+    const json r = run(scenario("readout:" + path + "?protocol=biss&position_bits=14", end_s));
+    REQUIRE(r["status"] == "done");
+    const json& m = lane(r, "dut")["metrics"];
+    const json& ro = m["readout"];
+    CHECK(ro["crc_errors"] == flipped);
+    CHECK(ro["invalid_words"] == flipped);
+    CHECK(ro["valid_words"] == frames - flipped);
+    CHECK(m["slipped_samples"] == 0);
+    CHECK(ro["latency_s"].get<double>() == Approx(latency_s).epsilon(0.02));
+    // Invalid words are counted, not scored: the valid fraction says how many.
+    const double vf = m["evidence"]["valid_fraction"].get<double>();
+    CHECK(vf < 1.0);
+    CHECK(vf > 0.95);
+    for (const auto& ms : r["measurements"])
+        if (ms["metric"] == "dut_crc_errors") CHECK(ms["value"] == flipped);
+}
+
+TEST_CASE("a DUT's TCP stream that closes or freezes mid-run ends the run with an error naming it", "[dut_readout]") {
+    const std::string text = lines(0.0, 4096, 0.3, 0);
+    SECTION("the board closes the connection halfway") {
+        LineServer srv(text, text.size() / 2, false);
+        const json r = run(scenario("readout:tcp://127.0.0.1:" + std::to_string(srv.port) + "?counts_per_rev=4096"));
+        CHECK(r["status"] == "error");
+        CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("device.dut") && Catch::Contains("closed the connection"));
+        // What came before is kept: the estimator's lane and the words read were scored.
+        CHECK(lane(r, "atan2")["metrics"]["evidence"]["scored_samples"].get<double>() > 1000);
+        CHECK(lane(r, "dut")["metrics"]["evidence"]["scored_samples"].get<double>() > 500);
+    }
+    SECTION("the board stops sending but keeps the connection") {
+        LineServer srv(text, text.size() / 2, true);
+        const auto t0 = std::chrono::steady_clock::now();
+        const json r = run(scenario("readout:tcp://127.0.0.1:" + std::to_string(srv.port) + "?counts_per_rev=4096&stall_s=0.3"));
+        const double took_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        CHECK(r["status"] == "error");
+        CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("device.dut") && Catch::Contains("timeout"));
+        CHECK(took_s < 5);
+    }
+    SECTION("nobody listens") {
+        LineServer srv(text, 0, false);
+        const int port = srv.port;
+        ::shutdown(srv.fd, SHUT_RDWR);
+        ::close(srv.fd);
+        srv.fd = -1;
+        const json r = run(scenario("readout:tcp://127.0.0.1:" + std::to_string(port) + "?counts_per_rev=4096"));
+        CHECK(r["status"] == "error");
+        CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("device.dut") && Catch::Contains("cannot connect"));
+    }
+}
+
+TEST_CASE("a DUT readout's bad settings are refused naming them", "[dut_readout]") {
+    test::TempDir d;
+    const std::string path = (d.path / "words.txt").string();
+    std::ofstream(path) << lines(0.0, 4096, 0.3, 0);
+    SECTION("device.dut must be a readout") {
+        CHECK_THROWS_WITH(plan_run(scenario_from_json(scenario("loopback:"), "")), Catch::Contains("device.dut"));
+    }
+    SECTION("an unknown readout setting") {
+        CHECK_THROWS_WITH(plan_run(scenario_from_json(scenario("readout:" + path + "?wordbits=3"), "")), Catch::Contains("wordbits"));
+    }
+    SECTION("a setting of another protocol") {
+        const json r = run(scenario("readout:" + path + "?word_bits=16"));
+        CHECK(r["status"] == "error");
+        CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("word_bits") && Catch::Contains("lines"));
+    }
+    SECTION("a logic capture's missing channel") {
+        LogicSignals sig;
+        EmitterTiming tm;
+        emit_idle(tm, 1000, sig);
+        const std::string sr = (d.path / "x.sr").string();
+        test::write_logic_sr(sr, tm.sample_rate_hz, {"clk", "dat"}, {&sig.clk, &sig.data});
+        const json r = run(scenario("readout:" + sr + "?protocol=ssi&position_bits=12&word_rate_hz=10000"));
+        CHECK(r["status"] == "error");
+        CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("data"));
+    }
+}
