@@ -624,7 +624,9 @@ public:
         rate_hz_ = s.value("samplerate", 0.0);
         sin_ = s.value("sin", std::string("A0"));
         cos_ = s.value("cos", std::string("A1"));
-        program_ = s.value("program", std::string("sigrok-cli"));
+        // No program setting: a URI may come over HTTP (under the operator's --allow-device
+        // glob), and must not name an executable to run. sigrok-cli is the one on PATH.
+        program_ = "sigrok-cli";
         if (driver_.empty()) throw DeviceError(uri_, "sigrok needs a driver: sigrok:demo, sigrok:fx2lafw:conn=1.5 (sigrok-cli -d)");
         // The driver and the channels are checked now (sigrok-cli --scan), not at the first record.
         SigrokLive probe(config(rate_hz_ > 0 ? rate_hz_ : 1.0, 1));
@@ -644,7 +646,7 @@ public:
         i.description = "sigrok device '" + driver_ + "' through sigrok-cli (-O analog): sin=" + sin_ + ", cos=" + cos_;
         i.board_id = "sigrok:" + driver_;
         i.own_clock = true;
-        i.settings = {{"samplerate", rate_hz_}, {"sin", sin_}, {"cos", cos_}, {"program", program_}};
+        i.settings = {{"samplerate", rate_hz_}, {"sin", sin_}, {"cos", cos_}};
         if (!last_stats_.is_null()) i.settings["last_record"] = last_stats_;
         i.converter.known = false;
         i.converter.note = "sigrok-cli -O analog prints the digits the driver declares; converter noise not modelled";
@@ -714,7 +716,6 @@ void register_sigrok(std::vector<DriverInfo>& r) {
         {"samplerate", "Hz", ParamType::Number, 0.0, 0, 1e12, {}, "sample rate asked of the device (0: the run's)"},
         {"sin", "", ParamType::String, "A0", -kInf, kInf, {}, "the device's channel recorded as sin"},
         {"cos", "", ParamType::String, "A1", -kInf, kInf, {}, "the device's channel recorded as cos"},
-        {"program", "", ParamType::String, "sigrok-cli", -kInf, kInf, {}, "the sigrok-cli executable (a path, or a name on PATH)"},
     };
     d.open = [](const std::string& uri, const std::string& path, const nlohmann::json& s) -> std::unique_ptr<Device> {
         return std::make_unique<SigrokDevice>(uri, path, s);

@@ -428,6 +428,8 @@ TEST_CASE("sigrok live: the sigrok: device records the demo's analog channels as
     CHECK_THROWS_WITH(dev::open("sigrok:demo?sin=A9"), Catch::Contains("no channel 'A9'"));
     CHECK_THROWS_WITH(dev::open("sigrok:nosuchdriver"), Catch::Contains("Driver nosuchdriver not found"));
     CHECK_THROWS_WITH(dev::open("sigrok:"), Catch::Contains("needs a driver"));
+    // A URI names no executable (it may come over HTTP): an unknown setting.
+    CHECK_THROWS_WITH(dev::open("sigrok:demo?program=/bin/sh"), Catch::Contains("program"));
 }
 
 }  // namespace test_sigrok_live_cpp
