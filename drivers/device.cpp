@@ -30,6 +30,7 @@ void register_modbus(std::vector<DriverInfo>& r);
 void register_usb(std::vector<DriverInfo>& r);
 void register_scpi(std::vector<DriverInfo>& r);
 void register_readout(std::vector<DriverInfo>& r);
+void register_sigrok(std::vector<DriverInfo>& r);
 
 const char* to_string(StreamStatus s) {
     switch (s) {
@@ -101,6 +102,7 @@ const std::vector<DriverInfo>& drivers() {
         register_usb(r);
         register_scpi(r);
         register_readout(r);
+        register_sigrok(r);
         return r;
     }();
     return all;
@@ -257,6 +259,9 @@ std::string DeviceLock::key_for(const std::string& uri) {
         // another run named by serial. Every board of one VID:PID is one owner at a time.
         return "usb:" + vp;
     }
+    // sigrok: the driver and its connection as sigrok-cli -d names them; the demo driver is
+    // generated per process, nothing to own.
+    if (scheme == "sigrok") return p.path.empty() || p.path == "demo" || p.path.rfind("demo:", 0) == 0 ? "" : "sigrok:" + p.path;
     return "";  // loopback, capture: nothing outside this run can drive them
 }
 
