@@ -11,6 +11,7 @@
 #include "abz.hpp"
 #include "position_words.hpp"
 #include "sigrok_file.hpp"
+#include "sigrok_live.hpp"
 
 #include "signal_gen/base/config.hpp"
 
@@ -51,7 +52,7 @@ const std::map<std::string, std::vector<std::string>> kProtocolKeys = {
     {"lines", {"time_unit", "sample_rate_hz", "position_bits", "max_line_bytes", "counts_per_rev", "cycles_per_rev", "offset_rad"}},
     {"abz", {"interpolation", "index_count", "offset_rad"}},
 };
-const std::vector<std::string> kOwnKeys = {"protocol", "clock_offset_s", "word_rate_hz", "clk", "data", "cs", "a", "b", "z", "hold_s", "max_expanded_mb", "stall_s"};
+const std::vector<std::string> kOwnKeys = {"protocol", "clock_offset_s", "word_rate_hz", "clk", "data", "cs", "a", "b", "z", "hold_s", "max_expanded_mb", "stall_s", "logic_rate_hz"};
 
 // The protocol's settings from the query (numbers where the config wants them); a setting of
 // another protocol is refused naming it.
@@ -78,6 +79,8 @@ public:
     // source ends; returns the status of the underlying read.
     virtual StreamResult pull(double up_to_s, std::deque<PositionWord>& q, int timeout_ms) = 0;
     virtual nlohmann::json stats() const = 0;
+    virtual void start() {}  // a live source starts acquiring
+    virtual void stop() {}
     // Why the source's end is a fault when the run needs words up to up_to_s ("" when it is not):
     // a live stream that stops more than slack_s before the run's time.
     virtual std::string end_fault(double up_to_s, double slack_s) const {
@@ -87,9 +90,11 @@ public:
 };
 
 // A sigrok session's logic lines through a decoder.
-class LogicFileSource final : public WordSource {
+// A DUT's logic lines through a decoder: from a sigrok session file, or live from any device
+// sigrok-cli drives (path sigrok://DRIVER, drivers/sigrok_live.hpp), sample k at t = k / rate.
+class LogicSource final : public WordSource {
 public:
-    LogicFileSource(const std::string& uri, const std::string& path, const std::string& protocol, const nlohmann::json& s)
+    LogicSource(const std::string& uri, const std::string& path, const std::string& protocol, const nlohmann::json& s)
         : uri_(uri), protocol_(protocol), hold_s_(number_or(s, "hold_s", 0.01)) {
         std::map<std::string, std::string> channel_for;
         auto line = [&](const char* col, const char* dflt) {
@@ -125,6 +130,22 @@ public:
         } catch (const std::invalid_argument& e) {
             throw ConfigError("device", e.what());
         }
+        if (abz_) abz_period_ = 1.0 / number_or(s, "word_rate_hz", 0);
+        if (path.rfind("sigrok://", 0) == 0) {
+            // Live: the lines in a fixed order, bit k of a sample = order_[k].
+            SigrokLiveConfig c;
+            c.driver = path.substr(9);
+            c.samplerate_hz = number_or(s, "logic_rate_hz", 0);
+            if (!(c.samplerate_hz > 0)) throw ConfigError("device.logic_rate_hz", "a live logic readout needs its sample rate (logic_rate_hz)");
+            for (const auto& [col, ch] : channel_for) {
+                order_.push_back(col);
+                c.logic_channels.push_back(ch);
+            }
+            fs_ = c.samplerate_hz;
+            live_.emplace(c);
+            live_->probe();  // a wrong driver or channel fails here, naming it
+            return;
+        }
         const auto max_bytes = static_cast<std::uint64_t>(std::min(number_or(s, "max_expanded_mb", 4096.0), 1.6e7) * 1048576.0);
         try {
             session_.emplace(path, channel_for, max_bytes);
@@ -135,12 +156,18 @@ public:
             if (!session_->has(col)) throw DeviceError(uri, path + ": no logic channel '" + ch + "' (the " + col + " line; channels: " + channels() + ")");
         fs_ = session_->sample_rate_hz();
         if (!(fs_ > 0)) throw DeviceError(uri, path + ": the session has no samplerate");
-        if (abz_) abz_period_ = 1.0 / number_or(s, "word_rate_hz", 0);
     }
-    StreamResult pull(double up_to_s, std::deque<PositionWord>& q, int) override {
+    void start() override {
+        if (live_) live_->start();
+    }
+    void stop() override {
+        if (live_) live_->stop();
+    }
+    StreamResult pull(double up_to_s, std::deque<PositionWord>& q, int timeout_ms) override {
         StreamResult r;
+        if (live_) r = pull_live(up_to_s, timeout_ms);
         // A frame latched before up_to_s completes within hold_s after it.
-        while (!ended_ && decoded_to_s_ < up_to_s + hold_s_) {
+        while (!live_ && !ended_ && decoded_to_s_ < up_to_s + hold_s_) {
             const std::uint64_t left = session_->frames() - read_;
             if (left == 0) {
                 finish();
@@ -166,6 +193,32 @@ public:
         words_.clear();
         return r;
     }
+    StreamResult pull_live(double up_to_s, int timeout_ms) {
+        StreamResult r;
+        while (!ended_ && decoded_to_s_ < up_to_s + hold_s_) {
+            r = live_->read(65536, logic_, analog_, timeout_ms);
+            if (r.status != StreamStatus::Ok) return r;
+            const std::size_t n = r.frames;
+            if (n == 0) {  // the acquisition ended (a sample limit)
+                finish();
+                ended_ = true;
+                break;
+            }
+            cols_.clear();
+            for (std::size_t k = 0; k < order_.size(); ++k) {
+                auto& v = cols_[order_[k]];
+                v.resize(n);
+                for (std::size_t i = 0; i < n; ++i) v[i] = static_cast<double>((logic_[i] >> k) & 1u);
+            }
+            t_.resize(n);
+            for (std::size_t i = 0; i < n; ++i) t_[i] = static_cast<double>(read_ + i) / fs_;
+            read_ += n;
+            decoded_to_s_ = t_[n - 1];
+            decode(n);
+        }
+        r = {};
+        return r;
+    }
     nlohmann::json stats() const override {
         nlohmann::json j;
         if (ssi_) j = ssi_->to_json();
@@ -177,6 +230,7 @@ public:
         j["lines"] = names_;
         j["logic_rate_hz"] = fs_;
         j["logic_samples"] = read_;
+        if (live_) j["sigrok"] = live_->stats();
         return j;
     }
 
@@ -217,6 +271,10 @@ private:
     std::string uri_, protocol_;
     double hold_s_;
     std::optional<SigrokSession> session_;
+    std::optional<SigrokLive> live_;
+    std::vector<std::string> order_;
+    std::vector<std::uint64_t> logic_;
+    std::vector<std::vector<double>> analog_;
     std::map<std::string, std::string> names_;
     std::optional<SsiDecoder> ssi_;
     std::optional<BissDecoder> biss_;
@@ -350,9 +408,11 @@ public:
         : uri_(std::move(uri)), path_(path), protocol_(string_or(s, "protocol", "")), offset_s_(number_or(s, "clock_offset_s", 0)),
           rate_hz_(number_or(s, "word_rate_hz", 0)), stall_s_(number_or(s, "stall_s", 10)), settings_(s) {
         const bool sr = path.size() >= 3 && path.compare(path.size() - 3, 3, ".sr") == 0;
-        if (protocol_.empty()) protocol_ = sr ? "" : "lines";
+        if (protocol_.empty()) protocol_ = sr || path.rfind("sigrok://", 0) == 0 ? "" : "lines";
         if (protocol_.empty()) throw ConfigError("device.protocol", "a logic capture needs protocol=ssi, biss, spi or abz");
-        if (sr) src_ = std::make_unique<LogicFileSource>(uri_, path, protocol_, s);
+        const bool live_logic = path.rfind("sigrok://", 0) == 0;
+        if (live_logic && protocol_ == "lines") throw ConfigError("device.protocol", "a live logic readout (sigrok://) needs protocol=ssi, biss, spi or abz");
+        if (sr || live_logic) src_ = std::make_unique<LogicSource>(uri_, path, protocol_, s);
         else if (protocol_ == "lines") src_ = std::make_unique<LineSource>(uri_, path, s);
         else throw ConfigError("device.protocol", protocol_ + " words are decoded from a logic capture (a .sr path); a file, tty or tcp:// stream carries protocol=lines");
     }
@@ -360,6 +420,7 @@ public:
     ReadoutPort* readout() override { return this; }
 
     void start() override {
+        src_->start();
         if (rate_hz_ > 0) return;
         // The word rate from the first words (nominal: the median interval of up to 33).
         for (double upto = 1e-3; q_.size() < 33 && upto < 1e7; upto *= 2) {
@@ -404,7 +465,7 @@ public:
         j["word_rate_measured"] = measured_rate_;
         return j;
     }
-    void stop() override {}
+    void stop() override { src_->stop(); }
 
 protected:
     DeviceInfo describe() const override {
@@ -433,13 +494,14 @@ private:
 void register_readout(std::vector<DriverInfo>& r) {
     DriverInfo d;
     d.scheme = "readout";
-    d.summary = "A DUT's own position words for a scenario's device.dut: a logic capture (.sr) decoded as SSI, BiSS-C, SPI or ABZ, or a "
-                "line stream \"<time> <count> [E]\" from a file, a tty or tcp://host:port (docs/dut-readouts.md)";
+    d.summary = "A DUT's own position words for a scenario's device.dut: a logic capture (.sr) or a live logic analyser (sigrok://DRIVER, "
+                "through sigrok-cli) decoded as SSI, BiSS-C, SPI or ABZ, or a line stream \"<time> <count> [E]\" from a file, a tty or tcp://host:port (docs/dut-readouts.md)";
     using P = ParamInfo;
     d.settings = {
         P{"protocol", "", ParamType::Choice, nullptr, -kInf, kInf, {"ssi", "biss", "spi", "abz", "lines"}, "the DUT's protocol (default: lines for a file or tcp://)"},
         P{"clock_offset_s", "s", ParamType::Number, 0.0, -1e6, 1e6, {}, "t_run = t_readout + clock_offset_s (the readout's clock against the run's)"},
         P{"word_rate_hz", "Hz", ParamType::Number, nullptr, 0, 1e9, {}, "words per second (default: measured from the first words; abz: the rate its count is read)"},
+        P{"logic_rate_hz", "Hz", ParamType::Number, nullptr, 0, 1e10, {}, "sigrok://DRIVER: the logic analyser's sample rate"},
         P{"hold_s", "s", ParamType::Number, 0.01, 0, 10, {}, "logic captures: a frame completes within this time after its latch"},
         P{"stall_s", "s", ParamType::Number, 10.0, 0.01, 3600, {}, "a live stream silent this long while the run waits for its words is frozen: the run ends with an error"},
         P{"max_expanded_mb", "MiB", ParamType::Number, 4096.0, 1, 1.6e7, {}, "most sample data a .sr may expand to (a limit against ZIP bombs)"},

@@ -5,7 +5,10 @@
 # position stream over TCP (tests/dut_stream.py: a DUT 80 us late, some words flagged E, some
 # lines garbled). One `fringe run` scores the DUT against truth with its latency measured and
 # its wire errors counted; a DUT later than a limit FAILs (exit 1); a stream cut mid-run is
-# an ERROR naming device.dut (exit 2) with the estimators' figures kept.
+# an ERROR naming device.dut (exit 2) with the estimators' figures kept. A live logic analyser
+# through sigrok-cli (its demo driver, whose D0/D1 pattern is no quadrature) reads as the DUT:
+# every sample acquired and decoded, the illegal transitions counted, and a FAIL for want of
+# evidence, never a PASS.
 set -euo pipefail
 FRINGE="$1"; SRC="$(cd "$2" && pwd)"
 PY=/usr/bin/python3
@@ -78,4 +81,26 @@ set -e
 jq -e '.status == "error" and (.error | contains("device.dut"))' "$dir/cut-report.json" > /dev/null || fail "the error should name device.dut"
 jq -e '[.estimators[] | select(.label == "atan2") | .metrics.evidence.scored_samples] | .[0] > 10000' "$dir/cut-report.json" > /dev/null ||
   fail "the estimators' figures should survive the DUT's fault"
+# 4. Live: sigrok's demo logic analyser as the DUT's ABZ lines (the simulated chain for the signals).
+jq '.device = {"output": "loopback:", "input": "loopback:", "dut": "readout:sigrok://demo?protocol=abz&a=D0&b=D1&interpolation=4&word_rate_hz=10000&logic_rate_hz=1000000"}
+    | .limits = [] | .duration_s = 0.3 | .settle_s = 0.05' "$F" > "$dir/live.json"
+set +e
+timeout 120 "$FRINGE" run "$dir/live.json" --no-db -q --report "$dir/live-report.json" > "$dir/live-run.log" 2>&1
+rc=$?
+set -e
+[ $rc -eq 1 ] || fail "a DUT whose lines are the demo's pattern should FAIL (exit 1), got $rc"
+$PY - "$dir/live-report.json" <<'PY' || fail "the live readout's report"
+import json, sys
+r = json.load(open(sys.argv[1]))
+assert r["status"] == "done", r.get("error")
+ro = [e for e in r["estimators"] if e["label"] == "dut"][0]["metrics"]["readout"]
+sg = ro["sigrok"]
+# Acquired live for the run's 0.3 s at 1 MHz (and a little more), every sample decoded.
+assert sg["samples"] >= 300000 and ro["logic_samples"] == sg["samples"], (sg["samples"], ro["logic_samples"])
+assert sg["logic_channels"] == ["D0", "D1"], sg["logic_channels"]
+assert ro["abz"]["illegal_transitions"] > 0, ro["abz"]
+assert ro["words_received"] >= 2900, ro["words_received"]
+assert r["verdict"] == "FAIL"
+print("live demo readout ok:", sg["samples"], "samples,", ro["abz"]["illegal_transitions"], "illegal transitions")
+PY
 echo "cli_dut_readout: ok"
