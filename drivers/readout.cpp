@@ -22,11 +22,13 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstring>
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <deque>
 #include <fstream>
 #include <limits>
@@ -81,6 +83,8 @@ public:
     virtual nlohmann::json stats() const = 0;
     virtual void start() {}  // a live source starts acquiring
     virtual void stop() {}
+    const std::atomic<bool>* cancel = nullptr;  // the run's cancel flag: a waiting source gives up
+    bool cancelled() const { return cancel && cancel->load(); }
     // Why the source's end is a fault when the run needs words up to up_to_s ("" when it is not):
     // a live stream that stops more than slack_s before the run's time.
     virtual std::string end_fault(double up_to_s, double slack_s) const {
@@ -196,6 +200,7 @@ public:
     StreamResult pull_live(double up_to_s, int timeout_ms) {
         StreamResult r;
         while (!ended_ && decoded_to_s_ < up_to_s + hold_s_) {
+            if (cancelled()) return {StreamStatus::Error, 0, 0, 0, "cancelled while waiting for the logic analyser"};
             r = live_->read(65536, logic_, analog_, timeout_ms);
             if (r.status != StreamStatus::Ok) return r;
             const std::size_t n = r.frames;
@@ -299,11 +304,21 @@ public:
             throw ConfigError("device", e.what());
         }
         if (path.rfind("tcp://", 0) == 0) {
-            tcp_ = true;
+            tcp_ = stream_ = true;
             connect_tcp(path.substr(6));
         } else {
-            fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NOCTTY);
+            // Non-blocking: a FIFO nobody writes to must not hang the open; a tty or FIFO is
+            // then read as a live stream (polled, with the stall timeout), a file to its end.
+            fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NOCTTY | O_NONBLOCK);
             if (fd_ < 0) throw DeviceError(uri, "cannot open " + path + ": " + std::strerror(errno));
+            struct stat st {};
+            if (::fstat(fd_, &st) != 0) throw DeviceError(uri, "cannot stat " + path + ": " + std::strerror(errno));
+            if (S_ISDIR(st.st_mode)) {
+                ::close(fd_);
+                fd_ = -1;
+                throw DeviceError(uri, path + " is a directory, not a position stream");
+            }
+            stream_ = !S_ISREG(st.st_mode);
         }
     }
     ~LineSource() override {
@@ -311,24 +326,40 @@ public:
     }
     StreamResult pull(double up_to_s, std::deque<PositionWord>& q, int timeout_ms) override {
         StreamResult r;
-        const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(timeout_ms);
+        // stall: no word for timeout_ms (bytes that make no word, /dev/zero's, are silence too).
+        auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(timeout_ms);
+        std::uint64_t frames_seen = parser_->stats().frames;
         char buf[65536];
         while (!ended_ && !(have_last_ && last_t_ > up_to_s)) {
-            if (tcp_) {
+            // Bounded in time and memory whatever arrives; words pile up to at most 2^18 before
+            // the run takes them.
+            if (cancelled()) {
+                r.status = StreamStatus::Error;
+                r.message = "cancelled while waiting for the DUT's words";
+                break;
+            }
+            if (parser_->stats().frames != frames_seen) {
+                frames_seen = parser_->stats().frames;
+                deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(timeout_ms);
+            }
+            if (std::chrono::steady_clock::now() >= deadline) {
+                r.status = StreamStatus::Timeout;
+                r.message = "no position word for " + std::to_string(timeout_ms) + " ms (stall_s; the stream had reached t = " +
+                            (have_last_ ? std::to_string(last_t_) + " s" : std::string("no word yet")) + ", the run needs words up to " +
+                            std::to_string(up_to_s) + " s; " + std::to_string(bytes_) + " bytes read)";
+                break;
+            }
+            if (words_.size() >= (std::size_t{1} << 18)) break;
+            if (stream_) {
                 const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now()).count();
                 pollfd p{fd_, POLLIN, 0};
-                const int pr = ::poll(&p, 1, static_cast<int>(std::max<long long>(0, left)));
+                const int pr = ::poll(&p, 1, static_cast<int>(std::clamp<long long>(left, 0, 100)));  // 100 ms: a cancel is seen
                 if (pr < 0 && errno == EINTR) continue;
-                if (pr == 0) {
-                    r.status = StreamStatus::Timeout;
-                    r.message = "no position line within " + std::to_string(timeout_ms) + " ms (the stream had reached t = " +
-                                (have_last_ ? std::to_string(last_t_) : std::string("nothing")) + " s, the run needs " + std::to_string(up_to_s) + " s)";
-                    break;
-                }
+                if (pr == 0) continue;  // the deadline and the cancel are checked above
             }
             const ssize_t got = ::read(fd_, buf, sizeof buf);
             if (got < 0) {
-                if (errno == EINTR) continue;
+                if (errno == EINTR || errno == EAGAIN) continue;
                 r.status = StreamStatus::Error;
                 r.message = std::string("read: ") + std::strerror(errno);
                 break;
@@ -348,14 +379,14 @@ public:
         return r;
     }
     std::string end_fault(double up_to_s, double slack_s) const override {
-        if (!tcp_ || !ended_ || (have_last_ && last_t_ >= up_to_s - slack_s)) return "";
-        return "the DUT closed the connection (its stream reached t = " + (have_last_ ? std::to_string(last_t_) : std::string("nothing")) +
+        if (!stream_ || !ended_ || (have_last_ && last_t_ >= up_to_s - slack_s)) return "";
+        return std::string(tcp_ ? "the DUT closed the connection" : "the stream ended") + " (its stream reached t = " + (have_last_ ? std::to_string(last_t_) : std::string("nothing")) +
                " s; the run needs words up to " + std::to_string(up_to_s) + " s)";
     }
     nlohmann::json stats() const override {
         nlohmann::json j = parser_->to_json();
         j["bytes"] = bytes_;
-        j["source"] = tcp_ ? "tcp" : "file";
+        j["source"] = tcp_ ? "tcp" : stream_ ? "stream" : "file";
         return j;
     }
 
@@ -394,7 +425,7 @@ private:
         if (fd_ < 0) throw DeviceError(uri_, "cannot connect to " + hostport + ": " + why);
     }
     std::string uri_, path_;
-    bool tcp_ = false, ended_ = false, have_last_ = false;
+    bool tcp_ = false, stream_ = false, ended_ = false, have_last_ = false;
     int fd_ = -1;
     double last_t_ = -std::numeric_limits<double>::infinity();
     std::uint64_t bytes_ = 0;
@@ -418,6 +449,7 @@ public:
     }
     ~Readout() override = default;
     ReadoutPort* readout() override { return this; }
+    void set_cancel(const std::atomic<bool>* c) override { src_->cancel = c; }
 
     void start() override {
         src_->start();
@@ -430,7 +462,14 @@ public:
         std::vector<double> dt;
         for (std::size_t i = 1; i < q_.size(); ++i)
             if (q_[i].t_s > q_[i - 1].t_s) dt.push_back(q_[i].t_s - q_[i - 1].t_s);
-        if (dt.size() < 2) throw DeviceError(uri_, "fewer than three words with distinct latch times: the word rate cannot be measured (give word_rate_hz)");
+        if (dt.size() < 2) {
+            const nlohmann::json st = src_->stats();
+            std::string seen;
+            for (const char* k : {"lines", "frames", "valid_words", "malformed_lines", "time_reversals", "short_frames", "crc_errors", "samples", "logic_samples"})
+                if (st.contains(k) && st[k].is_number()) seen += (seen.empty() ? "" : ", ") + std::string(k) + " " + st[k].dump();
+            throw DeviceError(uri_, "fewer than three words with distinct latch times, so there is nothing to score and no word rate to measure (read: " +
+                                        (seen.empty() ? std::string("nothing") : seen) + ")");
+        }
         std::nth_element(dt.begin(), dt.begin() + static_cast<long>(dt.size() / 2), dt.end());
         rate_hz_ = 1.0 / dt[dt.size() / 2];
         measured_rate_ = true;
@@ -438,6 +477,9 @@ public:
     StreamResult read_words(double up_to_s, std::vector<PositionWordOut>& out, int timeout_ms) override {
         StreamResult r;
         if (q_.empty() || q_.back().t_s <= up_to_s) r = src_->pull(up_to_s, q_, timeout_ms);
+        // A live stream that has delivered its words to within two of the run's time and then
+        // waits (the run's last block, a replay that holds its socket open) is not frozen.
+        if (r.status == StreamStatus::Timeout && !q_.empty() && q_.back().t_s >= up_to_s - 2.0 / rate_hz_) r = {};
         // A live stream may end with the run (within two words of its last frame), not before.
         if (r.status == StreamStatus::Ok) {
             if (const std::string why = src_->end_fault(up_to_s, 2.0 / rate_hz_); !why.empty()) {

@@ -15,6 +15,7 @@
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -245,6 +246,84 @@ TEST_CASE("a DUT's TCP stream that closes or freezes mid-run ends the run with a
         const json r = run(scenario("readout:tcp://127.0.0.1:" + std::to_string(port) + "?counts_per_rev=4096"));
         CHECK(r["status"] == "error");
         CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("device.dut") && Catch::Contains("cannot connect"));
+    }
+}
+
+TEST_CASE("a DUT stream that never reaches the run's time ends the run, bounded in time", "[dut_readout]") {
+    test::TempDir d;
+    auto timed = [](const json& sc, double& took_s) {
+        const auto t0 = std::chrono::steady_clock::now();
+        const json r = run(sc);
+        took_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        return r;
+    };
+    double took_s = 0;
+    SECTION("a FIFO nobody writes to") {
+        const std::string fifo = (d.path / "fifo").string();
+        REQUIRE(::mkfifo(fifo.c_str(), 0600) == 0);
+        const json r = timed(scenario("readout:" + fifo + "?counts_per_rev=4096&stall_s=0.3"), took_s);
+        CHECK(r["status"] == "error");
+        CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("device.dut"));
+        CHECK(took_s < 5);
+    }
+    SECTION("a device that sends only zeros") {
+        const json r = timed(scenario("readout:/dev/zero?counts_per_rev=4096&stall_s=0.3"), took_s);
+        CHECK(r["status"] == "error");
+        CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("device.dut") && Catch::Contains("timeout"));
+        CHECK(took_s < 5);
+    }
+    SECTION("a directory") {
+        const json r = timed(scenario("readout:" + d.path.string() + "?counts_per_rev=4096"), took_s);
+        CHECK(r["status"] == "error");
+        CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("is a directory"));
+    }
+}
+
+TEST_CASE("DUT words that do not cover the run are said so; a stream that covers it and stays open is not frozen", "[dut_readout]") {
+    test::TempDir d;
+    SECTION("a file that ends early: scored as far as it goes, and a warning") {
+        const std::string path = (d.path / "words.txt").string();
+        std::ofstream(path) << lines(0.0, 4096, 0.1, 0);
+        const json r = run(scenario("readout:" + path + "?counts_per_rev=4096"));
+        REQUIRE(r["status"] == "done");
+        bool warned = false;
+        for (const auto& w : r["warnings"]) warned |= w["code"] == "dut_words_end_early";
+        CHECK(warned);
+        CHECK(lane(r, "dut")["metrics"]["readout"]["last_word_s"].get<double>() < 0.1);
+    }
+    SECTION("words on another clock: none in the run, a warning naming clock_offset_s") {
+        const std::string path = (d.path / "words.txt").string();
+        std::ofstream(path) << lines(0.0, 4096, 0.3, 0);
+        const json r = run(scenario("readout:" + path + "?counts_per_rev=4096&clock_offset_s=-5"));
+        REQUIRE(r["status"] == "done");
+        bool warned = false;
+        for (const auto& w : r["warnings"]) warned |= w["code"] == "dut_words_outside_run" && w["message"].get<std::string>().find("clock_offset_s") != std::string::npos;
+        CHECK(warned);
+        CHECK(r["verdict"] != "PASS");
+    }
+    SECTION("a TCP stream that covers the run and keeps its connection open") {
+        const std::string text = lines(0.0, 4096, 0.3, 0);
+        LineServer srv(text, text.size(), true);
+        const auto t0 = std::chrono::steady_clock::now();
+        const json r = run(scenario("readout:tcp://127.0.0.1:" + std::to_string(srv.port) + "?counts_per_rev=4096&stall_s=0.5"));
+        CHECK(r["status"] == "done");
+        CHECK(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() < 5);
+    }
+    SECTION("a cancel reaches a readout that waits") {
+        const std::string fifo = (d.path / "fifo").string();
+        REQUIRE(::mkfifo(fifo.c_str(), 0600) == 0);
+        std::atomic<bool> cancel{false};
+        RunOptions o;
+        o.cancel = &cancel;
+        std::thread t([&] {
+            std::this_thread::sleep_for(std::chrono::milliseconds(300));
+            cancel = true;
+        });
+        const auto t0 = std::chrono::steady_clock::now();
+        const json r = json(execute_run(scenario_from_json(scenario("readout:" + fifo + "?counts_per_rev=4096&stall_s=600"), ""), o));
+        t.join();
+        CHECK(r["status"] != "done");
+        CHECK(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() < 5);
     }
 }
 

@@ -223,7 +223,7 @@ std::vector<MetricInfo> build_catalog() {
               if (!ro.is_object()) return none(why, "only a DUT read out by its own device has it (device.dut)");
               return number(ro.value("crc_errors", json()), why, "the protocol carries no CRC");
           }),
-        M("dut_rms_without_latency_rad", "rad", "DUT readout: rms error of its words with the fitted latency taken out (its interpolation "
+        M("dut_rms_no_latency_rad", "rad", "DUT readout: rms error of its words with the fitted latency taken out (its interpolation "
           "apart from its delay; docs/dut-readouts.md)", "the dut lane of a run with device.dut, on a moving motion", "none", "rms w/o latency",
           [](const json& e, std::string* why) -> Value {
               const json ro = sub(metrics_of(e), "readout");

@@ -97,6 +97,7 @@ struct Lane {
         // word's error wrapped to (-pi, pi]), least squares through zero, and what is left.
         bool have_t0 = false;
         double t0 = 0, n = 0, see = 0, seo = 0, soo = 0;
+        double last_word_t = -std::numeric_limits<double>::infinity();  // run clock
     } feed;
     // A readout fault not yet raised (its block was the run's last).
     void fail_pending() const {
@@ -128,6 +129,7 @@ struct Lane {
             while (j < m && f.t_s[j] < tw) ++j;
             o.wt[k] = tw;
             o.th[k] = w.words[k].theta_rad;
+            w.last_word_t = std::max(w.last_word_t, tw);
             double t0, th0, om0, t1, th1, om1;
             bool k0, k1;
             if (j >= m) j = m - 1;  // read up to the last frame: only rounding puts a word past it
@@ -353,6 +355,21 @@ std::vector<EstimatorReport> score_lanes(const Scenario& sc, const dev::DeviceIn
                 if (ro.value(k, std::uint64_t{0}) > 0) what += (what.empty() ? "" : ", ") + std::to_string(ro[k].get<std::uint64_t>()) + " " + label;
             if (ro.contains("abz") && ro["abz"].value("illegal_transitions", std::uint64_t{0}) > 0)
                 what += (what.empty() ? "" : ", ") + std::to_string(ro["abz"]["illegal_transitions"].get<std::uint64_t>()) + " illegal A/B transitions";
+            // Words that do not cover the run: what was scored is said, never assumed.
+            const double word_dt_s = 1.0 / std::max(1e-300, lane->readout->word_rate_hz());
+            if (fw.received == 0)
+                warnings.push_back({true, "dut_no_words", "estimators.dut",
+                                    "dut: the readout gave no word within the run's time (check the readout's clock: clock_offset_s)"});
+            else if (fw.have_prev && fw.last_word_t < fw.prev_t - 2 * word_dt_s)
+                warnings.push_back({true, "dut_words_end_early", "estimators.dut",
+                                    "dut: the readout's words end at t = " + std::to_string(fw.last_word_t) + " s, the run's frames at " +
+                                        std::to_string(fw.prev_t) + " s: the rest of the run has no DUT words"});
+            if (fw.before_run > 0)
+                warnings.push_back({true, "dut_words_outside_run", "estimators.dut",
+                                    "dut: " + std::to_string(fw.before_run) + " words were latched before the run's first frame and not scored "
+                                    "(check the readout's clock: clock_offset_s)"});
+            ro["last_word_s"] = fw.received ? json(fw.last_word_t) : json();
+            e.readout = ro;
             if (!what.empty())
                 warnings.push_back({true, "dut_wire_errors", "estimators.dut",
                                     "dut: errors on the wire (" + what + "): each invalidated its word, which was not scored"});
