@@ -279,7 +279,7 @@ TEST_CASE("a DUT stream that never reaches the run's time ends the run, bounded 
     }
 }
 
-TEST_CASE("DUT words that do not cover the run are said so; a stream that covers it and stays open is not frozen", "[dut_readout]") {
+TEST_CASE("DUT words that do not cover the run are said so, and a stream that covers it and stays open is not frozen", "[dut_readout]") {
     test::TempDir d;
     SECTION("a file that ends early: scored as far as it goes, and a warning") {
         const std::string path = (d.path / "words.txt").string();
