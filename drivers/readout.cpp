@@ -5,6 +5,9 @@
 //   readout:tcp://127.0.0.1:5000?protocol=lines&...    a line stream "<time> <count> [E]" from a
 //       TCP socket (a board's own server, or a serial-to-TCP bridge)
 //   readout:/path/file.txt?protocol=lines&...           the same lines from a file or a tty
+//   readout:sigrok://DRIVER?protocol=..&logic_rate_hz=..  live from a logic analyser (sigrok-cli)
+//   readout:sigrok:///path/x.sr?protocol=..             a recorded session replayed through that
+//       same live path (sigrok-cli -i): what CI's replayed DUT stream uses
 // Every word is time-stamped at its latch instant on the readout's clock; clock_offset_s maps
 // that clock to the run's (t_run = t_readout + clock_offset_s).
 #include "device.hpp"
@@ -138,16 +141,19 @@ public:
         if (path.rfind("sigrok://", 0) == 0) {
             // Live: the lines in a fixed order, bit k of a sample = order_[k].
             SigrokLiveConfig c;
-            c.driver = path.substr(9);
+            const std::string what = path.substr(9);
+            // sigrok:///abs/x.sr: a recorded session replayed through the same path (sigrok-cli -i).
+            (what.rfind('/', 0) == 0 ? c.input_file : c.driver) = what;
             c.samplerate_hz = number_or(s, "logic_rate_hz", 0);
-            if (!(c.samplerate_hz > 0)) throw ConfigError("device.logic_rate_hz", "a live logic readout needs its sample rate (logic_rate_hz)");
+            if (c.input_file.empty() && !(c.samplerate_hz > 0))
+                throw ConfigError("device.logic_rate_hz", "a live logic readout needs its sample rate (logic_rate_hz)");
             for (const auto& [col, ch] : channel_for) {
                 order_.push_back(col);
                 c.logic_channels.push_back(ch);
             }
-            fs_ = c.samplerate_hz;
             live_.emplace(c);
-            live_->probe();  // a wrong driver or channel fails here, naming it
+            live_->probe();  // a wrong driver, file or channel fails here, naming it
+            fs_ = live_->samplerate_hz();
             return;
         }
         const auto max_bytes = static_cast<std::uint64_t>(std::min(number_or(s, "max_expanded_mb", 4096.0), 1.6e7) * 1048576.0);
@@ -537,13 +543,13 @@ void register_readout(std::vector<DriverInfo>& r) {
     DriverInfo d;
     d.scheme = "readout";
     d.summary = "A DUT's own position words for a scenario's device.dut: a logic capture (.sr) or a live logic analyser (sigrok://DRIVER, "
-                "through sigrok-cli) decoded as SSI, BiSS-C, SPI or ABZ, or a line stream \"<time> <count> [E]\" from a file, a tty or tcp://host:port (docs/dut-readouts.md)";
+                "through sigrok-cli; sigrok:///x.sr replays a session through it) decoded as SSI, BiSS-C, SPI or ABZ, or a line stream \"<time> <count> [E]\" from a file, a tty or tcp://host:port (docs/dut-readouts.md)";
     using P = ParamInfo;
     d.settings = {
         P{"protocol", "", ParamType::Choice, nullptr, -kInf, kInf, {"ssi", "biss", "spi", "abz", "lines"}, "the DUT's protocol (default: lines for a file or tcp://)"},
         P{"clock_offset_s", "s", ParamType::Number, 0.0, -1e6, 1e6, {}, "t_run = t_readout + clock_offset_s (the readout's clock against the run's)"},
         P{"word_rate_hz", "Hz", ParamType::Number, nullptr, 0, 1e9, {}, "words per second (default: measured from the first words; abz: the rate its count is read)"},
-        P{"logic_rate_hz", "Hz", ParamType::Number, nullptr, 0, 1e10, {}, "sigrok://DRIVER: the logic analyser's sample rate"},
+        P{"logic_rate_hz", "Hz", ParamType::Number, nullptr, 0, 1e10, {}, "sigrok://DRIVER: the logic analyser's sample rate; sigrok:///x.sr: the file's own when absent (given, it must match)"},
         P{"hold_s", "s", ParamType::Number, 0.01, 0, 10, {}, "logic captures: a frame completes within this time after its latch"},
         P{"stall_s", "s", ParamType::Number, 10.0, 0.01, 3600, {}, "a live stream silent this long while the run waits for its words is frozen: the run ends with an error"},
         P{"max_expanded_mb", "MiB", ParamType::Number, 4096.0, 1, 1.6e7, {}, "most sample data a .sr may expand to (a limit against ZIP bombs)"},

@@ -163,15 +163,63 @@ bool parse_analog_value(const std::string& rest, double& v) {
     return true;
 }
 
+// Runs argv to its end (at most timeout_ms), its stdout in text (up to 1 MiB), the tail of its
+// stderr in etail; the wait status, timed_out when it had to be killed.
+int run_collect(const std::string& name, const std::vector<std::string>& argv, int timeout_ms, std::string& text, std::string& etail, bool& timed_out) {
+    int in = -1, out = -1, err = -1;
+    std::string error;
+    const pid_t pid = spawn(argv, in, out, err, error);
+    if (pid < 0) throw DeviceError(name, error);
+    const auto until = std::chrono::steady_clock::now() + std::chrono::milliseconds(timeout_ms);
+    bool out_open = true, err_open = true;
+    timed_out = false;
+    char b[4096];
+    while (out_open || err_open) {
+        const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(until - std::chrono::steady_clock::now()).count();
+        if (left <= 0) {
+            timed_out = true;
+            break;
+        }
+        pollfd p[2] = {{out_open ? out : -1, POLLIN, 0}, {err_open ? err : -1, POLLIN, 0}};
+        if (::poll(p, 2, static_cast<int>(left)) < 0 && errno != EINTR) break;
+        for (int i = 0; i < 2; ++i) {
+            if (!(p[i].revents & (POLLIN | POLLHUP | POLLERR))) continue;
+            const ssize_t n = ::read(p[i].fd, b, sizeof b);
+            if (n > 0) {
+                if (i == 0 && text.size() < (1u << 20)) text.append(b, static_cast<std::size_t>(n));
+                if (i == 1) append_tail(etail, b, static_cast<std::size_t>(n));
+            } else if (n == 0 || (errno != EAGAIN && errno != EINTR)) {
+                (i == 0 ? out_open : err_open) = false;
+            }
+        }
+    }
+    ::close(in);
+    ::close(out);
+    ::close(err);
+    return wait_or_kill(pid, timed_out ? 0 : 2000);
+}
+
 }  // namespace
 
-SigrokLive::SigrokLive(SigrokLiveConfig cfg) : cfg_(std::move(cfg)), name_("sigrok:" + cfg_.driver) { validate(); }
+SigrokLive::SigrokLive(SigrokLiveConfig cfg)
+    : cfg_(std::move(cfg)), name_("sigrok:" + (cfg_.input_file.empty() ? cfg_.driver : cfg_.input_file)) {
+    validate();
+}
 
 SigrokLive::~SigrokLive() { stop(); }
 
 void SigrokLive::validate() const {
-    if (cfg_.driver.empty()) throw DeviceError("sigrok:", "no driver named (sigrok-cli -d: demo, fx2lafw, fx2lafw:conn=1.5, ...)");
-    if (!(cfg_.samplerate_hz > 0) || !std::isfinite(cfg_.samplerate_hz))
+    if (!cfg_.input_file.empty()) {
+        if (!cfg_.driver.empty()) throw DeviceError(name_, "a driver and an input file at once: one source per acquisition");
+        if (!cfg_.analog_channels.empty())
+            throw DeviceError(name_, "a replayed session is read as logic only (an analog .sr is read by the capture: driver)");
+        if (!cfg_.config.empty() || !cfg_.channel_group.empty()) throw DeviceError(name_, "a replayed session takes no device --config or channel group");
+        if (cfg_.limit_samples) throw DeviceError(name_, "a replayed session ends with its own sample count (no limit_samples)");
+    } else if (cfg_.driver.empty()) {
+        throw DeviceError("sigrok:", "no driver named (sigrok-cli -d: demo, fx2lafw, fx2lafw:conn=1.5, ...)");
+    }
+    const bool file_rate = !cfg_.input_file.empty() && cfg_.samplerate_hz == 0;  // the file's own, from --show
+    if (!file_rate && (!(cfg_.samplerate_hz > 0) || !std::isfinite(cfg_.samplerate_hz)))
         throw DeviceError(name_, "samplerate must be > 0 Hz (got " + num(cfg_.samplerate_hz) + ")");
     if (cfg_.samplerate_hz != std::floor(cfg_.samplerate_hz) || cfg_.samplerate_hz > 1e15)
         throw DeviceError(name_, "samplerate must be a whole number of Hz (got " + num(cfg_.samplerate_hz) + ")");
@@ -197,6 +245,7 @@ void SigrokLive::validate() const {
 }
 
 std::vector<std::string> SigrokLive::command() const {
+    if (!cfg_.input_file.empty()) return {cfg_.program, "-i", cfg_.input_file, "-O", "binary"};  // -i ignores --channels
     std::vector<std::string> a{cfg_.program, "-d", cfg_.driver};
     if (!cfg_.channel_group.empty()) a.insert(a.end(), {"-g", cfg_.channel_group});
     std::string conf;
@@ -229,38 +278,11 @@ std::vector<std::string> SigrokLive::command() const {
 }
 
 void SigrokLive::scan() {
+    if (!cfg_.input_file.empty()) return show_file();
     std::vector<std::string> argv{cfg_.program, "-d", cfg_.driver, "--scan"};
-    int in = -1, out = -1, err = -1;
-    std::string error;
-    const pid_t pid = spawn(argv, in, out, err, error);
-    if (pid < 0) throw DeviceError(name_, error);
     std::string text, etail;
-    const auto until = std::chrono::steady_clock::now() + std::chrono::milliseconds(cfg_.scan_timeout_ms);
-    bool out_open = true, err_open = true, timed_out = false;
-    char b[4096];
-    while (out_open || err_open) {
-        const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(until - std::chrono::steady_clock::now()).count();
-        if (left <= 0) {
-            timed_out = true;
-            break;
-        }
-        pollfd p[2] = {{out_open ? out : -1, POLLIN, 0}, {err_open ? err : -1, POLLIN, 0}};
-        if (::poll(p, 2, static_cast<int>(left)) < 0 && errno != EINTR) break;
-        for (int i = 0; i < 2; ++i) {
-            if (!(p[i].revents & (POLLIN | POLLHUP | POLLERR))) continue;
-            const ssize_t n = ::read(p[i].fd, b, sizeof b);
-            if (n > 0) {
-                if (i == 0 && text.size() < (1u << 20)) text.append(b, static_cast<std::size_t>(n));
-                if (i == 1) append_tail(etail, b, static_cast<std::size_t>(n));
-            } else if (n == 0 || (errno != EAGAIN && errno != EINTR)) {
-                (i == 0 ? out_open : err_open) = false;
-            }
-        }
-    }
-    ::close(in);
-    ::close(out);
-    ::close(err);
-    const int st = wait_or_kill(pid, timed_out ? 0 : 2000);
+    bool timed_out = false;
+    const int st = run_collect(name_, argv, cfg_.scan_timeout_ms, text, etail, timed_out);
     const std::string why = trimmed(etail);
     if (timed_out)
         throw DeviceError(name_, "'" + cfg_.program + " -d " + cfg_.driver + " --scan' did not finish within " + std::to_string(cfg_.scan_timeout_ms) + " ms" +
@@ -278,6 +300,50 @@ void SigrokLive::scan() {
     }
     if (device_channels_.empty())
         throw DeviceError(name_, "sigrok-cli found no device for driver '" + cfg_.driver + "' (" + status_text(st) + ")" + (why.empty() ? "" : ": " + why));
+}
+
+// `sigrok-cli -i FILE --show`:
+//   Samplerate: 100000 / Channels: 8 / - D0: logic / ... / Logic unitsize: 1 / Logic sample count: 1000
+void SigrokLive::show_file() {
+    std::vector<std::string> argv{cfg_.program, "-i", cfg_.input_file, "--show"};
+    std::string text, etail;
+    bool timed_out = false;
+    const int st = run_collect(name_, argv, cfg_.scan_timeout_ms, text, etail, timed_out);
+    const std::string why = trimmed(etail);
+    const std::string cmd = "'" + cfg_.program + " -i " + cfg_.input_file + " --show'";
+    if (timed_out) throw DeviceError(name_, cmd + " did not finish within " + std::to_string(cfg_.scan_timeout_ms) + " ms" + (why.empty() ? "" : ": " + why));
+    double rate = 0;
+    std::uint64_t count = 0;
+    std::size_t unitsize = 0;
+    bool has_count = false;
+    std::istringstream lines(text);
+    std::string line;
+    auto number_after = [&](const char* key, double& v) {
+        if (line.rfind(key, 0) != 0) return false;
+        const std::string t = trimmed(line.substr(std::strlen(key)));
+        char* end = nullptr;
+        v = std::strtod(t.c_str(), &end);
+        return end && *end == '\0' && !t.empty();
+    };
+    while (std::getline(lines, line)) {
+        double v = 0;
+        if (number_after("Samplerate:", v)) rate = v;
+        else if (number_after("Logic unitsize:", v) && v >= 1 && v <= 8) unitsize = static_cast<std::size_t>(v);
+        else if (number_after("Logic sample count:", v) && v >= 0) count = static_cast<std::uint64_t>(v), has_count = true;
+        else if (line.rfind("- ", 0) == 0 && line.size() > 9 && line.compare(line.size() - 7, 7, ": logic") == 0)
+            device_channels_.push_back(line.substr(2, line.size() - 9));
+    }
+    if (!WIFEXITED(st) || WEXITSTATUS(st) != 0 || device_channels_.empty() || unitsize == 0)
+        throw DeviceError(name_, cmd + " found no logic session (" + status_text(st) + ")" + (why.empty() ? "" : ": " + why));
+    if (!(rate > 0)) throw DeviceError(name_, cfg_.input_file + ": the session has no samplerate");
+    if (cfg_.samplerate_hz > 0 && cfg_.samplerate_hz != rate)
+        throw DeviceError(name_, cfg_.input_file + ": recorded at " + num(rate) + " Hz, not the " + num(cfg_.samplerate_hz) + " Hz asked for");
+    cfg_.samplerate_hz = rate;
+    file_unitsize_ = unitsize;
+    if (has_count) {
+        if (count == 0) throw DeviceError(name_, cfg_.input_file + ": the session holds no logic sample");
+        cfg_.limit_samples = count;
+    }
 }
 
 void SigrokLive::probe() {
@@ -299,6 +365,11 @@ void SigrokLive::probe() {
         }
         if (hi >= 64) throw DeviceError(name_, "channel " + device_channels_[hi] + " is beyond the 64 bits fringe reads per sample");
         unitsize_ = hi / 8 + 1;
+        // A replayed file's units are its own (every channel it holds, at its index).
+        if (file_unitsize_) {
+            if (hi / 8 + 1 > file_unitsize_) throw DeviceError(name_, "channel " + device_channels_[hi] + " is beyond the session's unit");
+            unitsize_ = file_unitsize_;
+        }
         identity_bits_ = true;
         for (std::size_t k = 0; k < logic_bit_.size(); ++k) identity_bits_ = identity_bits_ && logic_bit_[k] == static_cast<int>(k);
     } else {
@@ -474,6 +545,8 @@ StreamResult SigrokLive::read(std::size_t max, std::vector<std::uint64_t>& logic
                 fail("the channels ended with different sample counts; " + exit_text());
             } else if (!exited0 && !analog_teardown) {
                 fail("acquisition ended after " + std::to_string(received_) + " samples: " + exit_text());
+            } else if (!cfg_.limit_samples && !cfg_.input_file.empty()) {
+                ended_ = true;  // a replayed session without a declared count: its end is the end
             } else if (!cfg_.limit_samples) {
                 // Continuous: only stop() ends it; sigrok-cli ending by itself (a device gone,
                 // a key it took for a stop) is not the end of the data.
@@ -600,6 +673,10 @@ nlohmann::json SigrokLive::stats() const {
                         {"running", started_ && !reaped_},
                         {"stderr_tail", stderr_tail_},
                         {"drops", "not reported by sigrok-cli; compare samples with expected_samples_by_wall_clock for a device that samples in real time"}};
+    if (!cfg_.input_file.empty()) {
+        j["input_file"] = cfg_.input_file;
+        j["drops"] = "a replayed session (sigrok-cli -i): read as fast as it comes, none dropped; samples against limit_samples, the count the file declares";
+    }
     if (stopped_) j["stopped"] = true;
     if (reaped_ && wait_status_ >= 0) {
         j["exit"] = status_text(wait_status_);

@@ -26,6 +26,11 @@ namespace fringe::dev {
 
 struct SigrokLiveConfig {
     std::string driver;                       // "demo", "fx2lafw", "fx2lafw:conn=1.5" (sigrok-cli -d)
+    // Instead of a driver: a recorded session file replayed through the same path (sigrok-cli
+    // -i FILE -O binary): logic only; its samplerate, channels and sample count come from
+    // `sigrok-cli -i FILE --show` (samplerate_hz 0: the file's; otherwise it must match), and the
+    // replay ends after exactly its sample count. For tests and for re-scoring a recorded DUT.
+    std::string input_file;
     double samplerate_hz = 0;                 // --config samplerate=
     std::vector<std::string> logic_channels;  // bit k of a logic sample = logic_channels[k] (at most 64)
     std::vector<std::string> analog_channels; // analog[c] = analog_channels[c]
@@ -64,6 +69,8 @@ public:
     nlohmann::json stats() const;
 
     const std::string& device_name() const { return name_; }
+    // The sample rate in use (a replayed file's own, once probed).
+    double samplerate_hz() const { return cfg_.samplerate_hz; }
     pid_t pid() const { return pid_; }
     // The command line start() runs (argv), for logs and tests.
     std::vector<std::string> command() const;
@@ -73,6 +80,7 @@ public:
 private:
     void validate() const;
     void scan();
+    void show_file();  // scan() for an input_file
     void drain_stderr();
     bool reap(int wait_ms);  // true when the child has been reaped
     std::string exit_text() const;
@@ -86,6 +94,7 @@ private:
     std::vector<std::string> device_channels_;
     std::vector<int> logic_bit_;  // bit of logic_channels[k] in the binary unit
     std::size_t unitsize_ = 0;
+    std::size_t file_unitsize_ = 0;  // input_file: the session's unit, from --show
     pid_t pid_ = -1;
     int in_fd_ = -1, out_fd_ = -1, err_fd_ = -1;
     bool probed_ = false, started_ = false, stopped_ = false, stdout_eof_ = false, reaped_ = false, ended_ = false;

@@ -215,6 +215,23 @@ TEST_CASE("a BiSS-C DUT recorded by a logic analyser: CRC errors counted and nev
     CHECK(vf > 0.95);
     for (const auto& ms : r["measurements"])
         if (ms["metric"] == "dut_crc_errors") CHECK(ms["value"] == flipped);
+
+    // The same session replayed through the live path (sigrok-cli -i, as an analyser's stream):
+    // the same words, so the same figures to the last bit; the acquisition's own account.
+    const json rl = run(scenario("readout:sigrok://" + path + "?protocol=biss&position_bits=14", end_s));
+    REQUIRE(rl["status"] == "done");
+    json a = m, b = lane(rl, "dut")["metrics"];
+    const json live = b["readout"]["sigrok"];
+    CHECK(live["input_file"] == path);
+    CHECK(live["samples"] == sig.t_s.size());
+    CHECK(live["limit_samples"] == sig.t_s.size());
+    CHECK(live["exit_status"] == 0);
+    b["readout"].erase("sigrok");
+    CHECK(a.dump() == b.dump());
+    // A rate that is not the file's is refused naming both.
+    const json bad = run(scenario("readout:sigrok://" + path + "?protocol=biss&position_bits=14&logic_rate_hz=1000000", end_s));
+    CHECK(bad["status"] == "error");
+    CHECK_THAT(bad.value("error", std::string()), Catch::Contains("recorded at 4e+06 Hz") || Catch::Contains("recorded at 4000000 Hz"));
 }
 
 TEST_CASE("a DUT's TCP stream that closes or freezes mid-run ends the run with an error naming it", "[dut_readout]") {
