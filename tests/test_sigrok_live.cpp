@@ -4,6 +4,7 @@
 // short unit, an early or failed exit). Every acquisition is bounded by its timeouts and stop().
 #include "drivers/device.hpp"
 #include "drivers/sigrok_live.hpp"
+#include "sr_writer.hpp"
 
 #include <catch2/catch.hpp>
 #include <nlohmann/json.hpp>
@@ -430,6 +431,74 @@ TEST_CASE("sigrok live: the sigrok: device records the demo's analog channels as
     CHECK_THROWS_WITH(dev::open("sigrok:"), Catch::Contains("needs a driver"));
     // A URI names no executable (it may come over HTTP): an unknown setting.
     CHECK_THROWS_WITH(dev::open("sigrok:demo?program=/bin/sh"), Catch::Contains("program"));
+}
+
+}  // namespace test_sigrok_live_cpp
+
+namespace test_sigrok_live_cpp {
+
+TEST_CASE("sigrok live: a recorded session replayed (sigrok-cli -i) gives its samples, the channels named in their order", "[sigrok_live]") {
+    Dir d;
+    const std::size_t n = 30011;
+    std::mt19937 rng(7);
+    std::vector<std::vector<double>> lines(5, std::vector<double>(n));
+    for (auto& l : lines)
+        for (auto& v : l) v = static_cast<double>(rng() & 1u);
+    const std::string sr = (d.path / "rec.sr").string();
+    test::write_logic_sr(sr, 250000, {"p0", "p1", "p2", "p3", "p4"}, {&lines[0], &lines[1], &lines[2], &lines[3], &lines[4]});
+    SigrokLiveConfig c;
+    c.input_file = sr;
+    c.logic_channels = {"p3", "p0", "p4"};
+    SigrokLive s(c);
+    s.start();
+    CHECK(s.samplerate_hz() == 250000);  // the file's own
+    const Capture cap = read_all(s, 0);
+    REQUIRE(cap.last.status == StreamStatus::Ok);
+    REQUIRE(cap.logic.size() == n);
+    std::size_t wrong = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+        const std::uint64_t want = static_cast<std::uint64_t>(lines[3][i]) | static_cast<std::uint64_t>(lines[0][i]) << 1 |
+                                   static_cast<std::uint64_t>(lines[4][i]) << 2;
+        wrong += cap.logic[i] != want;
+    }
+    CHECK(wrong == 0);
+    const auto st = s.stats();
+    CHECK(st["limit_samples"] == n);
+    CHECK(st["input_file"] == sr);
+    CHECK(st["exit_status"] == 0);
+
+    SECTION("a rate, a channel or a file that is not the session's is refused naming it") {
+        SigrokLiveConfig b = c;
+        b.samplerate_hz = 1e6;
+        CHECK_THROWS_WITH(SigrokLive(b).start(), Catch::Contains("recorded at 250000 Hz, not the 1000000 Hz"));
+        b = c;
+        b.logic_channels = {"p9"};
+        CHECK_THROWS_WITH(SigrokLive(b).start(), Catch::Contains("no channel 'p9'") && Catch::Contains("p0 p1 p2 p3 p4"));
+        b = c;
+        b.input_file = (d.path / "missing.sr").string();
+        CHECK_THROWS_WITH(SigrokLive(b).start(), Catch::Contains("missing.sr") && Catch::Contains("found no logic session"));
+        b.input_file = (d.path / "text.sr").string();
+        std::ofstream(b.input_file) << "not a session\n";
+        CHECK_THROWS_WITH(SigrokLive(b).start(), Catch::Contains("text.sr"));
+        b = c;
+        b.driver = "demo";
+        CHECK_THROWS_WITH(SigrokLive(b), Catch::Contains("one source"));
+        b = c;
+        b.analog_channels = {"A0"};
+        b.logic_channels.clear();
+        CHECK_THROWS_WITH(SigrokLive(b), Catch::Contains("logic only"));
+    }
+    SECTION("a replay that ends short of the count the file declares is an error, not the end") {
+        SigrokLiveConfig b = c;
+        b.program = d.script("short", "case \"$*\" in *--show*) printf 'Samplerate: 1000\\nChannels: 5\\n- p0: logic\\n- p1: logic\\n- p2: logic\\n"
+                                      "- p3: logic\\n- p4: logic\\nLogic unitsize: 1\\nLogic sample count: 10\\n'; exit 0;; esac\nprintf 'abc'; exit 0");
+        SigrokLive f(b);
+        f.start();
+        const Capture fc = read_all(f, 0);
+        CHECK(fc.logic.size() == 3);
+        CHECK(fc.last.status == StreamStatus::Error);
+        CHECK_THAT(fc.last.message, Catch::Contains("ended after 3 of 10 samples"));
+    }
 }
 
 }  // namespace test_sigrok_live_cpp
