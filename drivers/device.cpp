@@ -314,4 +314,10 @@ DeviceLock::~DeviceLock() {
     }
 }
 
+std::string num(double v) {
+    char b[40];
+    std::snprintf(b, sizeof b, "%.10g", v);
+    return b;
+}
+
 }  // namespace fringe::dev

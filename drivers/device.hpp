@@ -338,4 +338,7 @@ struct UriParts {
 };
 UriParts check_uri(const std::string& uri);
 
+// A number in a message: %.10g (no trailing zeros, whole numbers without a point).
+std::string num(double v);
+
 }  // namespace fringe::dev

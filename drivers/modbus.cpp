@@ -29,12 +29,6 @@ namespace fringe::dev {
 
 namespace {
 
-std::string num(double v) {
-    char b[32];
-    std::snprintf(b, sizeof b, "%.9g", v);
-    return b;
-}
-
 using Clock = std::chrono::steady_clock;
 
 bool connection_error(int e) {

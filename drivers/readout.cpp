@@ -459,8 +459,10 @@ public:
 
     void start() override {
         src_->start();
-        if (rate_hz_ > 0) return;
-        // The word rate from the first words (nominal: the median interval of up to 33).
+        // ABZ words are the count read at word_rate_hz: nothing to measure.
+        if (protocol_ == "abz") return;
+        // The word rate from the first words (nominal: the median interval of up to 33); a rate
+        // given must agree with it (it is the lane's sample rate: spectrum, settle, evidence).
         for (double upto = 1e-3; q_.size() < 33 && upto < 1e7; upto *= 2) {
             const StreamResult r = src_->pull(upto, q_, static_cast<int>(stall_s_ * 1000));
             if (r.status != StreamStatus::Ok) throw DeviceError(uri_, std::string("reading the first words: ") + to_string(r.status) + ": " + r.message);
@@ -477,7 +479,14 @@ public:
                                         (seen.empty() ? std::string("nothing") : seen) + ")");
         }
         std::nth_element(dt.begin(), dt.begin() + static_cast<long>(dt.size() / 2), dt.end());
-        rate_hz_ = 1.0 / dt[dt.size() / 2];
+        const double measured_hz = 1.0 / dt[dt.size() / 2];
+        if (rate_hz_ > 0) {
+            if (std::abs(rate_hz_ - measured_hz) > 0.05 * measured_hz)
+                throw DeviceError(uri_, "word_rate_hz=" + num(rate_hz_) + " but the first words come at " + num(measured_hz) +
+                                            " Hz (the median of their first " + std::to_string(dt.size()) + " intervals): give the rate the DUT sends at, or leave it out to have it measured");
+            return;
+        }
+        rate_hz_ = measured_hz;
         measured_rate_ = true;
     }
     StreamResult read_words(double up_to_s, std::vector<PositionWordOut>& out, int timeout_ms) override {

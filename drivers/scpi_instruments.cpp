@@ -28,12 +28,6 @@ namespace {
 
 using scpi::Session;
 
-std::string num(double v) {
-    char b[40];
-    std::snprintf(b, sizeof b, "%.10g", v);
-    return b;
-}
-
 enum class Family { Keysight, Rigol, Siglent, RedPitaya, Scope };
 
 struct Model {

@@ -31,12 +31,6 @@ constexpr std::size_t kReadChunk = 1 << 16;
 // sample arrived and it is the only thing on stderr.
 constexpr const char* kAnalogTeardown = "g_atomic_ref_count_dec: assertion 'old_value > 0' failed";
 
-std::string num(double v) {
-    char b[40];
-    std::snprintf(b, sizeof b, "%.10g", v);
-    return b;
-}
-
 void append_tail(std::string& tail, const char* p, std::size_t n) {
     tail.append(p, n);
     if (tail.size() > kStderrTail) tail.erase(0, tail.size() - kStderrTail);

@@ -359,6 +359,18 @@ TEST_CASE("a DUT readout's bad settings are refused naming them", "[dut_readout]
         CHECK(r["status"] == "error");
         CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("word_bits") && Catch::Contains("lines"));
     }
+    SECTION("a word rate the words do not come at (they come every 100 us)") {
+        for (const char* q : {"1e-06", "9400", "10600"}) {
+            const json r = run(scenario("readout:" + path + "?counts_per_rev=4096&word_rate_hz=" + q));
+            CHECK(r["status"] == "error");
+            CHECK_THAT(r["error"].get<std::string>(), Catch::Contains(std::string("word_rate_hz=") + q) && Catch::Contains("come at 10000 Hz"));
+        }
+        for (const char* q : {"9600", "10400"}) {  // within 5 %: taken as given
+            const json r = run(scenario("readout:" + path + "?counts_per_rev=4096&word_rate_hz=" + q));
+            CHECK(r["status"] == "done");
+            CHECK(lane(r, "dut")["metrics"]["readout"]["word_rate_hz"].get<double>() == std::stod(q));
+        }
+    }
     SECTION("a logic capture's missing channel") {
         LogicSignals sig;
         EmitterTiming tm;
