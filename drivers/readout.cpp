@@ -102,7 +102,7 @@ public:
 class LogicSource final : public WordSource {
 public:
     LogicSource(const std::string& uri, const std::string& path, const std::string& protocol, const nlohmann::json& s)
-        : uri_(uri), protocol_(protocol), hold_s_(number_or(s, "hold_s", 0.01)) {
+        : uri_(uri), hold_s_(number_or(s, "hold_s", 0.01)) {
         std::map<std::string, std::string> channel_for;
         auto line = [&](const char* col, const char* dflt) {
             const std::string ch = string_or(s, col, dflt);
@@ -279,7 +279,7 @@ private:
         if (biss_) biss_->finish(words_);
         if (spi_) spi_->finish(words_);
     }
-    std::string uri_, protocol_;
+    std::string uri_;
     double hold_s_;
     std::optional<SigrokSession> session_;
     std::optional<SigrokLive> live_;
@@ -303,7 +303,7 @@ private:
 // A line stream from a file, a tty or a TCP socket.
 class LineSource final : public WordSource {
 public:
-    LineSource(const std::string& uri, const std::string& path, const nlohmann::json& s) : uri_(uri), path_(path) {
+    LineSource(const std::string& uri, const std::string& path, const nlohmann::json& s) : uri_(uri) {
         try {
             parser_.emplace(protocol_settings("lines", s).get<StreamConfig>());
         } catch (const std::invalid_argument& e) {
@@ -430,7 +430,7 @@ private:
         ::freeaddrinfo(res);
         if (fd_ < 0) throw DeviceError(uri_, "cannot connect to " + hostport + ": " + why);
     }
-    std::string uri_, path_;
+    std::string uri_;
     bool tcp_ = false, stream_ = false, ended_ = false, have_last_ = false;
     int fd_ = -1;
     double last_t_ = -std::numeric_limits<double>::infinity();
@@ -555,38 +555,38 @@ void register_readout(std::vector<DriverInfo>& r) {
                 "through sigrok-cli; sigrok:///x.sr replays a session through it) decoded as SSI, BiSS-C, SPI or ABZ, or a line stream \"<time> <count> [E]\" from a file, a tty or tcp://host:port (docs/dut-readouts.md)";
     using P = ParamInfo;
     d.settings = {
-        P{"protocol", "", ParamType::Choice, nullptr, -kInf, kInf, {"ssi", "biss", "spi", "abz", "lines"}, "the DUT's protocol (default: lines for a file or tcp://)"},
+        P{"protocol", "", ParamType::Choice, nullptr, -kInf, kInf, {"ssi", "biss", "spi", "abz", "lines"}, "the DUT's protocol (default: lines for a file, a tty or tcp://; a .sr or sigrok:// needs one)"},
         P{"clock_offset_s", "s", ParamType::Number, 0.0, -1e6, 1e6, {}, "t_run = t_readout + clock_offset_s (the readout's clock against the run's)"},
         P{"word_rate_hz", "Hz", ParamType::Number, nullptr, 0, 1e9, {}, "words per second (default: measured from the first words; abz: the rate its count is read)"},
         P{"logic_rate_hz", "Hz", ParamType::Number, nullptr, 0, 1e10, {}, "sigrok://DRIVER: the logic analyser's sample rate; sigrok:///x.sr: the file's own when absent (given, it must match)"},
         P{"hold_s", "s", ParamType::Number, 0.01, 0, 10, {}, "logic captures: a frame completes within this time after its latch"},
         P{"stall_s", "s", ParamType::Number, 10.0, 0.01, 3600, {}, "a live stream silent this long while the run waits for its words is frozen: the run ends with an error"},
         P{"max_expanded_mb", "MiB", ParamType::Number, 4096.0, 1, 1.6e7, {}, "most sample data a .sr may expand to (a limit against ZIP bombs)"},
-        P{"clk", "", ParamType::String, nullptr, -kInf, kInf, {}, "logic channel of the clock (SSI, SPI: clk; BiSS: MA, default ma)"},
-        P{"data", "", ParamType::String, nullptr, -kInf, kInf, {}, "logic channel of the data (SSI, SPI: data; BiSS: SLO, default slo)"},
+        P{"clk", "", ParamType::String, nullptr, -kInf, kInf, {}, "logic channel of the clock (default: clk for SSI and SPI, ma for BiSS-C)"},
+        P{"data", "", ParamType::String, nullptr, -kInf, kInf, {}, "logic channel of the data (default: data for SSI and SPI, slo for BiSS-C)"},
         P{"cs", "", ParamType::String, nullptr, -kInf, kInf, {}, "logic channel of SPI's chip select (default cs)"},
-        P{"a", "", ParamType::String, nullptr, -kInf, kInf, {}, "ABZ: logic channel of A"},
-        P{"b", "", ParamType::String, nullptr, -kInf, kInf, {}, "ABZ: logic channel of B"},
-        P{"z", "", ParamType::String, nullptr, -kInf, kInf, {}, "ABZ: logic channel of the index Z (without it the position is relative)"},
-        P{"position_bits", "", ParamType::Integer, nullptr, 1, 64, {}, "bits of the position field (ssi, biss, spi; lines: for counts_per_rev 0)"},
-        P{"code", "", ParamType::Choice, nullptr, -kInf, kInf, {"binary", "gray"}, "position coding"},
-        P{"error_bits", "", ParamType::Integer, nullptr, 0, 8, {}, "SSI: status bits after the position"},
-        P{"error_active_high", "", ParamType::Boolean, nullptr, -kInf, kInf, {}, "SSI, SPI: an error bit at this level flags an error"},
-        P{"timeout_s", "s", ParamType::Number, nullptr, 0, 1, {}, "SSI, BiSS: the clock idle this long ends a frame"},
-        P{"max_ack_bits", "", ParamType::Integer, nullptr, 1, 1e6, {}, "BiSS: clock periods before the start bit, at most"},
-        P{"mode", "", ParamType::Integer, nullptr, 0, 3, {}, "SPI mode (2*CPOL + CPHA)"},
-        P{"word_bits", "", ParamType::Integer, nullptr, 1, 64, {}, "SPI: bits per CS frame"},
-        P{"msb_first", "", ParamType::Boolean, nullptr, -kInf, kInf, {}, "SPI bit order"},
-        P{"position_shift", "", ParamType::Integer, nullptr, 0, 63, {}, "SPI: position field's lowest bit in the word"},
-        P{"error_bit", "", ParamType::Integer, nullptr, -1, 63, {}, "SPI: error flag bit in the word (-1: none)"},
+        P{"a", "", ParamType::String, nullptr, -kInf, kInf, {}, "ABZ: logic channel of A (default a)"},
+        P{"b", "", ParamType::String, nullptr, -kInf, kInf, {}, "ABZ: logic channel of B (default b)"},
+        P{"z", "", ParamType::String, nullptr, -kInf, kInf, {}, "ABZ: logic channel of the index Z (default: none, and the position is homed on truth at the first sample)"},
+        P{"position_bits", "", ParamType::Integer, nullptr, 1, 64, {}, "bits of the position field (required for ssi and biss; spi: word_bits - position_shift; lines: 32, used when counts_per_rev is 0)"},
+        P{"code", "", ParamType::Choice, nullptr, -kInf, kInf, {"binary", "gray"}, "position coding (default binary)"},
+        P{"error_bits", "", ParamType::Integer, nullptr, 0, 8, {}, "SSI: status bits after the position (default 0)"},
+        P{"error_active_high", "", ParamType::Boolean, nullptr, -kInf, kInf, {}, "SSI, SPI: an error bit at this level flags an error (default true)"},
+        P{"timeout_s", "s", ParamType::Number, nullptr, 0, 1, {}, "SSI, BiSS: the clock idle this long ends a frame (default 2e-05)"},
+        P{"max_ack_bits", "", ParamType::Integer, nullptr, 1, 1e6, {}, "BiSS: clock periods before the start bit, at most (default 32)"},
+        P{"mode", "", ParamType::Integer, nullptr, 0, 3, {}, "SPI mode (2*CPOL + CPHA; default 0)"},
+        P{"word_bits", "", ParamType::Integer, nullptr, 1, 64, {}, "SPI: bits per CS frame (required)"},
+        P{"msb_first", "", ParamType::Boolean, nullptr, -kInf, kInf, {}, "SPI bit order (default true)"},
+        P{"position_shift", "", ParamType::Integer, nullptr, 0, 63, {}, "SPI: position field's lowest bit in the word (default 0)"},
+        P{"error_bit", "", ParamType::Integer, nullptr, -1, 63, {}, "SPI: error flag bit in the word (-1, the default: none)"},
         P{"counts_per_rev", "", ParamType::Integer, nullptr, 0, 9e15, {}, "word values per revolution (default 2^position_bits)"},
-        P{"cycles_per_rev", "", ParamType::Integer, nullptr, 1, 1e9, {}, "electrical cycles per revolution of the word"},
-        P{"offset_rad", "rad", ParamType::Number, nullptr, -1e3, 1e3, {}, "electrical angle of value 0's lower edge (abz: of count 0)"},
-        P{"time_unit", "", ParamType::Choice, nullptr, -kInf, kInf, {"s", "sample"}, "lines: the time field in seconds or as a sample index"},
+        P{"cycles_per_rev", "", ParamType::Integer, nullptr, 1, 1e9, {}, "electrical cycles per revolution of the word (default 1)"},
+        P{"offset_rad", "rad", ParamType::Number, nullptr, -1e3, 1e3, {}, "electrical angle of value 0's lower edge (abz: of count 0; default 0)"},
+        P{"time_unit", "", ParamType::Choice, nullptr, -kInf, kInf, {"s", "sample"}, "lines: the time field in seconds or as a sample index (default s)"},
         P{"sample_rate_hz", "Hz", ParamType::Number, nullptr, 0, 1e12, {}, "lines: the sample rate of time_unit=sample"},
-        P{"max_line_bytes", "bytes", ParamType::Integer, nullptr, 8, 65536, {}, "lines: a longer line is malformed"},
-        P{"interpolation", "", ParamType::Integer, nullptr, 1, 1000000, {}, "ABZ: A/B periods per electrical cycle (4N counts)"},
-        P{"index_count", "", ParamType::Integer, nullptr, -1e9, 1e9, {}, "ABZ: the count at the Z index, mod 4N"},
+        P{"max_line_bytes", "bytes", ParamType::Integer, nullptr, 8, 65536, {}, "lines: a longer line is malformed (default 256)"},
+        P{"interpolation", "", ParamType::Integer, nullptr, 1, 1000000, {}, "ABZ: A/B periods per electrical cycle (4N counts; required)"},
+        P{"index_count", "", ParamType::Integer, nullptr, -1e9, 1e9, {}, "ABZ: the count at the Z index, mod 4N (default 0)"},
     };
     d.open = [](const std::string& uri, const std::string& path, const nlohmann::json& s) -> std::unique_ptr<Device> {
         if (path.empty()) throw ConfigError("device", "readout needs a source: readout:/path/x.sr?protocol=..., readout:/path/lines.txt or readout:tcp://127.0.0.1:PORT");
