@@ -149,6 +149,33 @@ TEST_CASE("a DUT's line stream is scored word by word at its latch instants, its
         bool warned = false;
         for (const auto& w : r["warnings"]) warned |= w["code"] == "dut_wire_errors";
         CHECK(warned);
+        // The traces draw each word at its own instant: by true angle, every scored word once,
+        // within half a step of -omega*tau; in time, the envelope within the same band.
+        const json& tr = r["traces"];
+        REQUIRE(tr.contains("by_angle"));
+        const json& fold = tr["by_angle"]["error_rad"]["dut"];
+        double folded = 0, lo = 1e9, hi = -1e9;
+        for (std::size_t b = 0; b < fold["count"].size(); ++b) {
+            const double c = fold["count"][b].get<double>();
+            folded += c;
+            if (c > 0) {
+                lo = std::min(lo, fold["min"][b].get<double>());
+                hi = std::max(hi, fold["max"][b].get<double>());
+            }
+        }
+        CHECK(folded == Approx(m["evidence"]["scored_samples"].get<double>()).margin(6));  // the folds start 5 words (the first word at 0.5 ms) before the scoring
+        CHECK(lo >= -kOmega * latency_s - 0.5 * step_rad - 1e-5);
+        CHECK(hi <= -kOmega * latency_s + 0.5 * step_rad + 1e-5);
+        CHECK(hi - lo > 0.9 * step_rad);  // the whole step, not a few points
+        const json& env = tr["error_rad"]["dut"];
+        std::size_t drawn = 0;
+        for (std::size_t b = 0; b < env["min"].size(); ++b)
+            if (env["min"][b].is_number()) {
+                ++drawn;
+                CHECK(env["min"][b].get<double>() >= -kOmega * latency_s - 0.5 * step_rad - 1e-5);
+                CHECK(env["max"][b].get<double>() <= -kOmega * latency_s + 0.5 * step_rad + 1e-5);
+            }
+        CHECK(drawn > 0.9 * env["min"].size());
     }
 }
 

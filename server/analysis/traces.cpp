@@ -204,7 +204,34 @@ void TraceRecorder::add(std::size_t m, const double* t_s, const double* sin_v, c
         }
         i += len;
     }
+    block_first_ = n_;
     n_ += m;
+}
+
+void TraceRecorder::add_points(std::size_t lane, std::size_t n, const std::uint32_t* frame, const double* t_s, const double* theta_true_rad,
+                               const double* err_rad) {
+    if (lane >= err_.size() || buckets_ == 0) return;
+    const double nb = static_cast<double>(bins_);
+    Fold& f = fold_[lane];
+    for (std::size_t k = 0; k < n; ++k) {
+        const double e = err_rad[k];
+        if (!std::isfinite(e)) continue;
+        const double w = wrap_pi(e);
+        const std::uint64_t idx = std::min<std::uint64_t>(block_first_ + frame[k], n_ == 0 ? 0 : n_ - 1);
+        const auto b = static_cast<std::size_t>(std::min<std::uint64_t>(idx / bucket_samples_, buckets_ - 1));
+        if (b >= used_) used_ = b + 1;
+        if (std::isnan(t_start_[b])) t_start_[b] = t_s[k];
+        err_[lane].put(b, w);
+        const double th = theta_true_rad[k];
+        if (!std::isfinite(th) || !(t_s[k] >= fold_from_s_)) continue;
+        const double turns = th * (1 / kTwoPi);
+        const double x = std::trunc((turns - std::floor(turns)) * nb);
+        const auto ab = static_cast<std::size_t>(x < nb ? x : nb - 1);
+        f.sum[ab] += w;
+        ++f.count[ab];
+        if (w < f.lo[ab]) f.lo[ab] = w;
+        if (w > f.hi[ab]) f.hi[ab] = w;
+    }
 }
 
 json TraceRecorder::to_json() const {

@@ -27,6 +27,13 @@ public:
     // truth_known may be null (all known).
     void add(std::size_t m, const double* t_s, const double* sin_v, const double* cos_v, const double* theta_true_rad,
              const std::uint8_t* truth_known, const std::vector<const double*>& err_rad);
+    // Points of one lane that are not at the frames (a DUT's words, each at its own latch
+    // instant), after the add() of the block they fall in: frame[k] is the frame of that block
+    // the point is drawn at (its time bucket), theta_true_rad[k] the truth at the point itself
+    // (its angle bin), err_rad[k] theta_hat - theta_true there (NaN: not scored), t_s[k] its time
+    // (the folds start at fold_from_s).
+    void add_points(std::size_t lane, std::size_t n, const std::uint32_t* frame, const double* t_s, const double* theta_true_rad,
+                    const double* err_rad);
     // {"kind":"envelope", "bucket_samples", "t_s", "sin_v":{min,max}, "cos_v":{min,max}, "error_rad":{label:{min,max}},
     //  "lissajous":{"points":{sin_v,cos_v}, "cycle":{theta_rad,sin_v,cos_v}}, "by_angle":{theta_rad, error_rad:{label:{mean,min,max,count}}}}
     nlohmann::json to_json() const;
@@ -52,6 +59,7 @@ private:
     double fold_from_s_;
     std::size_t bins_;
     std::uint64_t n_ = 0;          // samples added
+    std::uint64_t block_first_ = 0;  // index of the last add()'s first sample
     std::vector<double> t_start_;
     MinMax sin_, cos_;
     std::vector<MinMax> err_;

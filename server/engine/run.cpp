@@ -73,8 +73,9 @@ struct Lane {
         std::vector<double> err;  // theta_hat - theta_true, NaN where invalid (plot traces)
         LaneBlock b;              // what the analysers see (into this slot and the frames)
         // A readout lane's words: latch instants on the run's clock, the truth there, zeros for the signals.
-        std::vector<double> wt, wtruth, womega, wzeros;
+        std::vector<double> wt, wtruth, womega, wzeros, werr;  // werr: theta_hat - theta_true, NaN where not scored (traces)
         std::vector<std::uint8_t> wknown;
+        std::vector<std::uint32_t> wframe;  // the block's frame a word is drawn at in the traces
     } out[2];
     double estimator_s = 0;  // time inside the estimator
     bool self_reference = false;  // keep the estimator's own flags for the self-referenced analyser
@@ -107,7 +108,7 @@ struct Lane {
     void estimate_words(const Frames& f, int slot) {
         Slot& o = out[slot];
         const std::size_t m = f.size();
-        o.err.assign(m, std::numeric_limits<double>::quiet_NaN());  // the traces are per frame: the words are not at the frames
+        o.err.assign(m, std::numeric_limits<double>::quiet_NaN());  // per frame: NaN (the words are drawn at their own instants: werr, wframe)
         auto& w = feed;
         w.words.clear();
         const double off = readout->readout_to_run_s();
@@ -122,6 +123,7 @@ struct Lane {
         const std::size_t n = w.words.size();
         w.received += n;
         o.wt.resize(n); o.wtruth.resize(n); o.womega.resize(n); o.wknown.resize(n); o.wzeros.assign(n, 0.0);
+        o.werr.assign(n, std::numeric_limits<double>::quiet_NaN()); o.wframe.assign(n, 0);
         o.th.resize(n); o.om.assign(n, std::numeric_limits<double>::quiet_NaN()); o.valid.resize(n);
         std::size_t j = 0;
         for (std::size_t k = 0; k < n; ++k) {
@@ -133,6 +135,7 @@ struct Lane {
             double t0, th0, om0, t1, th1, om1;
             bool k0, k1;
             if (j >= m) j = m - 1;  // read up to the last frame: only rounding puts a word past it
+            o.wframe[k] = static_cast<std::uint32_t>(j);
             if (j == 0 && !(f.t_s[0] <= tw) && !w.have_prev) {  // latched before the run's first frame
                 ++w.before_run;
                 o.wknown[k] = 0;
@@ -167,6 +170,7 @@ struct Lane {
             o.wknown[k] = static_cast<std::uint8_t>(k0 && k1);
             w.scored_truth_known += o.wknown[k];
             o.valid[k] = static_cast<std::uint8_t>(w.words[k].valid && o.wknown[k] && std::isfinite(o.th[k]));
+            if (o.valid[k]) o.werr[k] = o.th[k] - th;
             if (!w.have_t0) { w.have_t0 = true; w.t0 = tw; }
             if (o.valid[k] && std::isfinite(om) && tw - w.t0 >= settle_s) {
                 const double err = std::remainder(o.th[k] - th, 2 * std::numbers::pi);
@@ -611,6 +615,9 @@ RunReport execute_pass(RunPlan plan, const RunOptions& o) {
                         std::vector<const double*> errs;
                         for (auto& lane : lanes) errs.push_back(lane->out[la].err.data());
                         traces->add(f.size(), f.t_s.data(), f.sin_v.data(), f.cos_v.data(), f.theta_true_rad.data(), f.truth_known.data(), errs);
+                        for (std::size_t j = 0; j < lanes.size(); ++j)  // a DUT's words, each at its own latch instant
+                            if (const auto& w = lanes[j]->out[la]; lanes[j]->readout)
+                                traces->add_points(j, w.wt.size(), w.wframe.data(), w.wt.data(), w.wtruth.data(), w.werr.data());
                         break;
                     }
                     case Kind::Signal: {
