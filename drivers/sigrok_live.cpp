@@ -206,7 +206,9 @@ void SigrokLive::validate() const {
     if (!cfg_.input_file.empty()) {
         if (!cfg_.driver.empty()) throw DeviceError(name_, "a driver and an input file at once: one source per acquisition");
         if (!cfg_.analog_channels.empty())
-            throw DeviceError(name_, "a replayed session is read as logic only (an analog .sr is read by the capture: driver)");
+            throw DeviceError(name_,
+                              "a replayed session is read as logic only: sigrok-cli -O analog prints a session's samples with the digits its "
+                              "source declared (a demo recording: 2 decimals, 10 mV steps), where capture:x.sr reads them exactly");
         if (!cfg_.config.empty() || !cfg_.channel_group.empty()) throw DeviceError(name_, "a replayed session takes no device --config or channel group");
         if (cfg_.limit_samples) throw DeviceError(name_, "a replayed session ends with its own sample count (no limit_samples)");
     } else if (cfg_.driver.empty()) {
