@@ -142,6 +142,8 @@ public:
             // Live: the lines in a fixed order, bit k of a sample = order_[k].
             SigrokLiveConfig c;
             const std::string what = path.substr(9);
+            if (what.rfind('.', 0) == 0 || (what.size() > 3 && what.compare(what.size() - 3, 3, ".sr") == 0 && what[0] != '/'))
+                throw ConfigError("device.path", "a recorded session is named by its absolute path: readout:sigrok:///abs/path/x.sr (got sigrok://" + what + ")");
             // sigrok:///abs/x.sr: a recorded session replayed through the same path (sigrok-cli -i).
             (what.rfind('/', 0) == 0 ? c.input_file : c.driver) = what;
             c.samplerate_hz = number_or(s, "logic_rate_hz", 0);

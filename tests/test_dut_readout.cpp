@@ -259,6 +259,10 @@ TEST_CASE("a BiSS-C DUT recorded by a logic analyser: CRC errors counted and nev
     const json bad = run(scenario("readout:sigrok://" + path + "?protocol=biss&position_bits=14&logic_rate_hz=1000000", end_s));
     CHECK(bad["status"] == "error");
     CHECK_THAT(bad.value("error", std::string()), Catch::Contains("recorded at 4e+06 Hz") || Catch::Contains("recorded at 4000000 Hz"));
+    // A relative session path is not taken for a driver's name.
+    const json rel = run(scenario("readout:sigrok://./biss.sr?protocol=biss&position_bits=14", end_s));
+    CHECK(rel["status"] == "error");
+    CHECK_THAT(rel.value("error", std::string()), Catch::Contains("absolute path"));
 }
 
 TEST_CASE("a DUT's TCP stream that closes or freezes mid-run ends the run with an error naming it", "[dut_readout]") {
