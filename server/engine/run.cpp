@@ -105,6 +105,10 @@ struct Lane {
         if (readout && !feed.failed.empty()) throw std::runtime_error(feed.failed);
     }
 
+    struct TruthAt {
+        double t_s, theta_rad, omega_rad_s;
+        bool known;
+    };
     void estimate_words(const Frames& f, int slot) {
         Slot& o = out[slot];
         const std::size_t m = f.size();
@@ -132,8 +136,6 @@ struct Lane {
             o.wt[k] = tw;
             o.th[k] = w.words[k].theta_rad;
             w.last_word_t = std::max(w.last_word_t, tw);
-            double t0, th0, om0, t1, th1, om1;
-            bool k0, k1;
             if (j >= m) j = m - 1;  // read up to the last frame: only rounding puts a word past it
             o.wframe[k] = static_cast<std::uint32_t>(j);
             if (j == 0 && !(f.t_s[0] <= tw) && !w.have_prev) {  // latched before the run's first frame
@@ -143,15 +145,13 @@ struct Lane {
                 o.valid[k] = 0;
                 continue;
             }
-            if (f.t_s[j] <= tw || (j == 0 && !w.have_prev)) {  // on a frame
-                t0 = t1 = f.t_s[j]; th0 = th1 = f.theta_true_rad[j]; om0 = om1 = f.omega_true_rad_s[j]; k0 = k1 = f.truth_known[j] != 0;
-            } else if (j == 0) {
-                t0 = w.prev_t; th0 = w.prev_th; om0 = w.prev_om; k0 = w.prev_known;
-                t1 = f.t_s[0]; th1 = f.theta_true_rad[0]; om1 = f.omega_true_rad_s[0]; k1 = f.truth_known[0] != 0;
-            } else {
-                t0 = f.t_s[j - 1]; th0 = f.theta_true_rad[j - 1]; om0 = f.omega_true_rad_s[j - 1]; k0 = f.truth_known[j - 1] != 0;
-                t1 = f.t_s[j]; th1 = f.theta_true_rad[j]; om1 = f.omega_true_rad_s[j]; k1 = f.truth_known[j] != 0;
-            }
+            // The truth at the frames on either side of the latch (the previous block's last
+            // frame before this block's first; one frame when the word is on it).
+            const auto frame = [&](std::size_t i) { return TruthAt{f.t_s[i], f.theta_true_rad[i], f.omega_true_rad_s[i], f.truth_known[i] != 0}; };
+            const TruthAt b1 = frame(j);
+            const TruthAt b0 = f.t_s[j] <= tw || (j == 0 && !w.have_prev) ? b1 : j == 0 ? TruthAt{w.prev_t, w.prev_th, w.prev_om, w.prev_known} : frame(j - 1);
+            const auto [t0, th0, om0, k0] = b0;
+            const auto [t1, th1, om1, k1] = b1;
             const double h = t1 - t0;
             double th = th1, om = om1;
             if (h > 0) {
