@@ -63,7 +63,10 @@ void AbzDecoder::process(std::size_t n, const double* t, const double* a, const 
                 last_dir_ = 0;
             } else if (d != 0) {
                 const int dir = d == 1 ? 1 : -1;
+                // Leaving the index cell: Z should have been high in it.
+                if (z && synced_ && floor_mod(count_ - cfg_.index_count, counts_per_cycle_) == 0 && !z_in_cell_ && !zi) ++st_.missed_index;
                 count_ += dir;
+                z_in_cell_ = false;
                 (dir > 0 ? st_.forward : st_.backward)++;
                 if (last_dir_ != 0 && dir != last_dir_) ++st_.reversals;
                 last_dir_ = dir;
@@ -83,6 +86,7 @@ void AbzDecoder::process(std::size_t n, const double* t, const double* a, const 
                 }
                 count_ -= err;  // nearest count that is index_count mod 4N: keeps the cycle
             }
+            if (zi) z_in_cell_ = true;
             prev_z_ = zi;
         }
         ++st_.samples;
@@ -110,6 +114,7 @@ nlohmann::json AbzDecoder::to_json() const {
             {"illegal_transitions", st_.illegal_transitions},
             {"index_pulses", st_.index_pulses},
             {"index_errors", st_.index_errors},
+            {"missed_index", st_.missed_index},
             {"max_index_error_counts", st_.max_index_error_counts},
             {"resyncs", st_.resyncs},
             {"invalid_samples", st_.invalid_samples},

@@ -15,6 +15,8 @@
 //  - Without Z, the A/B state fixes the count mod 4, and truth at the first sample picks which
 //    A/B period of the electrical cycle (the DUT is "homed" there); with no truth the count
 //    starts at the A/B state (relative position).
+//  - With Z and a known count, the count leaving the index cell without Z having been high in
+//    it is a missed index: counted (the count itself stays valid: nothing says it is wrong).
 //  - Both A and B changing between two samples is an illegal transition: counted, and the
 //    position is invalid until the next index re-synchronises it (never guessed; without Z it
 //    stays invalid to the end of the capture).
@@ -37,6 +39,7 @@ struct AbzStats {
     std::uint64_t samples = 0, edges = 0, forward = 0, backward = 0, reversals = 0;
     std::uint64_t illegal_transitions = 0;  // both A and B changed between two samples
     std::uint64_t index_pulses = 0, index_errors = 0;
+    std::uint64_t missed_index = 0;         // the count crossed the index cell with no Z pulse (with Z, synced)
     long long max_index_error_counts = 0;   // largest |count - index_count| (mod 4N) at an index
     std::uint64_t invalid_samples = 0;      // no valid position (before sync, after an illegal transition)
     std::uint64_t resyncs = 0;              // index pulses that restored a lost position
@@ -63,6 +66,7 @@ private:
     double step_;
     AbzStats st_;
     bool started_ = false, synced_ = false, prev_z_ = false;
+    bool z_in_cell_ = false;  // Z was high since the count entered the index cell
     int prev_phase_ = 0, last_dir_ = 0;
     long long count_ = 0;
     double last_edge_t_ = 0;

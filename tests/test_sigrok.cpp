@@ -357,6 +357,7 @@ TEST_CASE("abz: an ideal DUT decodes to within the quantisation step, rms step/s
             const ErrStats e = errors(d, l);
             CHECK(d.st.illegal_transitions == 0);
             CHECK(d.st.index_errors == 0);
+            CHECK(d.st.missed_index == 0);
             CHECK(d.st.reference == (with_z ? "index" : "truth"));
             CHECK(e.max_abs <= step / 2 * (1 + 1e-9));
             CHECK(std::fabs(e.mean) < 0.05 * step);
@@ -386,6 +387,7 @@ TEST_CASE("abz: direction reversals are followed and counted", "[abz]") {
     CHECK(d.st.illegal_transitions == 0);
     CHECK(d.st.index_errors == 0);
     CHECK(d.st.reversals == 20);
+    CHECK(d.st.missed_index == 0);  // reversals inside the index cell too
     CHECK(e.max_abs <= step / 2 * (1 + 1e-9));
     // net count = the change of floor(theta/step) from start to end
     const long long net = static_cast<long long>(std::floor(th.back() / step)) - static_cast<long long>(std::floor(th.front() / step));
@@ -460,6 +462,32 @@ TEST_CASE("abz: an index at the wrong count is an index error, and the count is 
     CHECK(e.st.illegal_transitions == 0);
     CHECK(e.st.index_errors >= 1);
     CHECK(e.st.max_index_error_counts == 1);
+}
+
+TEST_CASE("abz: an index pulse that never comes is a missed index, and the count stays valid", "[abz]") {
+    const double fs = 1e5;
+    const int N = 4;
+    std::vector<double> th(20000);
+    for (std::size_t i = 0; i < th.size(); ++i) th[i] = kTwoPiT * 50 * static_cast<double>(i) / fs;  // 10 cycles
+    Lines l = ideal_dut(th, fs, N, 0);
+    // Z stays low through the 6th index cell (a broken Z line for one cycle) and the 8th.
+    const std::vector<double> z = l.z;
+    std::size_t pulses = 0;
+    for (std::size_t i = 1; i < z.size(); ++i) {
+        if (z[i] && !z[i - 1]) ++pulses;
+        if (z[i] && (pulses == 6 || pulses == 8)) l.z[i] = 0;
+    }
+    REQUIRE(pulses >= 9);
+    const Decoded d = decode(l, N, true, true);
+    CHECK(d.st.missed_index == 2);
+    CHECK(d.st.index_errors == 0);
+    CHECK(d.st.illegal_transitions == 0);
+    const double step = kTwoPiT / (4.0 * N);
+    std::size_t first = 0;
+    while (!std::isfinite(d.th[first])) ++first;
+    const ErrStats e = errors(d, l, first);
+    CHECK(e.valid == l.t.size() - first);  // nothing invalidated: the count was right all along
+    CHECK(e.max_abs <= step / 2 * (1 + 1e-9));
 }
 
 TEST_CASE("run: a capture's ABZ lines grade the DUT as the dut lane", "[run][abz][capture]") {

@@ -60,6 +60,16 @@ std::function<Value(const json&, std::string*)> stat(const char* key, const char
         return number(s.value(unit, json()), why, "not defined for this encoder (mechanical units need lines per revolution)");
     };
 }
+// A count of the ABZ decoder (docs/abz.md): metrics.abz for a capture's a/b lines, or
+// metrics.readout.abz for an ABZ device.dut.
+std::function<Value(const json&, std::string*)> abz_count(const char* key) {
+    return [key](const json& e, std::string* why) -> Value {
+        json abz = sub(metrics_of(e), "abz");
+        if (!abz.is_object()) abz = sub(sub(metrics_of(e), "readout"), "abz");
+        if (!abz.is_object()) return none(why, "only a DUT read out by ABZ has it (a capture's a/b lines, or an ABZ device.dut)");
+        return number(abz.value(key, json()), why, "not counted");
+    };
+}
 std::function<Value(const json&, std::string*)> field(std::vector<const char*> path, std::string missing) {
     return [path, missing](const json& e, std::string* why) -> Value {
         const json& m = metrics_of(e);
@@ -197,22 +207,24 @@ std::vector<MetricInfo> build_catalog() {
           "chi-square, effective samples = scored / correlation time", "", field({"harmonic_analysis", "broadband_rms_rad"}, "harmonics not fitted"),
           stored("broadband_rms_rad")),
         M("abz_illegal_transitions", "transitions", "DUT ABZ readout: A and B changed together (docs/abz.md)",
-          "the dut lane of a capture with a/b lines", count, "", [](const json& e, std::string* why) -> Value {
-              const json abz = sub(metrics_of(e), "abz");
-              if (!abz.is_object()) return none(why, "only a DUT read out by ABZ has it (estimator \"dut\" on a capture with a/b lines)");
-              return number(abz.value("illegal_transitions", json()), why, "not counted");
-          }),
+          "the dut lane of a capture with a/b lines or of an ABZ device.dut", count, "", abz_count("illegal_transitions")),
         M("abz_index_errors", "pulses", "DUT ABZ readout: index pulses where the count was off (docs/abz.md)",
-          "the dut lane of a capture with a/b lines", count, "", [](const json& e, std::string* why) -> Value {
-              const json abz = sub(metrics_of(e), "abz");
-              if (!abz.is_object()) return none(why, "only a DUT read out by ABZ has it (estimator \"dut\" on a capture with a/b lines)");
-              return number(abz.value("index_errors", json()), why, "not counted");
-          }),
+          "the dut lane of a capture with a/b lines or of an ABZ device.dut", count, "", abz_count("index_errors")),
+        M("abz_missed_index", "pulses", "DUT ABZ readout: the count crossed the index cell with no Z pulse (docs/abz.md)",
+          "the dut lane of a capture with a/b/z lines or of an ABZ device.dut with z", count, "", abz_count("missed_index")),
         M("dut_wire_errors", "words", "DUT readout: words invalid on the wire, every cause (bad CRC, short or long frames, error bit, malformed lines; "
           "docs/dut-readouts.md)", "the dut lane of a run with device.dut", count, "", [](const json& e, std::string* why) -> Value {
               const json ro = sub(metrics_of(e), "readout");
               if (!ro.is_object()) return none(why, "only a DUT read out by its own device has it (device.dut)");
-              if (ro.contains("abz")) return number(sub(ro, "abz").value("illegal_transitions", json()), why, "not counted");
+              if (ro.contains("abz")) {  // every A/B/Z fault: illegal transitions, index pulses at the wrong count, missed ones
+                  const json abz = sub(ro, "abz");
+                  double total = 0;
+                  for (const char* k : {"illegal_transitions", "index_errors", "missed_index"}) {
+                      if (!abz.value(k, json()).is_number()) return none(why, "not counted");
+                      total += abz[k].get<double>();
+                  }
+                  return number(json(total), why, "not counted");
+              }
               // Invalid words, and lines that made no word at all.
               if (!ro.value("invalid_words", json()).is_number()) return none(why, "not counted");
               return number(json(ro["invalid_words"].get<double>() + ro.value("malformed_lines", 0.0)), why, "not counted");

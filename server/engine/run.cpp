@@ -357,8 +357,11 @@ std::vector<EstimatorReport> score_lanes(const Scenario& sc, const dev::DeviceIn
             std::string what;
             for (const auto& [k, label] : causes)
                 if (ro.value(k, std::uint64_t{0}) > 0) what += (what.empty() ? "" : ", ") + std::to_string(ro[k].get<std::uint64_t>()) + " " + label;
-            if (ro.contains("abz") && ro["abz"].value("illegal_transitions", std::uint64_t{0}) > 0)
-                what += (what.empty() ? "" : ", ") + std::to_string(ro["abz"]["illegal_transitions"].get<std::uint64_t>()) + " illegal A/B transitions";
+            if (ro.contains("abz"))
+                for (const auto& [k, label] : std::vector<std::pair<const char*, const char*>>{
+                         {"illegal_transitions", "illegal A/B transitions"}, {"index_errors", "index pulses at the wrong count"}, {"missed_index", "missed index pulses"}})
+                    if (ro["abz"].value(k, std::uint64_t{0}) > 0)
+                        what += (what.empty() ? "" : ", ") + std::to_string(ro["abz"][k].get<std::uint64_t>()) + " " + label;
             // Words that do not cover the run: what was scored is said, never assumed.
             const double word_dt_s = 1.0 / std::max(1e-300, lane->readout->word_rate_hz());
             if (fw.received == 0)
