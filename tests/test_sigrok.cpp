@@ -547,6 +547,25 @@ TEST_CASE("run: a capture's ABZ lines grade the DUT as the dut lane", "[run][abz
     bool warned = false;
     for (const auto& w : r["warnings"]) warned |= w["code"] == "dut_illegal_transitions" && w["severity"] == "error";
     CHECK(warned);
+    // a Z pulse lost (no glitch): a missed index, named by its limit and warned
+    l = ideal_dut(th, fs, N);
+    const std::vector<double> z = l.z;
+    std::size_t pulses = 0;
+    for (std::size_t i = 1; i < z.size(); ++i) {
+        if (z[i] && !z[i - 1]) ++pulses;
+        if (z[i] && pulses == 50) l.z[i] = 0;
+    }
+    REQUIRE(pulses > 60);
+    write_csv(d / "abz.csv", l);
+    sc.limits = {{"dut", "abz_missed_index", 0.0, std::nullopt, 0.0}};
+    r = execute_run(sc);
+    REQUIRE(r["status"] == "done");
+    CHECK(r["estimators"][1]["metrics"]["abz"]["missed_index"] == 1);
+    CHECK(r["estimators"][1]["metrics"]["abz"]["index_errors"] == 0);
+    CHECK(r["verdict"] == "FAIL");
+    warned = false;
+    for (const auto& w : r["warnings"]) warned |= w["code"] == "dut_missed_index";
+    CHECK(warned);
 }
 
 TEST_CASE("service: a .sr upload is sniffed, stored and evaluated", "[service][sigrok]") {

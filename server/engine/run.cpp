@@ -332,6 +332,9 @@ std::vector<EstimatorReport> score_lanes(const Scenario& sc, const dev::DeviceIn
                 warnings.push_back({true, "dut_index_errors", "estimators.dut",
                                     "dut: the count was off at " + std::to_string(index_errors) + " index pulses (by up to " +
                                         std::to_string(dut_readout.value("max_index_error_counts", 0LL)) + " counts) and was reset there"});
+            if (const auto missed = dut_readout.value("missed_index", std::uint64_t{0}); missed > 0)
+                warnings.push_back({true, "dut_missed_index", "estimators.dut",
+                                    "dut: the count crossed the index " + std::to_string(missed) + " times with no Z pulse (a Z line broken, or pulses lost)"});
         }
         if (lane->readout) {
             // The readout's own account: what it read and what was wrong on the wire, and the
