@@ -17,7 +17,8 @@
 //             (q_fundamental_per_s) and a 0.2 s pull to 0, so it only carries brief departures.
 //   tracker:  EKF on [theta, omega, alpha, u, v]: CA kinematics (white jerk, q = wn^6 r T with r
 //             from the learnt shape and the measured noise; constant speed, acceleration,
-//             reversals and standstill without a CV/CA choice), u a random walk (q_variation_per_s)
+//             reversals and standstill without a CV/CA choice), u a random walk (q_variation_per_s,
+//             raised up to 30x from the variation u showed over the memory, from the third replay on)
 //             with a slow pull to 0. The bandwidth wn adapts to the motion (adapt()): from the
 //             mean square jerk the tracker's own acceleration shows, the wn that minimises noise
 //             (2 wn r T) plus lag ((j/wn^3)^2), never below natural_freq_hz (issue 28);
@@ -83,7 +84,7 @@ constexpr double kOutlierRadius2 = 4.0;        // before the shape is learnt: a 
 constexpr double kHuberNis = 25.0;             // a sample's share in R is capped at this normalised innovation: a
                                                // fraction p of spikes then inflates R by 1/(1 - 25p) at most (100
                                                // let 1 % of spikes grow it without bound); Gaussian noise beyond it: 4e-6
-constexpr double kMaxLagRad = 1e-4;           // rad: a point whose tracker lag (jerk/wn^3) exceeds this does not teach h1
+constexpr double kMaxLagRad = 1e-3;           // rad: a point whose tracker lag (jerk/wn^3) exceeds this does not teach h1
 constexpr double kCorrRef = 0.03;             // rad: a point's acceleration correction at which its weight halves
 constexpr double kSettled = 1e-3;             // shape changes below this (relative) for 8 solves: settled
 constexpr double kMaxPhaseVar = 0.1;          // rad^2: a shape and noise giving a worse per-sample phase is no signal
@@ -95,6 +96,9 @@ constexpr int kReplays = 6;                   // ... this many in all
 constexpr double kJerkMemoryS = 0.02;         // s: the mean square jerk's memory (the bandwidth follows it)
 constexpr double kJerkNoise = 0.2;            // the jerk estimate's noise variance, in units of P22 wn^2
 constexpr double kMaxWnT = 0.1;               // the adaptive bandwidth's ceiling, wn T
+constexpr int kQVaryReplays = 3;              // u's random walk follows the variation seen from this replay on ...
+constexpr double kQVaryGain = 10.0;           // ... at this many times var(u) over the memory's duration ...
+constexpr double kQVaryMax = 30.0;            // ... at most this many times q_variation_per_s
 
 using Coeffs = std::array<double, kMaxBasis>;
 using Cx = std::complex<double>;
@@ -133,7 +137,7 @@ public:
             {"noise_memory_samples", "samples", ParamType::Number, 2000.0, 10, 1e9, {},
              "time constant of the residual covariance estimate R"},
             {"q_variation_per_s", "1/s", ParamType::Number, 0.001, 0, 10, {},
-             "random-walk intensity of the shape-variation state u (u is relative to the shape's amplitude)"},
+             "random-walk intensity of the shape-variation state u (u is relative to the shape's amplitude); the floor: a shape seen to vary raises it, up to 30x"},
             {"q_fundamental_per_s", "1/s", ParamType::Number, 1e-6, 0, 10, {},
              "random-walk intensity of v, a brief change of the fundamental's amplitude alone (relative), on top of the learnt variation (0: off)"},
             {"start_from_profile", "", ParamType::Boolean, false, -kInf, kInf, {},
@@ -305,7 +309,7 @@ public:
         };
         j["shape_sin"] = coeffs(c0s_, order_);
         j["shape_cos"] = coeffs(c0c_, order_);
-        j["variation"] = {{"u", x_[3]}, {"v", x_[4]}, {"learnt", vary_}, {"sin", coeffs(c1s_, var_order())}, {"cos", coeffs(c1c_, var_order())}};
+        j["variation"] = {{"u", x_[3]}, {"v", x_[4]}, {"learnt", vary_}, {"q_per_s", q_ueff_}, {"sin", coeffs(c1s_, var_order())}, {"cos", coeffs(c1c_, var_order())}};
         j["noise_cov_v2"] = {R_[0], R_[1], R_[2]};
         // what it chose: the bandwidth now, its floor, the highest it went to and its mean
         // since acquisition; the kinematic model; when the shape (full order) and its variation
@@ -456,6 +460,7 @@ private:
         P_[2][2] = sq(kTwoPi * 1000);
         P_[3][3] = sq(0.01);
         P_[4][4] = 0;
+        q_ueff_ = q_u_;
         lock_.rearm();
         reacquiring_ = false;
         // the tracker as it starts: a replay of the samples since starts from it
@@ -682,7 +687,7 @@ private:
         }
         for (int i = 0; i < 3; ++i)
             for (int j = 0; j < 3; ++j) P_[i][j] += Q_[i][j];
-        P_[3][3] += q_u_ * T;
+        P_[3][3] += q_ueff_ * T;
         if (vary_) P_[4][4] += q_v_ * T;  // v only once the variation direction is learnt
     }
 
@@ -905,9 +910,16 @@ private:
         // The tracker lags a jerk by about jerk/wn^3, and that lag is in the averaged phase too
         // (it is no periodic warp); u swings with it (at reversals, +-1e-2) while the samples do
         // not vary, and h1 fitted to that is a direction of errors. Where the lag exceeds
-        // kMaxLagRad (or the jerk is not known yet) the point teaches h0 but not h1: its u is
-        // the memory's mean.
-        if (!(std::fabs(jerk) < kMaxLagRad * (wn_ * wn_ * wn_))) {  // lag = |jerk|/wn^3 (NaN: not known)
+        // kMaxLagRad the point teaches h0 but not h1: its u is the memory's mean. A jerk not
+        // known yet (no previous point's acceleration) does not hold a point back, and the
+        // limit is 1e-3 rad, not 1e-4: in the first cycles the jerk estimate is the noise of
+        // the tracker's early accelerations, and 1e-4 held back half of the first replay's points
+        // (84 % before it) with their u at the mean; a drifting light source's gain, so
+        // flattened, taught a wrong direction h1 (its cos fundamental near 0), the tracker then
+        // erred by up to 0.1 rad, learning paused and the later replays came late (+-8 % at 2 Hz
+        // at 80 Hz electrical, 0.6 s from 0.1 s: 470x the oracle -> 2.8x; +-7 % at 2.5 Hz at
+        // 103 Hz: 71x -> 1.7x, this change alone). The reversals' lag, 5e-3 rad, is still held back.
+        if (std::fabs(jerk) >= kMaxLagRad * (wn_ * wn_ * wn_)) {  // lag = |jerk|/wn^3 (NaN: not known, not held back)
             const double W = trig_[0][0].real();
             u = W > 0 ? trig_[1][0].real() / W : 0.0;
         }
@@ -955,7 +967,7 @@ private:
         // the horizon grows with what was seen (the first cycles, learnt while the shape and so
         // the tracker's warp still changed, are forgotten sooner), up to memory_cycles
         // (after a replay every point was learnt against a nearly right shape: all of it is kept)
-        const double horizon = std::clamp((replays_ > 0 ? 1.0 : 0.25) * seen_rad_, 2 * kTwoPi, memory_rad_);
+        const double horizon = horizon_rad();
         scale_ *= std::exp(w / horizon);
         if (scale_ > 1e100) {
             for (auto& t : trig_)
@@ -1002,6 +1014,9 @@ private:
         // between solves; a tenth of the run time went to the solves, the outputs' accuracy is the same)
         if (!replaying_ && accepted_ % (seen_rad_ >= memory_rad_ ? 2 * refit_ : refit_) == 0 && seen_rad_ >= (told_ ? bootstrap_rad_ : kPi)) solve();
     }
+
+    // the identifier's forgetting horizon (rad of phase)
+    double horizon_rad() const { return std::clamp((replays_ > 0 ? 1.0 : 0.25) * seen_rad_, 2 * kTwoPi, memory_rad_); }
 
     // Gram entry <f_a, f_b> for basis indices a, b of [1, cos, sin, cos 2, sin 2, ...] from trig sums t.
     static double gram(const std::array<Cx, kTrig>& t, int a, int b) {
@@ -1165,6 +1180,21 @@ private:
         if (full_ && shape_at_ < 0) shape_at_ = n_in_;
         if (vary_ && vary_at_ < 0) vary_at_ = n_in_;
         if (full_ && !replaying_ && hist_ok_ && replays_ < kReplays && seen_rad_ >= next_replay_rad_) replay_due_ = true;
+        // u's random walk: q_variation_per_s (1e-3/s) suits a shape that holds still, and
+        // a drifting light source moves u by up to ~2/s (+-6 % at 3 Hz), which that q follows
+        // with errors the phase sees. From the third replay on (before, h1 is learnt from a few
+        // cycles, and a looser u let the learning run away: +-6 % at 3 Hz up to 31x), the intensity is
+        // the one that would spread u by kQVaryGain times the variance it showed over the
+        // memory's duration, between q_variation_per_s and kQVaryMax times it. A shape that
+        // does not vary keeps q_variation_per_s (on the accelerating ramp var(u) is 5e-9,
+        // a drift's 1e-4 to 4e-3).
+        q_ueff_ = q_u_;
+        if (vary_ && replays_ >= kQVaryReplays && std::fabs(x_[1]) > 0 && q_u_ > 0) {
+            const double ub = trig_[1][0].real() / W;
+            const double var_u = std::max(trig_[2][0].real() / W - ub * ub, 0.0);
+            const double memory_s = horizon_rad() / std::fabs(x_[1]);
+            q_ueff_ = q_u_ * std::clamp(kQVaryGain * var_u / (memory_s * q_u_), 1.0, kQVaryMax);
+        }
         noise_inv();
         update_prior();
         ++refits_;
@@ -1211,6 +1241,7 @@ private:
     int since_q_ = 0;
     long long stats_n_ = 0, n_in_ = 0, shape_at_ = -1, vary_at_ = -1;
     int max_order_ = 8, ppc_ = 256, order_ = 1, told_order_ = 1;
+    double q_ueff_ = 0.001;  // u's random-walk intensity in use (1/s): q_u_, raised for a shape that varies
     double gate_ = 0.1, memory_rad_ = 100, bootstrap_rad_ = 12, noise_a_ = 1e-3, r_bar_ = 0, q_u_ = 0.001, q_v_ = 1e-6;
     int since_noise_ = 0;
     long long refit_ = 32, accepted_ = 0, refits_ = 0, refits_since_start_ = 0, nonfinite_ = 0, no_evidence_ = 0;
