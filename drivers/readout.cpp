@@ -57,6 +57,9 @@ const std::map<std::string, std::vector<std::string>> kProtocolKeys = {
     {"lines", {"time_unit", "sample_rate_hz", "position_bits", "max_line_bytes", "counts_per_rev", "cycles_per_rev", "offset_rad"}},
     {"abz", {"interpolation", "index_count", "offset_rad"}},
 };
+constexpr const char* kNeedZ =
+    "; an ABZ readout needs its index line Z (z=CHANNEL): without it the count's A/B period, and so the DUT's absolute position, is "
+    "unknown (a capture's a/b lines without Z are homed on the capture's truth instead: capture:x.sr?interpolation=N)";
 const std::vector<std::string> kOwnKeys = {"protocol", "clock_offset_s", "word_rate_hz", "clk", "data", "cs", "a", "b", "z", "hold_s", "max_expanded_mb", "stall_s", "logic_rate_hz"};
 
 // The protocol's settings from the query (numbers where the config wants them); a setting of
@@ -121,8 +124,9 @@ public:
                 line("cs", "cs"); line("clk", "clk"); line("data", "data");
                 spi_.emplace(ps.get<SpiConfig>());
             } else if (protocol == "abz") {
-                line("a", "a"); line("b", "b");
-                if (s.contains("z") && s["z"].is_string()) line("z", "z");
+                // Z is required: without an index the count's A/B period, and so the DUT's
+                // absolute position, is unknown to the readout (it has no truth to home on).
+                line("a", "a"); line("b", "b"); line("z", "z");
                 if (!ps.contains("interpolation")) throw ConfigError("device.interpolation", "an ABZ readout needs the DUT's interpolation factor N (A/B periods per electrical cycle)");
                 AbzConfig c;
                 c.interpolation = ps["interpolation"].get<int>();
@@ -154,7 +158,13 @@ public:
                 c.logic_channels.push_back(ch);
             }
             live_.emplace(c);
-            live_->probe();  // a wrong driver, file or channel fails here, naming it
+            try {
+                live_->probe();  // a wrong driver, file or channel fails here, naming it
+            } catch (const DeviceError& e) {
+                const std::string what_failed = e.what();
+                if (abz_ && what_failed.find("no channel '" + channel_for["z"] + "'") != std::string::npos) throw DeviceError(uri, what_failed + kNeedZ);
+                throw;
+            }
             fs_ = live_->samplerate_hz();
             return;
         }
@@ -162,10 +172,13 @@ public:
         try {
             session_.emplace(path, channel_for, max_bytes);
         } catch (const std::exception& e) {
-            throw DeviceError(uri, e.what());
+            const std::string what_failed = e.what();
+            throw DeviceError(uri, what_failed + (abz_ && what_failed.find("column 'z'") != std::string::npos ? kNeedZ : ""));
         }
         for (const auto& [col, ch] : channel_for)
-            if (!session_->has(col)) throw DeviceError(uri, path + ": no logic channel '" + ch + "' (the " + col + " line; channels: " + channels() + ")");
+            if (!session_->has(col))
+                throw DeviceError(uri, path + ": no logic channel '" + ch + "' (the " + col + " line; channels: " + channels() + ")" +
+                                           (col == "z" ? std::string(kNeedZ) : std::string()));
         fs_ = session_->sample_rate_hz();
         if (!(fs_ > 0)) throw DeviceError(uri, path + ": the session has no samplerate");
     }
@@ -180,6 +193,7 @@ public:
         if (live_) r = pull_live(up_to_s, timeout_ms);
         // A frame latched before up_to_s completes within hold_s after it.
         while (!live_ && !ended_ && decoded_to_s_ < up_to_s + hold_s_) {
+            if (cancelled()) return {StreamStatus::Error, 0, 0, 0, "cancelled while decoding the logic capture"};
             const std::uint64_t left = session_->frames() - read_;
             if (left == 0) {
                 finish();
@@ -465,12 +479,15 @@ public:
         if (protocol_ == "abz") return;
         // The word rate from the first words (nominal: the median interval of up to 33); a rate
         // given must agree with it (it is the lane's sample rate: spectrum, settle, evidence).
-        for (double upto = 1e-3; q_.size() < 33 && upto < 1e7; upto *= 2) {
+        // At most the first 65.5 s of the readout's clock (a capture of silence is not decoded to
+        // its end here: the run reads only up to its own time).
+        for (double upto = 1e-3; q_.size() < 33 && upto < 100; upto *= 2) {  // the last: 65.5 s
+            if (src_->cancel && src_->cancel->load()) throw DeviceError(uri_, "cancelled while reading the first words");
             const StreamResult r = src_->pull(upto, q_, static_cast<int>(stall_s_ * 1000));
             if (r.status != StreamStatus::Ok) throw DeviceError(uri_, std::string("reading the first words: ") + to_string(r.status) + ": " + r.message);
         }
         std::vector<double> dt;
-        for (std::size_t i = 1; i < q_.size(); ++i)
+        for (std::size_t i = 1; i < q_.size() && i < 33; ++i)
             if (q_[i].t_s > q_[i - 1].t_s) dt.push_back(q_[i].t_s - q_[i - 1].t_s);
         if (dt.size() < 2) {
             const nlohmann::json st = src_->stats();

@@ -1,3 +1,4 @@
+#include <sys/stat.h>
 #include "sigrok_file.hpp"
 
 #include "capture_file.hpp"
@@ -233,6 +234,11 @@ SigrokSession::SigrokSession(const std::string& path, const std::map<std::string
         if (!known) throw CaptureError(path + ": channel map: unknown column " + quote(col) + " (sin, cos, theta_true, omega_true, index, a, b, z, clk, data, cs)");
         if (ch.empty()) throw CaptureError(path + ": channel map: empty channel name for column '" + col + "'");
     }
+    // A session is a ZIP read by seeking: a FIFO or a device would block its open (a FIFO with
+    // no writer, forever) and cannot be seeked.
+    if (struct stat st; ::stat(path.c_str(), &st) == 0 && !S_ISREG(st.st_mode))
+        throw CaptureError(path + ": not a regular file (" + (S_ISDIR(st.st_mode) ? "a directory" : S_ISFIFO(st.st_mode) ? "a FIFO" : "a device or socket") +
+                           "): a sigrok session is read from a file");
     if (const DirectorySize dir = declared_directory(path); dir.entries > kSigrokMaxEntries || dir.bytes > kSigrokMaxDirectoryBytes)
         m.fail("the archive declares " + std::to_string(dir.entries) + " entries in a central directory of " + std::to_string(dir.bytes) +
                " bytes (at most " + std::to_string(kSigrokMaxEntries) + " entries and " + mib(kSigrokMaxDirectoryBytes) + ")");

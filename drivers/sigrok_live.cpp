@@ -6,6 +6,7 @@
 #include <poll.h>
 #include <signal.h>
 #include <spawn.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -301,6 +302,10 @@ void SigrokLive::scan() {
 // `sigrok-cli -i FILE --show`:
 //   Samplerate: 100000 / Channels: 8 / - D0: logic / ... / Logic unitsize: 1 / Logic sample count: 1000
 void SigrokLive::show_file() {
+    // sigrok-cli would block on a FIFO's open and reads "not a regular file" for a missing one.
+    struct stat fst;
+    if (::stat(cfg_.input_file.c_str(), &fst) != 0) throw DeviceError(name_, cfg_.input_file + ": " + std::strerror(errno));
+    if (!S_ISREG(fst.st_mode)) throw DeviceError(name_, cfg_.input_file + ": not a regular file (a session is replayed from a file)");
     std::vector<std::string> argv{cfg_.program, "-i", cfg_.input_file, "--show"};
     std::string text, etail;
     bool timed_out = false;
@@ -332,6 +337,8 @@ void SigrokLive::show_file() {
     if (!WIFEXITED(st) || WEXITSTATUS(st) != 0 || device_channels_.empty() || unitsize == 0)
         throw DeviceError(name_, cmd + " found no logic session (" + status_text(st) + ")" + (why.empty() ? "" : ": " + why));
     if (!(rate > 0)) throw DeviceError(name_, cfg_.input_file + ": the session has no samplerate");
+    // A negative rate in the metadata reads back as 2^64 - |rate|: the reader's own range.
+    if (!(rate >= 1 && rate <= 1e10)) throw DeviceError(name_, cfg_.input_file + ": samplerate " + num(rate) + " Hz is not a rate in [1 Hz, 10 GHz]");
     if (cfg_.samplerate_hz > 0 && cfg_.samplerate_hz != rate)
         throw DeviceError(name_, cfg_.input_file + ": recorded at " + num(rate) + " Hz, not the " + num(cfg_.samplerate_hz) + " Hz asked for");
     cfg_.samplerate_hz = rate;

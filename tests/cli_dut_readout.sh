@@ -82,8 +82,15 @@ jq -e '.status == "error" and (.error | contains("device.dut"))' "$dir/cut-repor
 jq -e '[.estimators[] | select(.label == "atan2") | .metrics.evidence.scored_samples] | .[0] > 10000' "$dir/cut-report.json" > /dev/null ||
   fail "the estimators' figures should survive the DUT's fault"
 # 4. Live: sigrok's demo logic analyser as the DUT's ABZ lines (the simulated chain for the signals).
+#    Without a Z line an ABZ readout is refused (its absolute position would be unknown).
 jq '.device = {"output": "loopback:", "input": "loopback:", "dut": "readout:sigrok://demo?protocol=abz&a=D0&b=D1&interpolation=4&word_rate_hz=10000&logic_rate_hz=1000000"}
-    | .limits = [] | .duration_s = 0.3 | .settle_s = 0.05' "$F" > "$dir/live.json"
+    | .limits = [] | .duration_s = 0.3 | .settle_s = 0.05' "$F" > "$dir/noz.json"
+set +e
+timeout 60 "$FRINGE" run "$dir/noz.json" --no-db -q > "$dir/noz-run.log" 2>&1
+rc=$?
+set -e
+[ $rc -eq 2 ] && grep -q "needs its index line Z" "$dir/noz-run.log" || fail "an ABZ readout without Z should be refused naming Z (exit $rc)"
+jq '.device.dut |= sub("&b=D1"; "&b=D1&z=D2")' "$dir/noz.json" > "$dir/live.json"
 set +e
 timeout 120 "$FRINGE" run "$dir/live.json" --no-db -q --report "$dir/live-report.json" > "$dir/live-run.log" 2>&1
 rc=$?
@@ -97,7 +104,7 @@ ro = [e for e in r["estimators"] if e["label"] == "dut"][0]["metrics"]["readout"
 sg = ro["sigrok"]
 # Acquired live for the run's 0.3 s at 1 MHz (and a little more), every sample decoded.
 assert sg["samples"] >= 300000 and ro["logic_samples"] == sg["samples"], (sg["samples"], ro["logic_samples"])
-assert sg["logic_channels"] == ["D0", "D1"], sg["logic_channels"]
+assert sg["logic_channels"] == ["D0", "D1", "D2"], sg["logic_channels"]
 assert ro["abz"]["illegal_transitions"] > 0, ro["abz"]
 assert ro["words_received"] >= 2900, ro["words_received"]
 assert r["verdict"] == "FAIL"

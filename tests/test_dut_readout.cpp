@@ -325,6 +325,32 @@ TEST_CASE("a DUT stream that never reaches the run's time ends the run, bounded 
         CHECK(r["status"] == "error");
         CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("is a directory"));
     }
+    SECTION("a FIFO named as a session, to the file reader and to the replay") {
+        const std::string fifo = (d.path / "fifo.sr").string();
+        REQUIRE(::mkfifo(fifo.c_str(), 0600) == 0);
+        for (const std::string via : {"readout:", "readout:sigrok://"}) {
+            const json r = timed(scenario(via + fifo + "?protocol=ssi&position_bits=12"), took_s);
+            CHECK(r["status"] == "error");
+            CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("not a regular file"));
+            CHECK(took_s < 5);
+        }
+        const json r = timed(scenario("readout:sigrok://" + (d.path / "missing.sr").string() + "?protocol=ssi&position_bits=12"), took_s);
+        CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("No such file"));
+    }
+    SECTION("a session of 70 s of silence: its first 65.5 s are read for words, not all of it") {
+        const std::vector<double> zeros(70 * 50000, 0.0);
+        const std::string sr = (d.path / "quiet.sr").string();
+        test::write_logic_sr(sr, 50000, {"clk", "data"}, {&zeros, &zeros});
+        const json r = timed(scenario("readout:" + sr + "?protocol=ssi&position_bits=12"), took_s);
+        CHECK(r["status"] == "error");
+        const std::string e = r["error"].get<std::string>();
+        CHECK_THAT(e, Catch::Contains("fewer than three words"));
+        const auto at = e.find("logic_samples ");
+        REQUIRE(at != std::string::npos);
+        const double read = std::stod(e.substr(at + 14));
+        CHECK(read < 67 * 50000.0);  // up to 65.5 s and the decode's hold and chunk
+        CHECK(read >= 64 * 50000.0);
+    }
 }
 
 TEST_CASE("DUT words that do not cover the run are said so, and a stream that covers it and stays open is not frozen", "[dut_readout]") {
@@ -370,7 +396,7 @@ TEST_CASE("DUT words that do not cover the run are said so, and a stream that co
         const auto t0 = std::chrono::steady_clock::now();
         const json r = json(execute_run(scenario_from_json(scenario("readout:" + fifo + "?counts_per_rev=4096&stall_s=600"), ""), o));
         t.join();
-        CHECK(r["status"] != "done");
+        CHECK(r["status"] == "aborted");  // the user's cancel, not a device fault
         CHECK(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() < 5);
     }
 }
@@ -400,6 +426,28 @@ TEST_CASE("a DUT readout's bad settings are refused naming them", "[dut_readout]
             const json r = run(scenario("readout:" + path + "?counts_per_rev=4096&word_rate_hz=" + q));
             CHECK(r["status"] == "done");
             CHECK(lane(r, "dut")["metrics"]["readout"]["word_rate_hz"].get<double>() == std::stod(q));
+        }
+    }
+    SECTION("a session whose samplerate is negative, replayed") {
+        LogicSignals sig;
+        EmitterTiming tm;
+        emit_idle(tm, 1000, sig);
+        const std::string sr = (d.path / "neg.sr").string();
+        test::write_logic_sr(sr, -5e6, {"clk", "data"}, {&sig.clk, &sig.data});
+        const json r = run(scenario("readout:sigrok://" + sr + "?protocol=ssi&position_bits=12"));
+        CHECK(r["status"] == "error");
+        CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("is not a rate in [1 Hz, 10 GHz]"));
+    }
+    SECTION("an ABZ readout without Z") {
+        LogicSignals sig;
+        EmitterTiming tm;
+        emit_idle(tm, 1000, sig);
+        const std::string sr = (d.path / "ab.sr").string();
+        test::write_logic_sr(sr, tm.sample_rate_hz, {"a", "b"}, {&sig.clk, &sig.data});
+        for (const std::string via : {"readout:", "readout:sigrok://"}) {
+            const json r = run(scenario(via + sr + "?protocol=abz&interpolation=4&word_rate_hz=10000"));
+            CHECK(r["status"] == "error");
+            CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("needs its index line Z"));
         }
     }
     SECTION("a logic capture's missing channel") {

@@ -692,8 +692,10 @@ RunReport execute_pass(RunPlan plan, const RunOptions& o) {
                 if (lane->e) lane->e->finish();
         if (recorder) recorder->close();
     } catch (const std::exception& e) {  // device, estimator and capture faults, and anything unforeseen
-        status = RunStatus::Error;
-        error = e.what();
+        // A device that gave up because the run was cancelled: the run was aborted, not faulty.
+        const bool cancelled = o.cancel && o.cancel->load();
+        status = cancelled ? RunStatus::Aborted : RunStatus::Error;
+        error = cancelled ? std::string("cancelled (") + e.what() + ")" : std::string(e.what());
     } catch (...) {
         status = RunStatus::Error;
         error = "the run failed with an unknown exception";
