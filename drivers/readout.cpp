@@ -482,7 +482,7 @@ public:
         // At most the first 65.5 s of the readout's clock (a capture of silence is not decoded to
         // its end here: the run reads only up to its own time).
         for (double upto = 1e-3; q_.size() < 33 && upto < 100; upto *= 2) {  // the last: 65.5 s
-            if (src_->cancel && src_->cancel->load()) throw DeviceError(uri_, "cancelled while reading the first words");
+            if (src_->cancelled()) throw DeviceError(uri_, "cancelled while reading the first words");
             const StreamResult r = src_->pull(upto, q_, static_cast<int>(stall_s_ * 1000));
             if (r.status != StreamStatus::Ok) throw DeviceError(uri_, std::string("reading the first words: ") + to_string(r.status) + ": " + r.message);
         }

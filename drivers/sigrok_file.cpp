@@ -1,8 +1,8 @@
-#include <sys/stat.h>
 #include "sigrok_file.hpp"
 
 #include "capture_file.hpp"
 
+#include <sys/stat.h>
 #include <zip.h>
 
 #include <algorithm>

@@ -403,6 +403,14 @@ TEST_CASE("DUT words that do not cover the run are said so, and a stream that co
 
 TEST_CASE("a DUT readout's bad settings are refused naming them", "[dut_readout]") {
     test::TempDir d;
+    // A session of two idle lines (1000 samples) under the names given.
+    auto idle_session = [&](const char* name, double rate_hz, std::vector<std::string> names) {
+        LogicSignals sig;
+        emit_idle(EmitterTiming{}, 1000, sig);
+        const std::string sr = (d.path / name).string();
+        test::write_logic_sr(sr, rate_hz, names, {&sig.clk, &sig.data});
+        return sr;
+    };
     const std::string path = (d.path / "words.txt").string();
     std::ofstream(path) << lines(0.0, 4096, 0.3, 0);
     SECTION("device.dut must be a readout") {
@@ -429,21 +437,13 @@ TEST_CASE("a DUT readout's bad settings are refused naming them", "[dut_readout]
         }
     }
     SECTION("a session whose samplerate is negative, replayed") {
-        LogicSignals sig;
-        EmitterTiming tm;
-        emit_idle(tm, 1000, sig);
-        const std::string sr = (d.path / "neg.sr").string();
-        test::write_logic_sr(sr, -5e6, {"clk", "data"}, {&sig.clk, &sig.data});
+        const std::string sr = idle_session("neg.sr", -5e6, {"clk", "data"});
         const json r = run(scenario("readout:sigrok://" + sr + "?protocol=ssi&position_bits=12"));
         CHECK(r["status"] == "error");
         CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("is not a rate in [1 Hz, 10 GHz]"));
     }
     SECTION("an ABZ readout without Z") {
-        LogicSignals sig;
-        EmitterTiming tm;
-        emit_idle(tm, 1000, sig);
-        const std::string sr = (d.path / "ab.sr").string();
-        test::write_logic_sr(sr, tm.sample_rate_hz, {"a", "b"}, {&sig.clk, &sig.data});
+        const std::string sr = idle_session("ab.sr", EmitterTiming{}.sample_rate_hz, {"a", "b"});
         for (const std::string via : {"readout:", "readout:sigrok://"}) {
             const json r = run(scenario(via + sr + "?protocol=abz&interpolation=4&word_rate_hz=10000"));
             CHECK(r["status"] == "error");
@@ -451,11 +451,7 @@ TEST_CASE("a DUT readout's bad settings are refused naming them", "[dut_readout]
         }
     }
     SECTION("a logic capture's missing channel") {
-        LogicSignals sig;
-        EmitterTiming tm;
-        emit_idle(tm, 1000, sig);
-        const std::string sr = (d.path / "x.sr").string();
-        test::write_logic_sr(sr, tm.sample_rate_hz, {"clk", "dat"}, {&sig.clk, &sig.data});
+        const std::string sr = idle_session("x.sr", EmitterTiming{}.sample_rate_hz, {"clk", "dat"});
         const json r = run(scenario("readout:" + sr + "?protocol=ssi&position_bits=12&word_rate_hz=10000"));
         CHECK(r["status"] == "error");
         CHECK_THAT(r["error"].get<std::string>(), Catch::Contains("data"));
