@@ -78,6 +78,13 @@ struct Lane {
         std::vector<std::uint32_t> wframe;  // the block's frame a word is drawn at in the traces
     } out[2];
     double estimator_s = 0;  // time inside the estimator
+    // The estimator writes here, never into a slot: a slot's lines were last read by the other
+    // threads' analysers, and an estimator's stores into them, a sample at a time, slowed it
+    // (ekf-diffraction 20 % slower on two threads than on one). Whole copies into the slot follow.
+    struct Own {
+        std::vector<double> th, om;
+        std::vector<std::uint8_t> valid;
+    } own;
     bool self_reference = false;  // keep the estimator's own flags for the self-referenced analyser
     std::function<void(std::size_t, const double*, const double*, const double*, const std::uint8_t*)> tap;  // RunOptions::estimates
     Lane(const EstimatorSpec* s, const LaneContext& ctx) : spec(s), analysers(ctx), self_reference(ctx.self_reference), settle_s(ctx.settle_s) {}
@@ -215,8 +222,12 @@ struct Lane {
             }
         } else {
             const auto t0 = std::chrono::steady_clock::now();
-            e->process({std::span(f.sin_v), std::span(f.cos_v)}, {std::span(th), std::span(om), std::span(valid)});
+            own.th.resize(m); own.om.resize(m); own.valid.resize(m);
+            e->process({std::span(f.sin_v), std::span(f.cos_v)}, {std::span(own.th), std::span(own.om), std::span(own.valid)});
             estimator_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+            std::copy(own.th.begin(), own.th.end(), th.begin());
+            std::copy(own.om.begin(), own.om.end(), om.begin());
+            std::copy(own.valid.begin(), own.valid.end(), valid.begin());
         }
         if (tap) tap(m, f.t_s.data(), th.data(), om.data(), valid.data());
         if (self_reference) o.own_valid.assign(valid.begin(), valid.end());
