@@ -74,11 +74,16 @@ double min_samples_per_cycle(const Scenario& sc) {
     const double lines = static_cast<double>(sc.encoder.lines_per_rev);
     double max_step_rad = 0;
     const std::size_t grid = static_cast<std::size_t>(std::min<std::uint64_t>(total, 200000));
-    std::vector<double> t(grid), phi(grid), om(grid), al(grid);
-    for (std::size_t i = 0; i < grid; ++i)
-        t[i] = sc.t0_s + (grid > 1 ? sc.duration_s * static_cast<double>(i) / static_cast<double>(grid - 1) : 0.0);
-    sc.motion.evaluate(t.data(), grid, phi.data(), om.data(), al.data());
-    for (std::size_t i = 0; i < grid; ++i) max_step_rad = std::max(max_step_rad, std::fabs(om[i]) * lines * T);
+    // The grid a chunk at a time: its 6 MB whole were 1 600 page faults, 20 ms of a run's start.
+    constexpr std::size_t kChunk = 4096;
+    std::vector<double> t(kChunk), phi(kChunk), om(kChunk), al(kChunk);
+    for (std::size_t c0 = 0; c0 < grid; c0 += kChunk) {
+        const std::size_t m = std::min(kChunk, grid - c0);
+        for (std::size_t i = 0; i < m; ++i)
+            t[i] = sc.t0_s + (grid > 1 ? sc.duration_s * static_cast<double>(c0 + i) / static_cast<double>(grid - 1) : 0.0);
+        sc.motion.evaluate(t.data(), m, phi.data(), om.data(), al.data());
+        for (std::size_t i = 0; i < m; ++i) max_step_rad = std::max(max_step_rad, std::fabs(om[i]) * lines * T);
+    }
     const std::size_t windows = total <= 262144 ? 1 : 64;
     const std::size_t len = windows == 1 ? static_cast<std::size_t>(total) : 4096;
     t.resize(len); phi.resize(len); om.resize(len); al.resize(len);
