@@ -102,6 +102,8 @@ struct EkfN final : Ekf::Impl {
         double h[2], Ha[2][kMaxStates], v[2], R[3];
         model->eval(xs.data(), h, Ha, v);
         model->noise(v, extra, R);
+        if constexpr (N == 2 && MaxN == 2)
+            if (channels == 3 && !fold) return update2(z, h, Ha, R);
         if (channels == 3) {
             Mat2N H(2, n_);
             for (int i = 0; i < n_; ++i) { H(0, i) = Ha[0][i]; H(1, i) = Ha[1][i]; }
@@ -150,6 +152,48 @@ struct EkfN final : Ekf::Impl {
             Pm = IKH * Pm * IKH.transpose() + (r * K) * K.transpose();
         }
         Pm = 0.5 * (Pm + Pm.transpose()).eval();
+        rewrap();
+        return true;
+    }
+    // The two-state filter's update written out (ekf-diffraction CV, the most common filter):
+    // the same algebra as the general path (Joseph form, the 2x2 S inverted by its adjugate,
+    // the same outlier test) on scalars, each symmetric matrix computed once per pair of
+    // entries, so that its dependency chain per sample is short.
+    bool update2(const double z[2], const double h[2], const double Ha[2][kMaxStates], const double R[3]) {
+        const double a = Ha[0][0], b = Ha[0][1], c = Ha[1][0], d = Ha[1][1];
+        const double p00 = Pm(0, 0), p01 = Pm(0, 1), p11 = Pm(1, 1);
+        const double i0 = z[0] - h[0], i1 = z[1] - h[1];
+        // HP = H P, S = HP H^T + R
+        const double hp00 = a * p00 + b * p01, hp01 = a * p01 + b * p11;
+        const double hp10 = c * p00 + d * p01, hp11 = c * p01 + d * p11;
+        const double s00 = hp00 * a + hp01 * b + R[0];
+        const double s01 = hp00 * c + hp01 * d + R[1];
+        const double s11 = hp10 * c + hp11 * d + R[2];
+        const double det = s00 * s11 - s01 * s01;
+        if (!(s00 > 0) || !(det > 1e-300)) return false;
+        const double inv_det = 1.0 / det;
+        const double si00 = s11 * inv_det, si01 = -s01 * inv_det, si11 = s00 * inv_det;
+        // the outlier test of the general path
+        const double nis = i0 * (si00 * i0 + si01 * i1) + i1 * (si01 * i0 + si11 * i1);
+        if (!(nis <= kOutlierNis) && !(i0 * i0 + i1 * i1 <= 0.25 * (h[0] * h[0] + h[1] * h[1]))) return false;
+        // K = (S^-1 HP)^T: k_ij, state i, channel j
+        const double k00 = si00 * hp00 + si01 * hp10, k01 = si01 * hp00 + si11 * hp10;
+        const double k10 = si00 * hp01 + si01 * hp11, k11 = si01 * hp01 + si11 * hp11;
+        xs(0) += k00 * i0 + k01 * i1;
+        xs(1) += k10 * i0 + k11 * i1;
+        // Joseph form: (I - KH) P (I - KH)^T + K R K^T
+        const double m00 = 1.0 - (k00 * a + k01 * c), m01 = -(k00 * b + k01 * d);
+        const double m10 = -(k10 * a + k11 * c), m11 = 1.0 - (k10 * b + k11 * d);
+        const double a00 = m00 * p00 + m01 * p01, a01 = m00 * p01 + m01 * p11;  // (I - KH) P
+        const double a10 = m10 * p00 + m11 * p01, a11 = m10 * p01 + m11 * p11;
+        const double b00 = k00 * R[0] + k01 * R[1], b01 = k00 * R[1] + k01 * R[2];  // K R
+        const double b10 = k10 * R[0] + k11 * R[1], b11 = k10 * R[1] + k11 * R[2];
+        const double n00 = a00 * m00 + a01 * m01 + b00 * k00 + b01 * k01;
+        const double n01 = a00 * m10 + a01 * m11 + b00 * k10 + b01 * k11;
+        const double n11 = a10 * m10 + a11 * m11 + b10 * k10 + b11 * k11;
+        Pm(0, 0) = n00;
+        Pm(0, 1) = Pm(1, 0) = n01;
+        Pm(1, 1) = n11;
         rewrap();
         return true;
     }
