@@ -40,7 +40,7 @@ inline constexpr double kAtanMinimax[12] = {
 // via atan(t) = pi/4 + atan((t-1)/(t+1)), then the polynomial above. Branch-free, so GCC
 // vectorises it over a block; within 2 ulp of std::atan2 (tested). atan2(0, 0) = 0.
 // The polynomial in z = u^2 is evaluated with std::fma: its terms from z^3 on by Estrin's
-// scheme (a tree of depth 3) and added to the first three (Horner) by one fma with z^3, so
+// scheme (a tree of depth 4) and added to the first three (Horner) by one fma with z^3, so
 // the rounding of the small low-order terms is as in a plain Horner chain. A Horner chain of
 // 19 multiply-adds without fma kept the block loop bound by latency. fma is correctly rounded
 // (IEEE 754), so the result is the same on every machine, with or without hardware FMA.

@@ -74,7 +74,8 @@ double min_samples_per_cycle(const Scenario& sc) {
     const double lines = static_cast<double>(sc.encoder.lines_per_rev);
     double max_step_rad = 0;
     const std::size_t grid = static_cast<std::size_t>(std::min<std::uint64_t>(total, 200000));
-    // The grid a chunk at a time: its 6 MB whole were 1 600 page faults, 20 ms of a run's start.
+    // The grid a chunk at a time: the whole 6.4 MB (about 1 600 pages
+    // faulted in) took 20 ms of every run's start.
     constexpr std::size_t kChunk = 4096;
     std::vector<double> t(kChunk), phi(kChunk), om(kChunk), al(kChunk);
     for (std::size_t c0 = 0; c0 < grid; c0 += kChunk) {
