@@ -106,6 +106,8 @@ void LockMonitor::reset(const Calibration& told, double threshold_rad) {
     own_start_ = 0;
     outliers_ = 0;
     radius2_ = 0;
+    ring_sum_ = 0;
+    ring_n_ = 0;
 }
 
 double LockMonitor::reference(double s, double c) {
@@ -125,6 +127,8 @@ double LockMonitor::reference(double s, double c) {
                 own_unwrap_.reset();
                 own_start_ = 0;
                 radius2_ = 0;
+                ring_sum_ = 0;
+                ring_n_ = 0;
                 double sn, cn;
                 told_.normalise(s, c, sn, cn);
                 const double told = coarse_atan2(sn, cn);
@@ -173,12 +177,21 @@ double LockMonitor::reference(double s, double c) {
     if (moved || !(as > 0) || !(ac > 0)) {
         own_unwrap_.reset();
         own_start_ = 0;
+        ring_sum_ = 0;
+        ring_n_ = 0;
         return ref_;
     }
-    const double own = coarse_atan2((s - 0.5 * (smax_ + smin_)) / as, (c - 0.5 * (cmax_ + cmin_)) / ac);
+    const double xs = (s - 0.5 * (smax_ + smin_)) / as, xc = (c - 0.5 * (cmax_ + cmin_)) / ac;
+    const double own = coarse_atan2(xs, xc);
     if (!own_unwrap_.started()) own_start_ = own;
+    // A frame is a ring only if the samples lie on it: the mean of (r^2 - 1)^2 in the frame is
+    // ~1e-3 on a Lissajous figure and 0.3-0.7 for noise filling its own min/max box (an encoder
+    // at standstill, whose atan2 in that box turns at random and would count turns).
+    const double r2m1 = xs * xs + xc * xc - 1.0;
+    ring_sum_ += r2m1 * r2m1;
+    ++ring_n_;
     // (never on a held sample: the own frame's turn count would continue from a spike's phase)
-    if (std::fabs(own_unwrap_(own) - own_start_) > 2 * kTwoPi && !unwrap_.holding()) {
+    if (std::fabs(own_unwrap_(own) - own_start_) > 2 * kTwoPi && !unwrap_.holding() && ring_sum_ < 0.15 * ring_n_) {
         // two turns in a stable frame: switch, continuing the told frame's turn count
         own_ = true;
         own_frame();

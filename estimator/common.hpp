@@ -284,6 +284,8 @@ private:
     // own frame: per-channel min/max, and how far the phase has gone round in it
     double smin_ = 0, smax_ = 0, cmin_ = 0, cmax_ = 0, own_start_ = 0;
     double smid_ = 0, cmid_ = 0, sinv_ = 1, cinv_ = 1;  // the own frame: centres, 1/half-ranges
+    double ring_sum_ = 0;  // sum of (r^2 - 1)^2 in the candidate frame since its count began
+    double ring_n_ = 0;
     void own_frame() {
         smid_ = 0.5 * (smax_ + smin_);
         cmid_ = 0.5 * (cmax_ + cmin_);
