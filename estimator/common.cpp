@@ -108,6 +108,19 @@ void LockMonitor::reset(const Calibration& told, double threshold_rad) {
     radius2_ = 0;
     ring_sum_ = 0;
     ring_n_ = 0;
+    ++frame_;
+}
+
+void LockMonitor::prepare(const double* s, const double* c, std::size_t n) {
+    if (!own_) {
+        pre_frame_ = ~std::uint64_t{0};
+        return;
+    }
+    pre_.resize(n);
+    double* w = pre_.data();
+    const double sm = smid_, cm = cmid_, si = sinv_, ci = cinv_;
+    for (std::size_t i = 0; i < n; ++i) w[i] = coarse_atan2((s[i] - sm) * si, (c[i] - cm) * ci);
+    pre_frame_ = frame_;
 }
 
 double LockMonitor::reference(double s, double c) {

@@ -207,6 +207,7 @@ public:
 
     void process(InputSpan in, OutputSpan out) override {
         const std::size_t n = in.size();
+        lock_.prepare(in.sin_v.data(), in.cos_v.data(), n);
         for (std::size_t i = 0; i < n; ++i) {
             const double zs = in.sin_v[i], zc = in.cos_v[i];
             ++n_in_;
@@ -220,7 +221,7 @@ public:
                 hist_ok_ = false;
                 continue;
             }
-            lock_.reference(zs, zc);
+            lock_.reference_at(i, zs, zc);
             if (!acq_.done()) {
                 // an outlier to the reference (a 1e300, a spike off the phase) stays out of the
                 // line fit and the amplitude

@@ -224,10 +224,11 @@ public:
 
     void process(InputSpan in, OutputSpan out) override {
         const std::size_t n = in.size();
+        lock_.prepare(in.sin_v.data(), in.cos_v.data(), n);
         for (std::size_t i = 0; i < n; ++i, ++k_) {
             double z[2] = {in.sin_v[i], in.cos_v[i]};
             const bool finite = std::isfinite(z[0]) && std::isfinite(z[1]);
-            if (finite) lock_.reference(z[0], z[1]);
+            if (finite) lock_.reference_at(i, z[0], z[1]);
             if (!acq_.done()) {
                 if (closed_) { z[0] = adc_.apply(z[0]); z[1] = adc_.apply(z[1]); }  // N = 0, DAC at 0
                 if (!finite) { z[0] = z[1] = 0; ++nonfinite_; }

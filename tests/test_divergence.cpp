@@ -10,7 +10,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <set>
+#include <vector>
 
 // This file's own namespace: the test files compile together as unity files (FRINGE_UNITY).
 namespace test_divergence_cpp {
@@ -138,6 +140,46 @@ TEST_CASE("the loss-of-lock reference is not slipped by spikes and follows fast 
         // 0.2 rad's worth is the reference's allowance on distorted signals)
         INFO("step " << step_rad << " rad/sample");
         CHECK(worst < 0.5);
+    }
+}
+
+// The block path (prepare + reference_at, the own frame's atan2 of a whole block in one
+// vectorised pass) gives reference()'s numbers to the bit, through what changes the frame
+// mid-block: the first cycles that grow it, a slow growth of the amplitude, spikes beyond it,
+// an amplitude that jumps x10 (the frame learnt again), non-finite samples; in blocks of
+// several sizes.
+TEST_CASE("the loss-of-lock reference a block at a time equals it sample by sample", "[estimator][divergence]") {
+    est::Calibration cal;
+    cal.prepare();
+    const int n = 60000;
+    std::vector<double> s(n), c(n);
+    for (int k = 0; k < n; ++k) {
+        const double th = 0.3 + 0.05 * k + 1e-6 * k * k;
+        const double amp = (k < 40000 ? 1.0 + 2e-6 * k : 10.0);
+        s[k] = 0.01 + amp * std::sin(th);
+        c[k] = -0.02 + 0.97 * amp * std::cos(th);
+        if (k % 997 == 5) s[k] = 4.0 * amp;           // a spike beyond the frame
+        if (k % 1499 == 7) c[k] = -1.3 * amp * std::cos(th);
+    }
+    for (int k = 30000; k < 30003; ++k) s[k] = std::numeric_limits<double>::quiet_NaN();
+    for (const std::size_t block : {std::size_t{1}, std::size_t{37}, std::size_t{4096}, std::size_t{n}}) {
+        est::LockMonitor one, blocks;
+        one.reset(cal, 1.0);
+        blocks.reset(cal, 1.0);
+        std::size_t differ = 0;
+        for (std::size_t b0 = 0; b0 < s.size(); b0 += block) {
+            const std::size_t m = std::min(block, s.size() - b0);
+            blocks.prepare(s.data() + b0, c.data() + b0, m);
+            for (std::size_t i = 0; i < m; ++i) {
+                const double x = s[b0 + i], y = c[b0 + i];
+                if (!(std::isfinite(x) && std::isfinite(y))) continue;  // as the estimators skip them
+                const double a = one.reference(x, y), b = blocks.reference_at(i, x, y);
+                differ += !(a == b) || one.outlier() != blocks.outlier();
+            }
+        }
+        INFO("blocks of " << block);
+        CHECK(differ == 0);
+        CHECK(one.to_json() == blocks.to_json());
     }
 }
 
