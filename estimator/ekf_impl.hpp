@@ -12,6 +12,7 @@
 
 #include <cmath>
 #include <memory>
+#include <stdexcept>
 
 namespace fringe::est {
 
@@ -46,6 +47,12 @@ struct EkfN final : Ekf::Impl {
     int n_ = N;
     Vec xs;
     Mat Pm, F, Q;
+    // F is the identity plus at most three entries above the diagonal (the kinematics: theta
+    // from omega, and with acceleration theta and omega from alpha): fi_/fj_/fv_ hold them,
+    // in rows of increasing index, so that predict() applies F as row and column operations
+    // (O(N) each) instead of two N x N x N products.
+    int nf_ = 0, fi_[3] = {}, fj_[3] = {};
+    double fv_[3] = {};
     const ChannelModel* model = nullptr;
 
     EkfN(const Ekf::Options& o, const ChannelModel* m) : n_(o.layout.n), model(m) {
@@ -72,6 +79,13 @@ struct EkfN final : Ekf::Impl {
         if (L.off_c >= 0) Q(L.off_c, L.off_c) = o.q_offset_v2_per_s * T;
         if (L.eps >= 0) Q(L.eps, L.eps) = o.q_eps_per_s * T;
         if (L.delta >= 0) Q(L.delta, L.delta) = o.q_delta_rad2_per_s * T;
+        for (int i = 0; i < n_; ++i)
+            for (int j = 0; j < n_; ++j)
+                if (i != j && F(i, j) != 0) {
+                    // the operations in predict() read row/column j before they change it
+                    if (j <= i || nf_ == 3) throw std::logic_error("EkfN: F is not unit upper triangular with at most three entries");
+                    fi_[nf_] = i; fj_[nf_] = j; fv_[nf_] = F(i, j); ++nf_;
+                }
         xs.setZero();
         Pm.setIdentity();
     }
@@ -90,8 +104,12 @@ struct EkfN final : Ekf::Impl {
         }
     }
     void predict() override {
-        xs = F * xs;
-        Pm = F * Pm * F.transpose() + Q;
+        // x = F x, P = F P F^T + Q. Entry k adds fv times row (then column) fj to row (column)
+        // fi; fj > fi, and rows are taken in increasing order, so each reads an unchanged row.
+        for (int k = 0; k < nf_; ++k) xs(fi_[k]) += fv_[k] * xs(fj_[k]);
+        for (int k = 0; k < nf_; ++k) Pm.row(fi_[k]) += fv_[k] * Pm.row(fj_[k]);
+        for (int k = 0; k < nf_; ++k) Pm.col(fi_[k]) += fv_[k] * Pm.col(fj_[k]);
+        Pm += Q;
         rewrap();
     }
     void predict_measurement(double h[2]) const override {
@@ -136,8 +154,11 @@ struct EkfN final : Ekf::Impl {
             if (!(innov.dot(Sinv * innov) <= kOutlierNis) && !(innov.squaredNorm() <= 0.25 * (h[0] * h[0] + h[1] * h[1]))) return false;
             const MatN2 K = (Sinv * HP).transpose();
             xs += K * innov;
-            const Mat IKH = Mat::Identity(n_, n_) - K * H;
-            Pm = IKH * Pm * IKH.transpose() + K * Rm * K.transpose();  // Joseph form
+            // Joseph form expanded: (I-KH)P(I-KH)^T + KRK^T = P - K HP - (K HP)^T + K S K^T,
+            // rank-2 products only (4 N^2 multiply-adds instead of 2 N^3).
+            const Mat KHP = K * HP;
+            const MatN2 KS = K * S;
+            Pm = Pm - KHP - KHP.transpose() + KS * K.transpose();
         } else {
             const int row = channels == 1 ? 0 : 1;
             Row H(1, n_);
@@ -148,8 +169,9 @@ struct EkfN final : Ekf::Impl {
             if (!(S > 0)) return false;
             const Vec K = HP.transpose() / S;
             xs += K * (z[row] - h[row]);
-            const Mat IKH = Mat::Identity(n_, n_) - K * H;
-            Pm = IKH * Pm * IKH.transpose() + (r * K) * K.transpose();
+            // Joseph form expanded as in the two-channel update (K S K^T with scalar S)
+            const Mat KHP = K * HP;
+            Pm = Pm - KHP - KHP.transpose() + (S * K) * K.transpose();
         }
         Pm = 0.5 * (Pm + Pm.transpose()).eval();
         rewrap();
