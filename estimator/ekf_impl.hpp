@@ -106,6 +106,18 @@ struct EkfN final : Ekf::Impl {
     void predict() override {
         // x = F x, P = F P F^T + Q. Entry k adds fv times row (then column) fj to row (column)
         // fi; fj > fi, and rows are taken in increasing order, so each reads an unchanged row.
+        if constexpr (N == 2 && MaxN == 2) if (nf_ == 1) {
+            // the same operations on scalars (F = [1 T; 0 1]): the compiler keeps them in registers
+            const double T = fv_[0], p00 = Pm(0, 0), p01 = Pm(0, 1), p10 = Pm(1, 0), p11 = Pm(1, 1);
+            xs(0) += T * xs(1);
+            const double r00 = p00 + T * p10, r01 = p01 + T * p11;  // row 0 += T row 1
+            Pm(0, 0) = r00 + T * r01 + Q(0, 0);                      // column 0 += T column 1
+            Pm(1, 0) = p10 + T * p11 + Q(1, 0);
+            Pm(0, 1) = r01 + Q(0, 1);
+            Pm(1, 1) = p11 + Q(1, 1);
+            rewrap();
+            return;
+        }
         for (int k = 0; k < nf_; ++k) xs(fi_[k]) += fv_[k] * xs(fj_[k]);
         for (int k = 0; k < nf_; ++k) Pm.row(fi_[k]) += fv_[k] * Pm.row(fj_[k]);
         for (int k = 0; k < nf_; ++k) Pm.col(fi_[k]) += fv_[k] * Pm.col(fj_[k]);
