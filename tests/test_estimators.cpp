@@ -38,6 +38,18 @@ TEST_CASE("fast_atan2 agrees with std::atan2 to 2 ulp over all octants", "[estim
         worst = std::max(worst, std::fabs(got - ref) / std::max(std::fabs(ref) * 2.220446049250313e-16, 4.9e-324));
     }
     CHECK(worst <= 2.0);
+    // the range reduction's seams: |y/x| near tan(pi/8) and tan(3 pi/8), where the polynomial
+    // meets its argument's edge (the old Taylor series reached 2.55 ulp there), and near 1
+    double seams = 0;
+    std::uniform_real_distribution<double> near(-1e-6, 1e-6);
+    for (const double r : {std::tan(kPi / 8), std::tan(3 * kPi / 8), 1.0})
+        for (int i = 0; i < 100000; ++i) {
+            const double x = std::pow(10.0, u(rng) * 3) * (i % 2 ? 1 : -1), y = x * r * (1 + near(rng)) * (i % 4 < 2 ? 1 : -1);
+            const double ref = std::atan2(y, x), got = est::fast_atan2(y, x);
+            seams = std::max(seams, std::fabs(got - ref) / (std::fabs(ref) * 2.220446049250313e-16));
+        }
+    INFO("worst near the seams: " << seams << " ulp");
+    CHECK(seams <= 2.0);
     // edges: axes, diagonals, signed zeros
     CHECK(est::fast_atan2(0.0, 1.0) == 0.0);
     CHECK(est::fast_atan2(1.0, 0.0) == Approx(kPi / 2).epsilon(1e-16));
