@@ -596,6 +596,33 @@ TEST_CASE("http server: real socket on 127.0.0.1", "[service][socket]") {
         CHECK(r2.find("bad_id") != std::string::npos);
         ::close(fd);
     }
+    SECTION("percent-escaped unreserved characters in the path are those characters") {
+        auto get = [&](const std::string& target) {
+            const int fd = connect_to(port);
+            send_all(fd, "GET " + target + " HTTP/1.1\r\nHost: 127.0.0.1\r\nConnection: close\r\n\r\n");
+            auto r = read_response(fd, true);
+            ::close(fd);
+            return r;
+        };
+        CHECK(get("/api/v1/%68ealth").rfind("HTTP/1.1 200", 0) == 0);
+        CHECK(get("/api/v1/%48ealth").rfind("HTTP/1.1 404", 0) == 0);  // 'H': paths are case-sensitive
+        CHECK(get("/%69ndex%2Ehtml").rfind("HTTP/1.1 200", 0) == 0);
+        // an escaped '-' in an id is the id's own '-' (unknown run: 404, not a bad id)
+        CHECK(get("/api/v1/runs/20000101T000000Z%2Ddeadbeef").rfind("HTTP/1.1 404", 0) == 0);
+        // escaped dots are dots: refused as traversal, nothing read
+        const auto up = get("/api/v1/runs/%2E%2E/%2e%2e/x");
+        CHECK(up.rfind("HTTP/1.1 400", 0) == 0);
+        CHECK(up.find("bad_path") != std::string::npos);
+        CHECK(get("/%2e%2e/%2e%2e/etc/passwd").find("root:") == std::string::npos);
+        // an escaped '/' is not a separator: an id holding '%' is refused naming the id
+        const auto slash = get("/api/v1/runs/abc%2Freport.json");
+        CHECK(slash.rfind("HTTP/1.1 400", 0) == 0);
+        CHECK(slash.find("bad_id") != std::string::npos);
+        // the query is untouched here and decoded per parameter (a stray '%' stays a '%')
+        CHECK(get("/api/v1/runs?l%69mit=2").rfind("HTTP/1.1 200", 0) == 0);
+        CHECK(get("/api/v1/runs/%zz").rfind("HTTP/1.1 400", 0) == 0);
+        CHECK(get("/api/v1/runs/abc%").rfind("HTTP/1.1 400", 0) == 0);
+    }
     SECTION("a body over the limit is refused before it is read") {
         const int fd = connect_to(port);
         send_all(fd, std::string("POST /api/v1/runs HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer ") + kToken +

@@ -11,6 +11,7 @@
 #include <boost/beast/http.hpp>
 #include <spdlog/spdlog.h>
 
+#include <cctype>
 #include <atomic>
 #include <chrono>
 #include <limits>
@@ -29,6 +30,38 @@ namespace net = boost::asio;
 using tcp = net::ip::tcp;
 
 namespace {
+
+// RFC 3986 6.2.2.2: a percent-escaped unreserved character (letters, digits, '-', '.', '_',
+// '~') in the path is that character. Decoded once here, before the service reads the path
+// (its routing, upload and traversal checks all see the same string), so /api/v1/%68ealth is
+// /api/v1/health and %2E%2E is refused as '..'. Other escapes stay escaped: %2F is not a
+// segment separator, and the ids' check then refuses the '%'. The query is decoded later,
+// parameter by parameter.
+std::string normalise_path_escapes(const std::string& target) {
+    const auto q = target.find('?');
+    const std::size_t end = q == std::string::npos ? target.size() : q;
+    auto hex = [](char c) -> int {
+        if (c >= '0' && c <= '9') return c - '0';
+        if (c >= 'a' && c <= 'f') return c - 'a' + 10;
+        if (c >= 'A' && c <= 'F') return c - 'A' + 10;
+        return -1;
+    };
+    std::string out;
+    out.reserve(target.size());
+    for (std::size_t i = 0; i < end; ++i) {
+        if (target[i] == '%' && i + 2 < end && hex(target[i + 1]) >= 0 && hex(target[i + 2]) >= 0) {
+            const char c = static_cast<char>(hex(target[i + 1]) * 16 + hex(target[i + 2]));
+            if (std::isalnum(static_cast<unsigned char>(c)) || c == '-' || c == '.' || c == '_' || c == '~') {
+                out += c;
+                i += 2;
+                continue;
+            }
+        }
+        out += target[i];
+    }
+    out.append(target, end, std::string::npos);
+    return out;
+}
 
 tcp::endpoint parse_bind(const std::string& bind) {
     const auto colon = bind.rfind(':');
@@ -156,7 +189,7 @@ private:
         const auto& h = head_->get();
         req_ = HttpRequest{};
         req_.method = std::string(h.method_string());
-        req_.target = std::string(h.target());
+        req_.target = normalise_path_escapes(std::string(h.target()));
         for (const auto& f : h) {
             std::string k(f.name_string());
             for (auto& c : k) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
