@@ -8,6 +8,8 @@
 
 #include "common.hpp"
 
+#include "signal_gen/fastmath.hpp"
+
 #include <Eigen/Dense>
 
 #include <cmath>
@@ -37,6 +39,82 @@ bool dynamic_covariance_ok(const Eigen::MatrixXd& P, double* min_eig);
 
 // Fixed sizes up to 7 states (fast per sample); one dynamic instantiation with fixed
 // capacity (no allocation) for 8..9 states keeps compile time and memory in check.
+}  // namespace ekf_detail
+
+// The channel model, defined here so that each filter size inlines it into its update.
+inline void ChannelModel::eval(const double* x, double h[2], double H[2][kMaxStates], double v[2]) const {
+    for (int i = 0; i < L_.n; ++i) H[0][i] = H[1][i] = 0.0;
+    const double theta = x[0];
+    const double g = L_.gain >= 0 ? x[L_.gain] : s_.gain;
+    const double os = L_.off_s >= 0 ? x[L_.off_s] : s_.offset_sin_v;
+    const double oc = L_.off_c >= 0 ? x[L_.off_c] : s_.offset_cos_v;
+    double s1, c1;
+    sincos_small(theta, s1, c1);  // theta is the wrapped state, |theta| <= pi + one step
+    if (s_.kind == Kind::Diffraction) {
+        const double kappa = L_.kappa >= 0 ? x[L_.kappa] : s_.kappa;
+        const double inv2k = 0.5 / kappa, invk2 = 1.0 / (kappa * kappa);
+        double vs = s_.aperture_w_rad / 2, vc = vs, ds = 0, dc = 0, ks = 0, kc = 0;
+        double cm = c1, sm = s1;
+        for (int m = 1; m <= s_.harmonics; ++m) {
+            const double wgt = 1.0 - m * inv2k;
+            if (wgt > 0) {
+                const double B = (2.0 / m) * wgt * sinmw2_[m];
+                const double dB = sinmw2_[m] * invk2;
+                const double fs = p_s_[m] * cm + q_s_[m] * sm, fc = p_c_[m] * cm + q_c_[m] * sm;
+                vs += B * fs;
+                vc += B * fc;
+                ds += B * m * (q_s_[m] * cm - p_s_[m] * sm);
+                dc += B * m * (q_c_[m] * cm - p_c_[m] * sm);
+                if (L_.kappa >= 0) {
+                    ks += dB * fs;
+                    kc += dB * fc;
+                }
+            }
+            const double cn = cm * c1 - sm * s1;
+            sm = sm * c1 + cm * s1;
+            cm = cn;
+        }
+        const double V = s_.vmax_v;
+        const double gs = s_.gain_sin, gc = s_.gain_cos;
+        h[0] = gs * (g * V * vs - s_.reference_v) + os;
+        h[1] = gc * (g * V * vc - s_.reference_v) + oc;
+        v[0] = gs * g * V * vs;
+        v[1] = gc * g * V * vc;
+        H[0][0] = gs * g * V * ds;
+        H[1][0] = gc * g * V * dc;
+        if (L_.gain >= 0) { H[0][L_.gain] = gs * V * vs; H[1][L_.gain] = gc * V * vc; }
+        if (L_.kappa >= 0) { H[0][L_.kappa] = gs * g * V * ks; H[1][L_.kappa] = gc * g * V * kc; }
+    } else {
+        const double eps = L_.eps >= 0 ? x[L_.eps] : 0.0;
+        double sd = sin_delta_, cd = cos_delta_;
+        if (L_.delta >= 0) sincos_small(x[L_.delta], sd, cd);
+        const double sin_td = s1 * cd + c1 * sd, cos_td = c1 * cd - s1 * sd;  // theta + delta
+        const double A = s_.amplitude_v;
+        const double As = A * (s_.gain_sin + eps / 2), Ac = A * (s_.gain_cos - eps / 2);
+        h[0] = g * As * s1 + os;
+        h[1] = g * Ac * cos_td + oc;
+        v[0] = g * As * s1;
+        v[1] = g * Ac * cos_td;
+        H[0][0] = g * As * c1;
+        H[1][0] = -g * Ac * sin_td;
+        if (L_.gain >= 0) { H[0][L_.gain] = As * s1; H[1][L_.gain] = Ac * cos_td; }
+        if (L_.eps >= 0) { H[0][L_.eps] = g * A * s1 / 2; H[1][L_.eps] = -g * A * cos_td / 2; }
+        if (L_.delta >= 0) H[1][L_.delta] = -g * Ac * sin_td;
+    }
+    if (L_.off_s >= 0) H[0][L_.off_s] = 1.0;
+    if (L_.off_c >= 0) H[1][L_.off_c] = 1.0;
+}
+
+inline void ChannelModel::noise(const double v[2], double extra_var_v2, double R[3]) const {
+    const double sg2 = s_.sigma_gain * s_.sigma_gain;
+    const double w = white_var_ + extra_var_v2;
+    R[0] = w + sg2 * v[0] * v[0];
+    R[1] = sg2 * v[0] * v[1];
+    R[2] = w + sg2 * v[1] * v[1];
+}
+
+namespace ekf_detail {
+
 template <int N, int MaxN = N>
 struct EkfN final : Ekf::Impl {
     using Vec = Eigen::Matrix<double, N, 1, 0, MaxN, 1>;
