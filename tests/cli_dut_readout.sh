@@ -128,7 +128,10 @@ assert r["verdict"] == "PASS", r["verdict"]
 dut = [e for e in r["estimators"] if e["label"] == "dut"][0]
 m, ro = dut["metrics"], dut["metrics"]["readout"]
 sg = ro["sigrok"]
-assert sg["input_file"].endswith("board.sr") and sg["samples"] == 1040000 and sg["exit_status"] == 0, sg
+# The file holds 0.52 s; the run needs its 0.5 s and the 60 us the board is late. A replay that
+# has not delivered the rest when the run ends is stopped then (under load sigrok-cli took 1.3 s
+# to start and the run stopped it 3712 samples short): at least the run's span, at most the file.
+assert sg["input_file"].endswith("board.sr") and 1000120 <= sg["samples"] <= 1040000 and sg["exit_status"] == 0, sg
 assert ro["abz"]["illegal_transitions"] == 10 and ro["abz"]["missed_index"] == 2 and ro["abz"]["index_errors"] == 0, ro["abz"]
 assert abs(ro["latency_s"] - 60e-6) < 0.03 * 60e-6, ro["latency_s"]
 step = 2 * math.pi / 64
