@@ -97,6 +97,8 @@ void Ekf::predict() { impl_->predict(); }
 bool Ekf::update(const double z[2], int channels, const double* fold, double extra) {
     return impl_->update(z, channels, fold, extra);
 }
+void Ekf::hold_states_from(int first) { impl_->hold_from = first; }
+void Ekf::reopen(int count, const double* p0_diag) { impl_->reopen(count, p0_diag); }
 void Ekf::predict_measurement(double h[2]) const { impl_->predict_measurement(h); }
 double Ekf::theta_rad() const { return impl_->x(0) + kTwoPi * static_cast<double>(impl_->turns); }
 double Ekf::omega_rad_s() const { return impl_->x(1); }

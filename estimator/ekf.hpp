@@ -82,6 +82,13 @@ public:
     // permutation applied to (z - h), H and R (ekf-rectified). extra_var_v2 adds white
     // measurement variance (closed loop: its quantisation step). false if S is not PD.
     bool update(const double z[2], int channels, const double* fold2x2, double extra_var_v2);
+    // Hold the states from index first on (the calibration states after the kinematic ones):
+    // update() takes them as known constants, leaves their values and updates the other states
+    // as a filter without them would. kMaxStates: none held.
+    void hold_states_from(int first);
+    // The covariance of the first count states back to p0_diag, uncorrelated with the others
+    // (their values kept): what was learnt of them under an assumption that no longer holds.
+    void reopen(int count, const double* p0_diag);
     // Model prediction at the current (a priori) state.
     void predict_measurement(double h[2]) const;
     double theta_rad() const;  // unwrapped

@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 namespace fringe::est {
 
@@ -55,6 +56,11 @@ std::vector<ParamInfo> ekf_params(const Flavor& f) {
         p.push_back({"q_eps_per_s", "1/s", ParamType::Number, 1e-6, 0, 10, {}, "random-walk intensity of the gain-mismatch state"});
         p.push_back({"q_delta_rad2_per_s", "rad^2/s", ParamType::Number, 1e-6, 0, 10, {}, "random-walk intensity of the quadrature-error state"});
     }
+    p.push_back({"calibration_gate_rad", "rad", ParamType::Number, 1e-3, 0, 1, {},
+                 "with two calibration states or more (gain, kappa, offsets, gain mismatch, quadrature error): they learn only once "
+                 "the phase has gone once round the figure, and while it moves at least this far (and 10 per-sample phase stds) in "
+                 "256 samples; at rest or on an arc one point of the figure fits them all, and they wandered into a phase bias of "
+                 "0.02-0.06 rad. Held, they are taken as known. 0 learns from every sample"});
     p.push_back(acquisition_param());
     p.push_back(LockMonitor::threshold_param());
     p.push_back({"p0_theta_rad", "rad", ParamType::Number, 0.05, 1e-9, 10, {}, "initial phase std"});
@@ -161,6 +167,10 @@ public:
         model_.configure(s, L);
         layout_ = L;
         kin_ = kin;
+        n_kin_ = L.alpha >= 0 ? 3 : 2;
+        // One point of the figure (two voltages) determines the phase and one calibration state
+        // (a gain alone: the radius), not more: the gate is for two calibration states or more.
+        cal_gate_rad_ = L.n - n_kin_ >= 2 ? p.number("calibration_gate_rad") : 0.0;
 
         // Nominal state and initial covariance
         x0_.fill(0.0);
@@ -206,6 +216,7 @@ public:
             filter_c_.configure(o, &model_);
         }
         r_model_ = 1.0 / model_.mean_information(x0_.data(), channels_);
+        cal_gate_eff_rad_ = std::max(cal_gate_rad_, 10.0 * std::sqrt(r_model_));
 
         acq_cal_ = acq_cal;
         acq_n_ = static_cast<std::size_t>(p.integer("acquisition_samples"));
@@ -214,6 +225,7 @@ public:
         lock_.reset(acq_cal, p.number("lock_threshold_rad"));
         selfcal_sum_ = 0;
         skipped_ = clipped_ = nonfinite_ = 0;
+        cal_held_ = 0;
         skip_run_ = 0;
         reacquiring_ = false;
         n_gain_ = auto_range_ ? 0 : n_max_;
@@ -228,7 +240,7 @@ public:
         for (std::size_t i = 0; i < n; ++i, ++k_) {
             double z[2] = {in.sin_v[i], in.cos_v[i]};
             const bool finite = std::isfinite(z[0]) && std::isfinite(z[1]);
-            if (finite) lock_.reference_at(i, z[0], z[1]);
+            const double ref_rad = finite ? lock_.reference_at(i, z[0], z[1]) : 0.0;
             if (!acq_.done()) {
                 if (closed_) { z[0] = adc_.apply(z[0]); z[1] = adc_.apply(z[1]); }  // N = 0, DAC at 0
                 if (!finite) { z[0] = z[1] = 0; ++nonfinite_; }
@@ -247,6 +259,38 @@ public:
                 ++nonfinite_;
                 emit(out, i, 0);
                 continue;
+            }
+            if (cal_gate_rad_ > 0) {
+                // The calibration states learn only while the phase moves, and only once it has
+                // covered the whole figure: at rest one point of the figure fits any offset and
+                // gain, an arc of it hardly better, and learning from them drifted the phase by
+                // 0.02-0.06 rad (standstill, 0.02 and 0.2 Hz). Moving: the phase has moved a
+                // gate within the last kCalRest samples. The phase is the loss-of-lock
+                // reference's (the signal's own atan2, which does not move when the calibration
+                // does; the filter's phase did, and opened the gate at rest); the gate at least
+                // 10 of its per-sample stds, so noise does not open it. Held, the calibration
+                // is taken as known: the tracker runs as if told it.
+                if (finite) {
+                    if (std::isnan(cal_anchor_rad_)) cal_anchor_rad_ = cal_lo_rad_ = cal_hi_rad_ = ref_rad;
+                    cal_lo_rad_ = std::min(cal_lo_rad_, ref_rad);
+                    cal_hi_rad_ = std::max(cal_hi_rad_, ref_rad);
+                    if (std::fabs(ref_rad - cal_anchor_rad_) >= cal_gate_eff_rad_) {
+                        cal_anchor_rad_ = ref_rad;
+                        cal_moving_until_ = k_ + kCalRest;
+                    }
+                }
+                const bool learn = k_ < cal_moving_until_ && cal_hi_rad_ - cal_lo_rad_ >= kTwoPi;
+                if (!learn) ++cal_held_;
+                if (learn && !cal_learning_) {
+                    // The phase was tracked with the calibration taken as known: its covariance
+                    // says nothing of the calibration's error, and learning from it was ~100x
+                    // slower (5 Hz). It reopens to its initial value.
+                    filter_.reopen(n_kin_, p0_.data());
+                    if (f_.variant == Variant::Parallel) filter_c_.reopen(n_kin_, p0_.data());
+                }
+                cal_learning_ = learn;
+                filter_.hold_states_from(learn ? kMaxStates : n_kin_);
+                if (f_.variant == Variant::Parallel) filter_c_.hold_states_from(learn ? kMaxStates : n_kin_);
             }
             bool ok = true;
             switch (f_.variant) {
@@ -304,6 +348,7 @@ public:
             put("offset_cos_v", layout_.off_c);
             put("gain_mismatch", layout_.eps);
             put("quadrature_error_rad", layout_.delta);
+            if (cal_gate_rad_ > 0) j["calibration_held_samples"] = cal_held_;
             double min_eig = 0;
             bool ok = filter_.covariance_ok(&min_eig);
             if (f_.variant == Variant::Parallel) {
@@ -348,6 +393,9 @@ private:
         }
         filter_.init(x.data(), p0_.data());
         if (f_.variant == Variant::Parallel) filter_c_.init(x.data(), p0_.data());
+        cal_anchor_rad_ = std::numeric_limits<double>::quiet_NaN();
+        cal_moving_until_ = 0;
+        cal_learning_ = true;
     }
 
     void emit(OutputSpan out, std::size_t i, std::uint8_t valid) {
@@ -411,6 +459,15 @@ private:
     bool reacquiring_ = false;
     bool amplitude_known_ = true;
     double selfcal_sum_ = 0;
+    int n_kin_ = 2;               // kinematic states (theta, omega[, alpha]); calibration states follow
+    double cal_gate_rad_ = 0;     // calibration_gate_rad (0: no calibration states, or no gate)
+    double cal_anchor_rad_ = 0;   // the reference phase where it last moved a gate (NaN: none yet)
+    double cal_lo_rad_ = 0, cal_hi_rad_ = 0;  // the reference phase's range since the filter started
+    double cal_gate_eff_rad_ = 0; // the gate used: calibration_gate_rad, at least 10 per-sample phase stds
+    std::uint64_t cal_held_ = 0;  // samples whose calibration update was held (state "calibration_held_samples")
+    std::uint64_t cal_moving_until_ = 0;  // the phase counts as moving before this sample (k_)
+    bool cal_learning_ = true;  // the calibration states learnt from the last sample
+    static constexpr std::uint64_t kCalRest = 256;  // no gate of phase travel in this many samples: at rest
     long long skipped_ = 0, clipped_ = 0, nonfinite_ = 0, first_max_gain_sample_ = -1;
     static constexpr int kSkipRun = 32;  // updates not taken in a row that make a loss of lock
     int skip_run_ = 0;

@@ -28,7 +28,11 @@ struct Ekf::Impl {
     virtual double P(int i, int j) const = 0;
     virtual int n() const = 0;
     virtual bool covariance_ok(double* min_eig) const = 0;
+    virtual void reopen(int count, const double* p0) = 0;
     long long turns = 0;
+    // States from this index on are held by update(): taken as known constants (their H columns
+    // and gain rows zero; the Joseph form keeps P right for any gain). kMaxStates: none held.
+    int hold_from = kMaxStates;
 };
 
 namespace ekf_detail {
@@ -168,6 +172,13 @@ struct EkfN final : Ekf::Impl {
         xs.setZero();
         Pm.setIdentity();
     }
+    void reopen(int count, const double* p0) override {
+        for (int i = 0; i < count; ++i) {
+            Pm.row(i).setZero();
+            Pm.col(i).setZero();
+            Pm(i, i) = p0[i];
+        }
+    }
     void init(const double* x0, const double* p0) override {
         for (int i = 0; i < n_; ++i) xs(i) = x0[i];
         Pm.setZero();
@@ -211,8 +222,13 @@ struct EkfN final : Ekf::Impl {
         double h[2], Ha[2][kMaxStates], v[2], R[3];
         model->eval(xs.data(), h, Ha, v);
         model->noise(v, extra, R);
-        if constexpr (N == 2 && MaxN == 2)
+        if constexpr (N == 2 && MaxN == 2) {  // no state beyond the kinematic ones to hold
             if (channels == 3 && !fold) return update2(z, h, Ha, R);
+        } else {
+            // Held states are taken as known: no column in H, so the other states' gains are
+            // those of a filter without them (their correlations stay in P and decay).
+            for (int i = hold_from; i < n_; ++i) Ha[0][i] = Ha[1][i] = 0;
+        }
         if (channels == 3) {
             Mat2N H(2, n_);
             for (int i = 0; i < n_; ++i) { H(0, i) = Ha[0][i]; H(1, i) = Ha[1][i]; }
@@ -243,7 +259,8 @@ struct EkfN final : Ekf::Impl {
             // misses the signal's harmonics (ekf-ideal on a diffraction signal) sees 100 sigma
             // every cycle, but never half the radius.
             if (!(innov.dot(Sinv * innov) <= kOutlierNis) && !(innov.squaredNorm() <= 0.25 * (h[0] * h[0] + h[1] * h[1]))) return false;
-            const MatN2 K = (Sinv * HP).transpose();
+            MatN2 K = (Sinv * HP).transpose();
+            if (hold_from < n_) K.bottomRows(n_ - hold_from).setZero();
             xs += K * innov;
             // Joseph form expanded: (I-KH)P(I-KH)^T + KRK^T = P - K HP - (K HP)^T + K S K^T,
             // rank-2 products only (4 N^2 multiply-adds instead of 2 N^3).
@@ -258,7 +275,8 @@ struct EkfN final : Ekf::Impl {
             const Row HP = H * Pm;
             const double S = HP.dot(H) + r;
             if (!(S > 0)) return false;
-            const Vec K = HP.transpose() / S;
+            Vec K = HP.transpose() / S;
+            if (hold_from < n_) K.tail(n_ - hold_from).setZero();
             xs += K * (z[row] - h[row]);
             // Joseph form expanded as in the two-channel update (K S K^T with scalar S)
             const Mat KHP = K * HP;
