@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cstdio>
+#include <cstdlib>
 #include <limits>
 #include <random>
 #include <tuple>
@@ -153,7 +154,7 @@ struct ShortKind {
     std::string oracle;
     json oracle_params;
     std::vector<double> oracle_fn_hz{};  // non-empty: the oracle's fn is the best of these
-    double target = 1.5;
+    double target = 1.5;                 // 0: a kind it is known to miss, printed in the table, not checked
 };
 
 constexpr double kShortS = 0.6, kShortSettleS = 0.1;
@@ -218,6 +219,30 @@ std::vector<ShortKind> short_suite() {
         s.push_back({"short-reversals", e, m, "ekf-auto", {{"learn", false}, {"start_from_profile", true}, {"adaptive_bandwidth", false}},
                      {100, 200, 300, 400, 500, 700, 1000}});
     }
+    // Known misses (target 0), found trying it as a user would (2026-11-28):
+    {  // gap run-out whose kappa crosses 1 (0.98-1.10), where the diffraction model's 2nd harmonic
+       // is cut off: the shape varies along two directions, and ekf-auto learns one (9x, in
+       // steady state too)
+        auto e = fixture_encoder("eccentricity-runout");
+        e.lines_per_rev = 32;
+        e.gap_d1_cm = 0.76;
+        e.gap_d2_cm = 0.68;
+        s.push_back({"short-runout-32-kappa-below-1", e, constant_electrical(2 * 32 / kShortS, 32), "ekf-diffraction",
+                     {{"kinematics", "ca"}, {"track_kappa", true}, {"q_kappa_per_s", 0.01}}, {}, 0.0});
+    }
+    {  // reversals that travel only ~6 electrical cycles in the first 0.1 s (3 Hz, 130 Hz peak,
+       // starting near the peak speed), larger Lissajous errors, no harmonic: learnt by 0.15 s,
+       // at the bound after it (1.02x from 1 s), 2x from 0.1 s
+        auto e = clean_ideal(lines);
+        e.noise.sigma_add_v = 3e-4;
+        e.lissajous = {0.02, 0.015, -0.01, 0.02};
+        MotionProfile m;
+        m.kind = MotionKind::Sine;
+        m.freq_hz = 3.0;
+        m.amplitude_rad = 130.0 / 3.0 / lines;
+        m.phase_rad = 0.3;
+        s.push_back({"short-reversals-slow-start", e, m, "ekf-ideal", ca, {100, 200, 300, 400, 500, 700, 1000}, 0.0});
+    }
     return s;
 }
 
@@ -245,6 +270,7 @@ ShortRow measure_short(const ShortKind& k, std::uint64_t seed) {
 TEST_CASE("ekf-auto told nothing, on 0.6 s captures scored from 0.1 s, tracks within 1.5x of the oracle or the PCRB",
           "[estimator][ekf-auto][accuracy][long][.long]") {
     for (const auto& k : short_suite()) {
+        if (k.target <= 0) continue;  // a known miss: the table prints it
         for (std::uint64_t seed : {21, 22, 23, 24}) {
             const ShortRow r = measure_short(k, seed);
             INFO(k.name << " seed " << seed << ": ekf-auto std " << r.automatic << ", oracle " << r.oracle << " (fn " << r.oracle_fn
@@ -258,8 +284,11 @@ TEST_CASE("ekf-auto told nothing, on 0.6 s captures scored from 0.1 s, tracks wi
 
 // Prints the short table of docs/estimators.md: build/tests/fringe_tests "[ekf-auto-short-table]"
 TEST_CASE("ekf-auto short-capture table", "[.ekf-auto-short-table]") {
+    // FRINGE_SHORT_TABLE_ROWS=text: only the kinds whose name contains it
+    const char* only = std::getenv("FRINGE_SHORT_TABLE_ROWS");
     std::printf("| kind | oracle (fn Hz) | PCRB | ekf-auto | ratio | worst ratio, seeds 21-24 | slipped | chosen fn mean/peak Hz | shape learnt s |\n");
     for (const auto& k : short_suite()) {
+        if (only && k.name.find(only) == std::string::npos) continue;
         const ShortRow r = measure_short(k, 21);
         double worst = 0;
         long long slipped = 0;
