@@ -460,7 +460,7 @@ private:
     bool amplitude_known_ = true;
     double selfcal_sum_ = 0;
     int n_kin_ = 2;               // kinematic states (theta, omega[, alpha]); calibration states follow
-    double cal_gate_rad_ = 0;     // calibration_gate_rad (0: no calibration states, or no gate)
+    double cal_gate_rad_ = 0;     // calibration_gate_rad (0: fewer than two calibration states, or no gate)
     double cal_anchor_rad_ = 0;   // the reference phase where it last moved a gate (NaN: none yet)
     double cal_lo_rad_ = 0, cal_hi_rad_ = 0;  // the reference phase's range since the filter started
     double cal_gate_eff_rad_ = 0; // the gate used: calibration_gate_rad, at least 10 per-sample phase stds

@@ -263,6 +263,14 @@ namespace test_divergence_cpp {
 TEST_CASE("ekf-selfcal learns its calibration only while the encoder moves", "[estimator][divergence][selfcal]") {
     const double fs = 100000;
     auto held = [](const nlohmann::json& st) { return st.value("calibration_held_samples", std::uint64_t{0}); };
+    // told nothing: 5 % gain mismatch, 40 / -30 mV offsets, 0.04 rad quadrature error
+    auto with_lissajous_errors = [] {
+        auto e = clean_ideal(1024);
+        e.vmax_v = 0.8;
+        e.noise.sigma_add_v = 5e-4;
+        e.lissajous = {0.05, 0.04, -0.03, 0.04};
+        return e;
+    };
     SECTION("at rest and before the figure has gone round once, its calibration stays where it started and its phase holds") {
         for (const double elec_hz : {0.0, 0.02, 0.2}) {  // 0.2 Hz: 0.3 of a cycle in 1.5 s
             auto e = clean_ideal();
@@ -284,10 +292,7 @@ TEST_CASE("ekf-selfcal learns its calibration only while the encoder moves", "[e
         }
     }
     SECTION("at speed it learns from every sample, as before") {
-        auto e = clean_ideal(1024);
-        e.vmax_v = 0.8;
-        e.noise.sigma_add_v = 5e-4;
-        e.lissajous = {0.05, 0.04, -0.03, 0.04};
+        const auto e = with_lissajous_errors();
         const Block b = generate(e, constant_electrical(106.7, 1024), fs, 100000, 21);
         auto r = run_estimator("ekf-selfcal", nlohmann::json::object(), std::nullopt, b, fs, e, 0.5);
         auto open = run_estimator("ekf-selfcal", nlohmann::json{{"calibration_gate_rad", 0.0}}, std::nullopt, b, fs, e, 0.5);
@@ -297,10 +302,7 @@ TEST_CASE("ekf-selfcal learns its calibration only while the encoder moves", "[e
         CHECK(r.m.rms_rad == Approx(open.m.rms_rad).epsilon(0.01));
     }
     SECTION("slowly, it learns once the figure has gone round, and as fast as before from then on") {
-        auto e = clean_ideal(1024);
-        e.vmax_v = 0.8;
-        e.noise.sigma_add_v = 5e-4;
-        e.lissajous = {0.05, 0.04, -0.03, 0.04};
+        const auto e = with_lissajous_errors();
         // 2 Hz electrical: 1.3e-4 rad a sample, a gate of 0.01 rad every ~80 samples (moving);
         // learnt from once the first cycle has gone round (0.5 s of the 8). Held, the phase's
         // covariance knew nothing of the calibration's error: reopened when learning starts
